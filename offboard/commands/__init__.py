@@ -1,0 +1,1 @@
+"""Sub-commands of `offboard`; each module has ``register(subparsers)``."""

@@ -1,0 +1,40 @@
+"""Errors a user can cause. Each subclasses a builtin so callers can catch it by kind.
+
+The command line turns any of these into one line naming what is wrong and where.
+"""
+
+from __future__ import annotations
+
+
+from sitl_plant.errors import ParameterFileError, UserError
+
+__all__ = [
+    "CommandRejected",
+    "LinkTimeout",
+    "LogFormatError",
+    "MissionFormatError",
+    "ParameterFileError",
+    "UserError",
+]
+
+
+class MissionFormatError(UserError, ValueError):
+    """A mission file is malformed; the message names the file, line or item, and field."""
+
+
+class LinkTimeout(UserError, TimeoutError):
+    """No MAVLink traffic from the vehicle within the allowed time."""
+
+
+class CommandRejected(UserError, RuntimeError):
+    """The vehicle refused a command; carries the MAV_RESULT value and name."""
+
+    def __init__(self, command: str, result: int, result_name: str) -> None:
+        super().__init__(f"{command} refused by the vehicle: {result_name} ({result})")
+        self.command = command
+        self.result = result
+        self.result_name = result_name
+
+
+class LogFormatError(UserError, ValueError):
+    """A flight log cannot be read at all (not a tlog, empty)."""

@@ -1,0 +1,84 @@
+"""The one question a trajectory answers: where should the vehicle be at time t.
+
+Every trajectory (helix, hold, line, circle, polygon, waypoint legs, a sequence of them) is an
+object with ``reference(t_s) -> Reference`` in the local NED frame, plus its duration and the
+named phases a report groups errors by. The controller samples it at n and n+1; how a mission
+file chose and parameterised it is not the trajectory's business.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+def _vec3(value: object, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have 3 components, got {arr.shape[0]}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference sample in the local NED frame (metres, seconds, radians).
+
+    Attributes
+    ----------
+    pos_ned_m, vel_ned_m_s, acc_ned_m_s2 : ndarray, shape (3,)
+        Position, velocity and acceleration, north-east-down.
+    yaw_rad : float
+        Heading, NED convention (0 = north, +pi/2 = east).
+    yaw_rate_rad_s : float
+        Time derivative of ``yaw_rad``.
+    """
+
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    acc_ned_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw_rad: float = 0.0
+    yaw_rate_rad_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pos_ned_m", _vec3(self.pos_ned_m, "pos_ned_m"))
+        object.__setattr__(self, "vel_ned_m_s", _vec3(self.vel_ned_m_s, "vel_ned_m_s"))
+        object.__setattr__(self, "acc_ned_m_s2", _vec3(self.acc_ned_m_s2, "acc_ned_m_s2"))
+        for name in ("yaw_rad", "yaw_rate_rad_s"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A named time span of a trajectory, for reports (``start_s <= t < end_s``)."""
+
+    name: str
+    start_s: float
+    end_s: float
+    kind: str = "track"  # "track" (moving reference) or "hold" (fixed point: steady-state errors)
+
+
+@runtime_checkable
+class Trajectory(Protocol):
+    """What every trajectory implements."""
+
+    @property
+    def duration_s(self) -> float:
+        """Length of the trajectory in seconds; ``reference(t)`` holds the end point after it."""
+        ...
+
+    def phases(self) -> list[Phase]:
+        """The named phases covering ``[0, duration_s]``, in order."""
+        ...
+
+    def reference(self, t_s: float) -> Reference:
+        """The reference at time ``t_s`` (seconds from the trajectory's start)."""
+        ...

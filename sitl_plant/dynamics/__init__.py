@@ -1,0 +1,1 @@
+"""Pure quadrotor dynamics: no sockets, files, clocks or logging in this package."""
