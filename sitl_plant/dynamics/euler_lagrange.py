@@ -22,6 +22,8 @@ matrices.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _FORM = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
@@ -44,17 +46,34 @@ def euler_rate_matrix(eta: np.ndarray, form: str = "castillo") -> np.ndarray:
     return np.array([[1.0, 0.0, -st], [0.0, ca, ct * sa], [0.0, sign * sa, ct * ca]])
 
 
-def euler_rate_matrix_partials(eta: np.ndarray, form: str = "castillo") -> np.ndarray:
-    """dW/d eta_k for k = phi, theta, psi, stacked as shape (3, 3, 3) [k, row, col]."""
+def _rows(eta, eta_dot, form):
+    """W's rows w_r, their time derivatives w_r_dot, and g[r][k] = (dw_r/d eta_k) . eta_dot.
+
+    With ``J = sum_r I_r w_r w_r^T`` (eq. 5 for a diagonal I) both J and the Coriolis term of
+    eq. 14 reduce to a few scalar products, which is what makes them cheap enough for the
+    physics step and the control loop.
+    """
     index, sign = _angle_and_sign(form)
-    theta = eta[1]
-    a = eta[index]
-    st, ct = np.sin(theta), np.cos(theta)
-    sa, ca = np.sin(a), np.cos(a)
-    partials = np.zeros((3, 3, 3))
-    partials[1] = [[0.0, 0.0, -ct], [0.0, 0.0, -st * sa], [0.0, 0.0, -st * ca]]
-    partials[index] += [[0.0, 0.0, 0.0], [0.0, -sa, ct * ca], [0.0, sign * ca, -ct * sa]]
-    return partials
+    theta = float(eta[1])
+    a = float(eta[index])
+    st, ct = math.sin(theta), math.cos(theta)
+    sa, ca = math.sin(a), math.cos(a)
+    theta_dot, psi_dot = float(eta_dot[1]), float(eta_dot[2])
+    a_dot = float(eta_dot[index])
+    rows = ((1.0, 0.0, -st), (0.0, ca, ct * sa), (0.0, sign * sa, ct * ca))
+    rows_dot = (
+        (0.0, 0.0, -ct * theta_dot),
+        (0.0, -sa * a_dot, -st * sa * theta_dot + ct * ca * a_dot),
+        (0.0, sign * ca * a_dot, -st * ca * theta_dot - ct * sa * a_dot),
+    )
+    # g[r][k]: only k = theta and k = the W angle (phi or psi) are non-zero
+    g = [[0.0, 0.0, 0.0] for _ in range(3)]
+    g[0][1] = -ct * psi_dot
+    g[1][1] = -st * sa * psi_dot
+    g[2][1] = -st * ca * psi_dot
+    g[1][index] += -sa * theta_dot + ct * ca * psi_dot
+    g[2][index] += sign * ca * theta_dot - ct * sa * psi_dot
+    return rows, rows_dot, g, (st, ct, sa, ca, sign)
 
 
 def generalized_inertia(eta: np.ndarray, inertia: np.ndarray, form: str = "castillo") -> np.ndarray:
@@ -63,19 +82,35 @@ def generalized_inertia(eta: np.ndarray, inertia: np.ndarray, form: str = "casti
     return w.T @ inertia @ w
 
 
+def _coriolis(rows, rows_dot, g, eta_dot, moments) -> list[float]:
+    e0, e1, e2 = float(eta_dot[0]), float(eta_dot[1]), float(eta_dot[2])
+    out = [0.0, 0.0, 0.0]
+    for r in range(3):
+        i_r = moments[r]
+        w, wd, gr = rows[r], rows_dot[r], g[r]
+        omega = w[0] * e0 + w[1] * e1 + w[2] * e2
+        wd_dot_eta = wd[0] * e0 + wd[1] * e1 + wd[2] * e2
+        for k in range(3):
+            out[k] += i_r * (wd[k] * omega + w[k] * wd_dot_eta - omega * gr[k])
+    return out
+
+
+def _moments(inertia: np.ndarray) -> tuple[float, float, float]:
+    return float(inertia[0, 0]), float(inertia[1, 1]), float(inertia[2, 2])
+
+
 def coriolis_vector(
     eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: str = "castillo"
 ) -> np.ndarray:
-    """C(eta, eta_dot) eta_dot of eq. 14, computed from dJ/d eta (not assumed zero)."""
-    w = euler_rate_matrix(eta, form)
-    dw = euler_rate_matrix_partials(eta, form)
-    iw = inertia @ w
-    # dJ/d eta_k = dW_k^T I W + W^T I dW_k, shape (3, 3, 3)
-    dj = np.einsum("kji,jl->kil", dw, iw)
-    dj = dj + np.transpose(dj, (0, 2, 1))
-    j_dot = np.einsum("kil,k->il", dj, eta_dot)
-    grad = 0.5 * np.einsum("i,kil,l->k", eta_dot, dj, eta_dot)
-    return j_dot @ eta_dot - grad
+    """C(eta, eta_dot) eta_dot of eq. 14, computed from dJ/d eta (not assumed zero).
+
+    ``C eta_dot = J_dot eta_dot - 1/2 d/d eta (eta_dot^T J eta_dot)`` with
+    ``J_dot eta_dot = sum_r I_r (w_r_dot omega_r + w_r (w_r_dot . eta_dot))`` and
+    ``1/2 d/d eta_k (eta_dot^T J eta_dot) = sum_r I_r omega_r g[r][k]``, omega_r = w_r . eta_dot.
+    Only the diagonal of ``inertia`` is used (principal axes).
+    """
+    rows, rows_dot, g, _ = _rows(eta, eta_dot, form)
+    return np.array(_coriolis(rows, rows_dot, g, eta_dot, _moments(inertia)))
 
 
 def real_torques(
@@ -86,7 +121,17 @@ def real_torques(
     form: str = "castillo",
 ) -> np.ndarray:
     """The generalised torques of eq. 16: ``tau = C(eta, eta_dot) eta_dot + J(eta) tau_tilde``."""
-    return coriolis_vector(eta, eta_dot, inertia, form) + generalized_inertia(eta, inertia, form) @ tau_tilde
+    rows, rows_dot, g, _ = _rows(eta, eta_dot, form)
+    moments = _moments(inertia)
+    c = _coriolis(rows, rows_dot, g, eta_dot, moments)
+    t0, t1, t2 = float(tau_tilde[0]), float(tau_tilde[1]), float(tau_tilde[2])
+    for r in range(3):  # J tau~ = sum_r I_r w_r (w_r . tau~)
+        w = rows[r]
+        scale = moments[r] * (w[0] * t0 + w[1] * t1 + w[2] * t2)
+        c[0] += scale * w[0]
+        c[1] += scale * w[1]
+        c[2] += scale * w[2]
+    return np.array(c)
 
 
 def euler_acceleration(
@@ -96,9 +141,26 @@ def euler_acceleration(
     inertia: np.ndarray,
     form: str = "castillo",
 ) -> np.ndarray:
-    """eta_ddot from eq. 13: ``J^-1 (tau - C eta_dot)``."""
-    j = generalized_inertia(eta, inertia, form)
-    return np.linalg.solve(j, tau - coriolis_vector(eta, eta_dot, inertia, form))
+    """eta_ddot from eq. 13: ``J^-1 (tau - C eta_dot) = W^-1 I^-1 W^-T (tau - C eta_dot)``.
+
+    Raises ``ZeroDivisionError`` where W_eta is singular (theta = +-pi/2; psi = pi/4 for the
+    printed eq. 4).
+    """
+    rows, rows_dot, g, (st, ct, sa, ca, sign) = _rows(eta, eta_dot, form)
+    moments = _moments(inertia)
+    c = _coriolis(rows, rows_dot, g, eta_dot, moments)
+    y1, y2, y3 = float(tau[0]) - c[0], float(tau[1]) - c[1], float(tau[2]) - c[2]
+    det = ct * (ca * ca - sign * sa * sa)  # det W
+    # z = W^-T y (body-axis torque), then I^-1
+    z1 = y1
+    y3p = y3 + st * y1
+    z2 = (ct * ca * y2 - sign * sa * y3p) / det
+    z3 = (ca * y3p - ct * sa * y2) / det
+    b1, b2, b3 = z1 / moments[0], z2 / moments[1], z3 / moments[2]
+    # eta_ddot = W^-1 b
+    v2 = ct * (ca * b2 - sa * b3) / det
+    v3 = (ca * b3 - sign * sa * b2) / det
+    return np.array([b1 + st * v3, v2, v3])
 
 
 def rotational_lagrangian(eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: str = "castillo") -> float:

@@ -1,0 +1,244 @@
+"""The tracking law of Rosales et al., eq. 28-42, and the real torques of eq. 16.
+
+Everything here is in the paper's frame (x north, y east, z **up**; phi, theta, psi) with the
+12-state of eq. 22::
+
+    x = (x, x_dot, y, y_dot, z, z_dot, phi, phi_dot, theta, theta_dot, psi, psi_dot)
+         x1  x2    x3  x4    x5  x6    x7   x8       x9     x10        x11  x12
+
+One sample of the law (NOTES.md, steps 1-6), given the measured state x(n), the references
+(x1d, x3d, x5d, x11d) at n and n+1, and the controller's memory of the previous sample:
+
+1. desired speeds, eq. 32: ``x2d(n+1) = (x1d(n+1) - kx1 (x1d(n) - x1(n)) - x1(n)) / To`` ...
+2. reference speeds, eq. 33: ``x2ref(n+1) = x2d(n+1) - kx2 (x2d(n) - x2(n))`` ...
+3. increments, eq. 34: ``dx2 = x2ref - x2(n)`` ...
+4. the angles that make eq. 27 exactly solvable, eq. 28 and the non-singular form of eq. 29:
+   ``tan x7ez = dx4 / (dx6 + g To)``, ``tan x9ez = -dx2 cos x7ez / (dx6 + g To)``;
+5. angular loops, eq. 31-33 for x7..x12, then eq. 40-42: ``tau~ = (x_ref - x(n)) / To``;
+6. thrust, eq. 39, with the angles just computed (as Appendix A, eq. A.8, uses them).
+
+``law_step`` is a pure function of floats written against a small math namespace (``ops``), so
+the same lines run on Python floats (fast, one vehicle) or on numpy arrays (a batch of vehicles).
+
+Choices where the paper is silent or garbled (each pinned by a test):
+
+- **atan2 branch.** When ``dx6 + g To < 0`` (a strong downward step), eq. 28-29 are taken at
+  their principal value in (-pi/2, pi/2) and u of eq. 39 changes sign, rather than the
+  upside-down solution a plain ``atan2(num, den)`` would give.
+- **Start-up memory.** At n = 0 the previous desired values are initialised from the measured
+  state: x2d(0) = x2(0), ..., x7ez(0) = x7(0), x9ez(0) = x9(0).
+- **Yaw differences** ``x11d - x11`` are wrapped to [-pi, pi), so a yaw reference and a measured
+  yaw that differ by whole turns do not spin the vehicle; the paper's steps (pi and pi/2) are
+  flown in the same direction as unwrapped differences would.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import NamedTuple
+
+import numpy as np
+
+from offboard.controller.params import ControllerParams
+from sitl_plant.dynamics.euler_lagrange import real_torques
+
+#: Math namespace for scalar (Python float) evaluation of ``law_step``.
+MATH_OPS = SimpleNamespace(
+    sin=math.sin, cos=math.cos, atan2=math.atan2, copysign=math.copysign, minimum=min, maximum=max,
+    wrap=lambda a: (a + math.pi) % (2.0 * math.pi) - math.pi,
+)
+#: Math namespace for batched (numpy array) evaluation of ``law_step``.
+NUMPY_OPS = SimpleNamespace(
+    sin=np.sin, cos=np.cos, atan2=np.arctan2, copysign=np.copysign, minimum=np.minimum, maximum=np.maximum,
+    wrap=lambda a: np.mod(a + np.pi, 2.0 * np.pi) - np.pi,
+)
+
+
+class TrackingReference(NamedTuple):
+    """The references the law tracks at one sample, paper frame: (x1d, x3d, x5d, x11d)."""
+
+    x_m: float
+    y_m: float
+    z_up_m: float
+    yaw_rad: float
+
+
+class LawMemory(NamedTuple):
+    """The controller's memory of sample n: desired speeds and angle references (eq. 31-33)."""
+
+    x2d: float
+    x4d: float
+    x6d: float
+    x8d: float
+    x10d: float
+    x12d: float
+    x7ez: float
+    x9ez: float
+
+    @classmethod
+    def from_state(cls, x: tuple[float, ...] | np.ndarray) -> LawMemory:
+        """Start-up memory: every previous desired value equals its measured value."""
+        return cls(x[1], x[3], x[5], x[7], x[9], x[11], x[6], x[8])
+
+
+class LawOutput(NamedTuple):
+    """One sample's actions and the intermediate values worth logging.
+
+    Attributes
+    ----------
+    thrust_n : u of eq. 39 (after the optional limits).
+    tau_tilde : (tau~phi, tau~theta, tau~psi) of eq. 40-42, rad/s^2.
+    roll_ref_rad, pitch_ref_rad : x7ez and x9ez (eq. 28-29), the angle references at n+1.
+    yaw_ref_rad : x11d(n+1).
+    euler_rate_ref_rad_s : (x8ref, x10ref, x12ref) of eq. 33, the angle-rate references at n+1.
+    """
+
+    thrust_n: float
+    tau_tilde: tuple[float, float, float]
+    roll_ref_rad: float
+    pitch_ref_rad: float
+    yaw_ref_rad: float
+    euler_rate_ref_rad_s: tuple[float, float, float]
+
+
+def law_step(
+    params: ControllerParams,
+    memory: LawMemory,
+    x: tuple[float, ...] | np.ndarray,
+    ref_n: TrackingReference,
+    ref_n1: TrackingReference,
+    ops: SimpleNamespace = MATH_OPS,
+) -> tuple[LawOutput, LawMemory]:
+    """One sample of the law, eq. 28-42. Pure: returns the output and the next memory.
+
+    Parameters
+    ----------
+    params : ControllerParams
+    memory : LawMemory
+        Desired values of sample n (``LawMemory.from_state(x)`` at start-up).
+    x : sequence of 12 floats (or 12 arrays of one batch shape)
+        Measured state x(n), paper frame (eq. 22).
+    ref_n, ref_n1 : TrackingReference
+        References at n and n+1.
+    ops : namespace
+        ``MATH_OPS`` for floats, ``NUMPY_OPS`` for arrays.
+    """
+    g = params.gains
+    to = params.sample_time_s
+    x1, x2, x3, x4, x5, x6, x7, x8, x9, x10, x11, x12 = x
+
+    # eq. 32: desired speeds that make the position errors decay with kx1, kx3, kx5, kx11
+    x2d = (ref_n1.x_m - g.kx1 * (ref_n.x_m - x1) - x1) / to
+    x4d = (ref_n1.y_m - g.kx3 * (ref_n.y_m - x3) - x3) / to
+    x6d = (ref_n1.z_up_m - g.kx5 * (ref_n.z_up_m - x5) - x5) / to
+    x12d = (ops.wrap(ref_n1.yaw_rad - x11) - g.kx11 * ops.wrap(ref_n.yaw_rad - x11)) / to
+
+    # eq. 33-34: reference speeds and the increments of eq. 34
+    dx2 = x2d - g.kx2 * (memory.x2d - x2) - x2
+    dx4 = x4d - g.kx4 * (memory.x4d - x4) - x4
+    dx6 = x6d - g.kx6 * (memory.x6d - x6) - x6
+    vertical = dx6 + params.gravity_m_s2 * to  # dx6 + g To
+
+    if params.yaw_aware:  # horizontal increments in the heading frame (forward, right)
+        cpsi, spsi = ops.cos(x11), ops.sin(x11)
+        dx_fwd = cpsi * dx2 + spsi * dx4
+        dx_right = -spsi * dx2 + cpsi * dx4
+    else:
+        dx_fwd, dx_right = dx2, dx4
+
+    # eq. 28 and the non-singular form of eq. 29, principal branch (see module docstring)
+    sign = ops.copysign(1.0, vertical)
+    x7ez = ops.atan2(dx_right * sign, vertical * sign)
+    x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez) * sign, vertical * sign)
+    limits = params.limits
+    if limits.tilt_max_rad is not None:
+        x7ez = ops.minimum(ops.maximum(x7ez, -limits.tilt_max_rad), limits.tilt_max_rad)
+        x9ez = ops.minimum(ops.maximum(x9ez, -limits.tilt_max_rad), limits.tilt_max_rad)
+
+    # eq. 39 with the angles just computed
+    s9, c9 = ops.sin(x9ez), ops.cos(x9ez)
+    thrust = params.mass_kg / to * (-s9 * dx_fwd + c9 * ops.sin(x7ez) * dx_right + c9 * ops.cos(x7ez) * vertical)
+    if limits.thrust_min_n is not None:
+        thrust = ops.maximum(thrust, limits.thrust_min_n)
+    if limits.thrust_max_n is not None:
+        thrust = ops.minimum(thrust, limits.thrust_max_n)
+
+    # eq. 32-33 for the angles, then eq. 40-42
+    x8d = (x7ez - g.kx7 * (memory.x7ez - x7) - x7) / to
+    x10d = (x9ez - g.kx9 * (memory.x9ez - x9) - x9) / to
+    x8ref = x8d - g.kx8 * (memory.x8d - x8)
+    x10ref = x10d - g.kx10 * (memory.x10d - x10)
+    x12ref = x12d - g.kx12 * (memory.x12d - x12)
+    tau_tilde = ((x8ref - x8) / to, (x10ref - x10) / to, (x12ref - x12) / to)
+
+    output = LawOutput(
+        thrust_n=thrust,
+        tau_tilde=tau_tilde,
+        roll_ref_rad=x7ez,
+        pitch_ref_rad=x9ez,
+        yaw_ref_rad=ref_n1.yaw_rad,
+        euler_rate_ref_rad_s=(x8ref, x10ref, x12ref),
+    )
+    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez)
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """What the controller hands on each sample.
+
+    Attributes
+    ----------
+    law : LawOutput
+        u, tau~, the angle and angle-rate references (eq. 28-42).
+    torques_nm : ndarray, shape (3,)
+        The real (generalised) torques of eq. 16, ``C(eta, eta_dot) eta_dot + J(eta) tau~``,
+        with the controller's belief of the inertia, at the measured state.
+    """
+
+    law: LawOutput
+    torques_nm: np.ndarray
+
+    @property
+    def thrust_n(self) -> float:
+        return self.law.thrust_n
+
+    @property
+    def tau_tilde(self) -> tuple[float, float, float]:
+        return self.law.tau_tilde
+
+    def is_finite(self) -> bool:
+        values = (self.law.thrust_n, *self.law.tau_tilde, self.law.roll_ref_rad, self.law.pitch_ref_rad,
+                  *self.law.euler_rate_ref_rad_s, *self.torques_nm)
+        return all(math.isfinite(v) for v in values)
+
+
+class RosalesController:
+    """The paper's controller as a stateful object: ``step()`` once per sample, ``reset()``.
+
+    It keeps only the memory the law needs (the previous sample's desired values); it does no
+    I/O and reads no clock.
+    """
+
+    def __init__(self, params: ControllerParams) -> None:
+        self.params = params
+        self._inertia = np.diag(params.inertia_kg_m2)
+        self.memory: LawMemory | None = None
+
+    def reset(self) -> None:
+        """Forget the previous sample: the next step starts from the measured state."""
+        self.memory = None
+
+    def step(self, x: np.ndarray | tuple[float, ...], ref_n: TrackingReference, ref_n1: TrackingReference) -> ControlOutput:
+        """Compute u, tau~ and the real torques for the measured paper-frame state ``x``."""
+        state = tuple(float(v) for v in x)
+        if len(state) != 12:
+            raise ValueError(f"the state must have 12 components (eq. 22), got {len(state)}")
+        if self.memory is None:
+            self.memory = LawMemory.from_state(state)
+        law, self.memory = law_step(self.params, self.memory, state, ref_n, ref_n1)
+        eta = np.array((state[6], state[8], state[10]))
+        eta_dot = np.array((state[7], state[9], state[11]))
+        torques = real_torques(eta, eta_dot, np.array(law.tau_tilde), self._inertia, self.params.euler_rate_form)
+        return ControlOutput(law=law, torques_nm=torques)

@@ -1,0 +1,159 @@
+"""The controller's parameters: Table I's gains, what it believes of the vehicle, and options.
+
+They live in a TOML file (``offboard/controller/paper.toml`` is the paper's); every field is
+validated on load with a one-line error naming the file and field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+from sitl_plant.tomlfile import Fields, read_toml
+from sitl_plant.vehicle import EULER_RATE_FORMS
+
+PAPER_CONTROLLER_FILE = Path(__file__).parent / "paper.toml"
+
+GAIN_NAMES = tuple(f"kx{i}" for i in range(1, 13))
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """The twelve gains k_x1 ... k_x12 of eq. 31-33 (Table I); each must lie in (0, 1)."""
+
+    kx1: float = 0.78
+    kx2: float = 0.8
+    kx3: float = 0.77
+    kx4: float = 0.8
+    kx5: float = 0.9
+    kx6: float = 0.95
+    kx7: float = 0.7
+    kx8: float = 0.67
+    kx9: float = 0.7
+    kx10: float = 0.67
+    kx11: float = 0.8
+    kx12: float = 0.85
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not 0.0 < value < 1.0:
+                raise ValueError(f"{f.name} must lie in (0, 1) (Appendix A), got {value}")
+
+
+@dataclass(frozen=True)
+class ActionLimits:
+    """Optional bounds on the actions (the paper's future work). ``None`` = unbounded.
+
+    Attributes
+    ----------
+    thrust_min_n, thrust_max_n : float or None
+        Bounds on u.
+    tilt_max_rad : float or None
+        Bound on each of the angle references x7ez (roll) and x9ez (pitch).
+    """
+
+    thrust_min_n: float | None = None
+    thrust_max_n: float | None = None
+    tilt_max_rad: float | None = None
+
+    def __post_init__(self) -> None:
+        lo, hi = self.thrust_min_n, self.thrust_max_n
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"thrust_min_n ({lo}) must be below thrust_max_n ({hi})")
+        if self.tilt_max_rad is not None and not 0.0 < self.tilt_max_rad < math.pi / 2:
+            raise ValueError(f"tilt_max_rad must lie in (0, pi/2), got {self.tilt_max_rad}")
+
+    @property
+    def any(self) -> bool:
+        return any(v is not None for v in (self.thrust_min_n, self.thrust_max_n, self.tilt_max_rad))
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Everything the law needs besides the state and the references.
+
+    Attributes
+    ----------
+    sample_time_s : float
+        To, the sample time (eq. 21), seconds.
+    mass_kg, arm_length_m, inertia_kg_m2, gravity_m_s2 : float
+        The vehicle as the controller believes it (Table II makes these differ from the truth).
+    euler_rate_form : str
+        W_eta used for eq. 16 (see ``sitl_plant.dynamics.euler_lagrange``).
+    drag_to_thrust_m : float
+        Rotor drag coefficient c = k_m/k_f for the rotor forces of eq. 9-11.
+    gains : ControllerGains
+    yaw_aware : bool
+        Write the horizontal part of the law in the heading frame (rotate the horizontal
+        increments by -psi before eq. 28-29 and 39). Off reproduces the paper exactly; on is what
+        a vehicle whose thrust turns with yaw needs.
+    limits : ActionLimits
+        Off by default, so the reproduction is exact.
+    """
+
+    sample_time_s: float = 0.05
+    mass_kg: float = 0.5
+    arm_length_m: float = 0.24
+    inertia_kg_m2: tuple[float, float, float] = (3.8e-3, 3.8e-3, 7.1e-3)
+    gravity_m_s2: float = 9.81
+    euler_rate_form: str = "castillo"
+    drag_to_thrust_m: float = 0.016
+    gains: ControllerGains = field(default_factory=ControllerGains)
+    yaw_aware: bool = False
+    limits: ActionLimits = field(default_factory=ActionLimits)
+
+    def __post_init__(self) -> None:
+        for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be > 0, got {value}")
+        if len(self.inertia_kg_m2) != 3 or min(self.inertia_kg_m2) <= 0:
+            raise ValueError(f"inertia_kg_m2 must be 3 positive numbers, got {self.inertia_kg_m2}")
+        if self.euler_rate_form not in EULER_RATE_FORMS:
+            raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
+
+    def with_changes(self, **changes: object) -> ControllerParams:
+        return replace(self, **changes)
+
+
+def controller_from_table(f: Fields) -> ControllerParams:
+    """Build ``ControllerParams`` from a TOML table shaped like ``paper.toml``."""
+    law = f.sub("law")
+    model = f.sub("model")
+    gains_table = f.sub("gains")
+    limits_table = f.sub("limits", optional=True)
+    gains = ControllerGains(**{name: gains_table.number(name, gt=0.0, lt=1.0) for name in GAIN_NAMES})
+    gains_table.reject_unknown()
+    tilt_deg = limits_table.raw("tilt_max_deg", None)
+    limits = ActionLimits(
+        thrust_min_n=None if not limits_table.has("thrust_min_n") else limits_table.number("thrust_min_n"),
+        thrust_max_n=None if not limits_table.has("thrust_max_n") else limits_table.number("thrust_max_n", gt=0),
+        tilt_max_rad=None if tilt_deg is None else math.radians(limits_table.number("tilt_max_deg", gt=0, lt=90)),
+    )
+    if limits.thrust_min_n is not None and limits.thrust_max_n is not None and limits.thrust_min_n >= limits.thrust_max_n:
+        raise limits_table.error("thrust_min_n", "must be below thrust_max_n")
+    limits_table.reject_unknown()
+    params = ControllerParams(
+        sample_time_s=law.number("sample_time_s", gt=0),
+        yaw_aware=law.boolean("yaw_aware", False),
+        mass_kg=model.number("mass_kg", gt=0),
+        arm_length_m=model.number("arm_length_m", gt=0),
+        inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]
+        gravity_m_s2=model.number("gravity_m_s2", 9.81, gt=0),
+        euler_rate_form=model.string("euler_rate_form", "castillo", choices=EULER_RATE_FORMS),
+        drag_to_thrust_m=model.number("drag_to_thrust_m", 0.016, gt=0),
+        gains=gains,
+        limits=limits,
+    )
+    law.reject_unknown()
+    model.reject_unknown()
+    f.reject_unknown()
+    return params
+
+
+def load_controller(path: str | Path) -> ControllerParams:
+    """Read a controller parameter file (see ``paper.toml``)."""
+    path = Path(path)
+    return controller_from_table(Fields(read_toml(path), path.name))

@@ -1,0 +1,134 @@
+"""Tracking figures of a flight: errors per phase, steady state in holds, peak actions.
+
+Errors are reference minus actual (the paper's e = x_d - x) in NED metres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from offboard.record import FlightRecord
+from offboard.trajectory.base import Phase
+
+AXES = ("north", "east", "down")
+SETTLE_S = 5.0  # the "after the first 5 s" span of the tables
+STEADY_FRACTION = 0.25  # steady-state error: mean over the last quarter of a hold phase
+
+
+@dataclass(frozen=True)
+class AxisStats:
+    rms_m: float
+    max_m: float  # largest absolute error
+    mean_m: float  # signed mean
+
+
+@dataclass(frozen=True)
+class PhaseStats:
+    name: str
+    start_s: float
+    end_s: float
+    samples: int
+    axes: dict[str, AxisStats]  # north, east, down, 3d
+    steady_state_m: dict[str, float] | None  # hold phases: mean error over the last quarter
+
+
+@dataclass(frozen=True)
+class Summary:
+    phases: list[PhaseStats]  # the whole flight, "after 5 s", then each phase
+    peak_thrust_n: float
+    min_thrust_n: float
+    peak_torques_nm: tuple[float, float, float]
+    peak_tilt_deg: float
+    duration_s: float
+    status: str
+    status_detail: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def phase(self, name: str) -> PhaseStats:
+        for p in self.phases:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+
+def _stats(err: np.ndarray) -> dict[str, AxisStats]:
+    out: dict[str, AxisStats] = {}
+    if len(err) == 0:
+        nan = AxisStats(math.nan, math.nan, math.nan)
+        return {axis: nan for axis in (*AXES, "3d")}
+    for i, axis in enumerate(AXES):
+        e = err[:, i]
+        out[axis] = AxisStats(float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.mean(e)))
+    norm = np.linalg.norm(err, axis=1)
+    out["3d"] = AxisStats(float(np.sqrt(np.mean(norm**2))), float(np.max(norm)), float(np.mean(norm)))
+    return out
+
+
+def _phase_stats(record: FlightRecord, name: str, start: float, end: float, hold: bool) -> PhaseStats:
+    t = record["t_s"]
+    mask = (t >= start) & (t < end) if math.isfinite(end) else t >= start
+    err = record.error_ned_m[mask]
+    steady = None
+    if hold and len(err):
+        tail = err[int(len(err) * (1.0 - STEADY_FRACTION)):]
+        steady = {axis: float(np.mean(tail[:, i])) for i, axis in enumerate(AXES)}
+        steady["3d"] = float(np.linalg.norm(np.mean(tail, axis=0)))
+    return PhaseStats(name, start, end, int(mask.sum()), _stats(err), steady)
+
+
+def summarize(record: FlightRecord, phases: list[Phase] | None = None) -> Summary:
+    """The table ``offboard simulate``/``fly``/``replay`` print."""
+    phases = record.phases if phases is None else phases
+    t = record["t_s"]
+    end = float(t[-1]) + 1e-9 if len(t) else 0.0
+    rows = [
+        _phase_stats(record, "whole flight", 0.0, end, False),
+        _phase_stats(record, f"after {SETTLE_S:g} s", SETTLE_S, end, False),
+    ]
+    for phase in phases:
+        rows.append(_phase_stats(record, phase.name, phase.start_s, phase.end_s, phase.kind == "hold"))
+    euler = record["euler_rad"]
+    tilt = np.degrees(np.arccos(np.clip(np.cos(euler[:, 0]) * np.cos(euler[:, 1]), -1, 1))) if len(euler) else np.zeros(1)
+    thrust = record["thrust_n"] if len(record) else np.zeros(1)
+    torques = record["torques_nm"] if len(record) else np.zeros((1, 3))
+    return Summary(
+        phases=rows,
+        peak_thrust_n=float(np.max(thrust)),
+        min_thrust_n=float(np.min(thrust)),
+        peak_torques_nm=tuple(float(v) for v in np.max(np.abs(torques), axis=0)),  # type: ignore[arg-type]
+        peak_tilt_deg=float(np.max(tilt)),
+        duration_s=float(t[-1]) if len(t) else 0.0,
+        status=record.status.value,
+        status_detail=record.status_detail,
+    )
+
+
+def format_table(summary: Summary) -> str:
+    """A plain-text table: per phase, RMS / max / mean error per axis and 3D, in metres."""
+    head = f"{'phase':<16} {'span s':>13}  " + "  ".join(f"{a + ' rms/max/mean':>24}" for a in (*AXES, "3d"))
+    lines = [head, "-" * len(head)]
+    for p in summary.phases:
+        cells = "  ".join(
+            f"{s.rms_m:7.3f} {s.max_m:7.3f} {s.mean_m:+8.3f}" for s in (p.axes[a] for a in (*AXES, "3d"))
+        )
+        lines.append(f"{p.name:<16} {p.start_s:6.1f}-{min(p.end_s, 9999):<6.1f}  {cells}")
+    holds = [p for p in summary.phases if p.steady_state_m is not None]
+    for p in holds:
+        ss = p.steady_state_m or {}
+        lines.append(
+            f"steady state in {p.name}: "
+            + ", ".join(f"{a} {ss[a]:+.4f} m" for a in AXES)
+        )
+    lines.append(
+        f"peak u {summary.peak_thrust_n:.2f} N (min {summary.min_thrust_n:.2f} N), "
+        f"peak |tau| {', '.join(f'{v:.4g}' for v in summary.peak_torques_nm)} N m, "
+        f"peak tilt {summary.peak_tilt_deg:.1f} deg"
+    )
+    lines.append(f"duration {summary.duration_s:.2f} s, status {summary.status}"
+                 + (f" ({summary.status_detail})" if summary.status_detail else ""))
+    return "\n".join(lines)
