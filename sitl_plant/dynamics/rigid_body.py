@@ -1,0 +1,442 @@
+"""A quadrotor as a rigid body: Newton-Euler in NED/FRD, the default plant for flights.
+
+State vector (17 entries, ``STATE_SIZE``), in this order:
+
+======== ======= ===================================================== =========
+slice    name    meaning                                               unit
+======== ======= ===================================================== =========
+0:3      POS     position, north-east-down                             m
+3:6      VEL     velocity, NED                                         m/s
+6:10     QUAT    attitude quaternion (w, x, y, z), body FRD -> NED     -
+10:13    RATES   body angular velocity (p, q, r), FRD                  rad/s
+13:17    ROTORS  rotor speeds, rotors f1 (right), f2 (front), f3       rad/s
+                 (left), f4 (rear)
+======== ======= ===================================================== =========
+
+Equations (see ``docs/model.md``)::
+
+    f_i       = k w_i^2                                   rotor thrust (eq. 10)
+    T         = f1 + f2 + f3 + f4                         collective thrust (eq. 9)
+    tau       = (l (f3 - f1), l (f2 - f4), c (f2 + f4 - f1 - f3))    body torque (eq. 11)
+    m v_dot   = m g e_down - T R e_z + R (-D (R^T (v - v_wind)))    thrust along body -z
+    q_dot     = 1/2 q * (0, omega)
+    I w_dot   = tau - omega x I omega                     Euler's rotation equation
+    w_i_dot   = (clip(w_cmd_i) - w_i) / tau_motor         first-order motor lag
+
+Thrust acts along body -z, so the horizontal force turns with yaw: the difference from the
+paper's eq. 18. No rotor gyroscopic torque, blade flapping or induced drag: the rotor is a
+thrust and a reaction torque.
+
+The mixer (``mix_rotor_forces``, ``rotor_speeds_for``) inverts eq. 9-11 with PX4-like
+saturation (airmode off); ``rotor_forces`` and ``thrust_torque_from_rotor_forces`` are the one
+implementation of eq. 9-11 in the repository, used by the controller side too.
+
+``derivative`` is a pure function of arrays and takes an optional leading batch axis, so many
+vehicles can be stepped at once. ``RigidBodyModel`` adapts it to ``simulation.Model``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sitl_plant.dynamics.rotations import euler_from_quat, quat_from_euler
+from sitl_plant.state import VehicleState
+from sitl_plant.vehicle import VehicleParams
+
+STATE_SIZE = 17
+POS = slice(0, 3)
+VEL = slice(3, 6)
+QUAT = slice(6, 10)
+RATES = slice(10, 13)
+ROTORS = slice(13, 17)
+
+__all__ = [
+    "STATE_SIZE",
+    "POS",
+    "VEL",
+    "QUAT",
+    "RATES",
+    "ROTORS",
+    "derivative",
+    "normalize",
+    "rotor_forces",
+    "thrust_torque_from_rotor_forces",
+    "mix_rotor_forces",
+    "rotor_speeds_for",
+    "hover_rotor_speed",
+    "euler_rates_from_body_rates",
+    "body_torque_from_generalized",
+    "RigidBodyModel",
+]
+
+
+def _as_list(values: np.ndarray | list[float]) -> list[float]:
+    """Python floats of a short vector (arithmetic on them is faster than on numpy scalars)."""
+    return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+
+
+# --- eq. 9-11: rotor forces <-> collective thrust and torques ---------------------------------
+
+
+def rotor_forces(thrust_n: float, torque_nm: np.ndarray, arm_length_m: float, drag_to_thrust_m: float) -> np.ndarray:
+    """Rotor forces f1..f4 that give ``u`` and ``tau`` exactly (eq. 9-11 inverted, no limits).
+
+    ``u = f1 + f2 + f3 + f4`` (eq. 9), ``tau_phi = (f3 - f1) l``, ``tau_theta = (f2 - f4) l``,
+    ``tau_psi = c (f2 + f4 - f1 - f3)`` (eq. 11), rotors f1 right, f2 front, f3 left, f4 rear.
+
+    Parameters
+    ----------
+    thrust_n : float
+        Collective thrust u, N.
+    torque_nm : array_like, shape (3,)
+        (tau_phi, tau_theta, tau_psi), N m, body FRD axes.
+    arm_length_m : float
+        l, rotor to centre of gravity.
+    drag_to_thrust_m : float
+        c, rotor reaction torque per newton of thrust.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        f1..f4, N. May be negative or exceed what the rotors can give.
+    """
+    quarter = 0.25 * thrust_n
+    roll = 0.5 * torque_nm[0] / arm_length_m
+    pitch = 0.5 * torque_nm[1] / arm_length_m
+    yaw = 0.25 * torque_nm[2] / drag_to_thrust_m
+    return np.array([quarter - roll - yaw, quarter + pitch + yaw, quarter + roll - yaw, quarter - pitch + yaw])
+
+
+def thrust_torque_from_rotor_forces(
+    forces_n: np.ndarray, arm_length_m: float, drag_to_thrust_m: float
+) -> tuple[float, np.ndarray]:
+    """Collective thrust and body torques of rotor forces f1..f4 (eq. 9-11).
+
+    Returns
+    -------
+    thrust_n : float
+        u = sum f_i (eq. 9).
+    torque_nm : ndarray, shape (3,)
+        ((f3 - f1) l, (f2 - f4) l, c (f2 + f4 - f1 - f3)) (eq. 11), body FRD.
+    """
+    f1, f2, f3, f4 = (float(f) for f in forces_n)
+    return f1 + f2 + f3 + f4, np.array(
+        [(f3 - f1) * arm_length_m, (f2 - f4) * arm_length_m, drag_to_thrust_m * (f2 + f4 - f1 - f3)]
+    )
+
+
+def mix_rotor_forces(thrust_n: float, torque_nm: np.ndarray, params: VehicleParams) -> np.ndarray:
+    """Rotor forces for ``u`` and ``tau`` within the rotors' limits (PX4-like, airmode off).
+
+    Write the forces as ``f1, f3 = b - y -+ R`` and ``f2, f4 = b + y +- P`` with ``b = u/4``,
+    ``R = tau_phi / 2l``, ``P = tau_theta / 2l``, ``y = tau_psi / 4c`` (eq. 9-11 inverted) and
+    ``f_min, f_max = k w_min**2, k w_max**2``. When every force is in range the result is exact
+    (``rotor_forces``). Otherwise, in order of priority:
+
+    1. **Roll and pitch** are scaled by one factor ``s <= 1`` (the tilt torque keeps its
+       direction), the largest for which some thrust at or below the request and some yaw
+       between zero and the request fit;
+    2. **collective thrust** is then the largest up to the request: it is lowered when a
+       rotor would pass ``f_max``, and never raised to make room at the bottom (airmode off,
+       as PX4's ``mix_airmode_disabled``); a request below ``4 f_min`` gives ``4 f_min``;
+    3. **yaw** gets what room is left: the value nearest the request (never of the other
+       sign). It adds to one pair and takes from the other, so it leaves u unchanged.
+
+    Each step is a closed-form bound, so the forces vary continuously with the request.
+    (PX4 desaturates roll/pitch before mixing yaw at all, and may lower thrust by up to
+    15 % for yaw; this mixer is instead exact whenever the rotors can be exact.)
+
+    Parameters
+    ----------
+    thrust_n : float
+        Requested collective thrust u, N.
+    torque_nm : array_like, shape (3,)
+        Requested body torque (roll, pitch, yaw), FRD, N m.
+    params : VehicleParams
+        Arm length, drag-to-thrust ratio, thrust coefficient and speed limits.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        f1..f4 in ``[f_min, f_max]``, N.
+    """
+    return np.array(_mix(float(thrust_n), *_as_list(torque_nm), params))
+
+
+def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: VehicleParams) -> list[float]:
+    """``mix_rotor_forces`` on Python floats."""
+    k = params.thrust_coeff_n_s2
+    f_min = k * params.rotor_speed_min_rad_s**2
+    f_max = k * params.rotor_speed_max_rad_s**2
+    span = f_max - f_min
+    base_req = min(max(0.25 * thrust_n, f_min), f_max)
+    roll = 0.5 * tau_x / params.arm_length_m  # f3 - f1 = 2 roll
+    pitch = 0.5 * tau_y / params.arm_length_m  # f2 - f4 = 2 pitch
+    yaw_req = 0.25 * tau_z / params.drag_to_thrust_m  # (f2 + f4) - (f1 + f3) = 4 yaw
+    yaw_lo, yaw_hi = min(0.0, yaw_req), max(0.0, yaw_req)
+    room = base_req - f_min
+    # 1. the largest s in [0, 1] with a feasible (b <= base_req, y in [yaw_lo, yaw_hi]);
+    #    each bound is s * coef <= rhs (pairs' spans, centres b -+ y within range).
+    ar, ap = abs(roll), abs(pitch)
+    total = ar + ap
+    s = 1.0
+    for coef, rhs in (
+        (2.0 * max(ar, ap), span),
+        (total, span),
+        (0.5 * total + ar, room + 0.5 * span),
+        (0.5 * total + ap, room + 0.5 * span),
+        (total, 2.0 * room),
+        (ap, room + yaw_hi),
+        (ar, room - yaw_lo),
+    ):
+        if coef * s > rhs:
+            s = rhs / coef
+    roll, pitch, ar, ap = s * roll, s * pitch, s * ar, s * ap
+    half = 0.5 * (span - ar - ap)
+    y_lo = max(-half, ap - room, yaw_lo)
+    y_hi = min(half, room - ar, yaw_hi)
+    # 2. the largest b <= base_req: b <= f_max - ar + y and b <= f_max - ap - y
+    top_a, top_b = f_max - ar, f_max - ap
+    y_best = min(max(0.5 * (top_b - top_a), y_lo), y_hi)
+    base = min(base_req, top_a + y_best, top_b - y_best)
+    # 3. the yaw nearest the request that keeps both pairs in range at this b
+    y_min = max(y_lo, base - top_a, f_min + ap - base)
+    y_max = min(y_hi, top_b - base, base - f_min - ar)
+    y = min(max(yaw_req, y_min), y_max)
+    forces = (base - y - roll, base + y + pitch, base - y + roll, base + y - pitch)
+    return [min(max(f, f_min), f_max) for f in forces]  # clip: rounding only
+
+
+def rotor_speeds_for(thrust_n: float, torque_frd_nm: np.ndarray, params: VehicleParams) -> np.ndarray:
+    """Rotor speed commands (rad/s, f1..f4) for a thrust and body torque, through the mixer.
+
+    ``w_i = sqrt(f_i / k)`` of the forces of ``mix_rotor_forces``, so within the speed limits.
+    """
+    k = params.thrust_coeff_n_s2
+    return np.array([math.sqrt(f / k) for f in _mix(float(thrust_n), *_as_list(torque_frd_nm), params)])
+
+
+def hover_rotor_speed(params: VehicleParams) -> float:
+    """``sqrt(m g / (4 k))``: each rotor's speed in hover, rad/s."""
+    return math.sqrt(params.mass_kg * params.gravity_m_s2 / (4.0 * params.thrust_coeff_n_s2))
+
+
+# --- the equations of motion ------------------------------------------------------------------
+
+
+def _rates(
+    vn, ve, vd, qw, qx, qy, qz, p, q, r, f1, f2, f3, f4, wn, we, wd, mass, grav, arm, drag, ixx, iyy, izz, dx, dy, dz
+):  # noqa: ANN001, ANN202 - floats or equally shaped arrays
+    """Accelerations, quaternion and body-rate derivatives; plain arithmetic on floats or arrays."""
+    inv_norm = (qw * qw + qx * qx + qy * qy + qz * qz) ** -0.5  # R of the unit quaternion
+    w, x, y, z = qw * inv_norm, qx * inv_norm, qy * inv_norm, qz * inv_norm
+    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
+    r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
+    r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+    # Force in body FRD: thrust along -z (eq. 9), linear drag of the air-relative velocity.
+    un, ue, ud = vn - wn, ve - we, vd - wd
+    fx = -dx * (r00 * un + r10 * ue + r20 * ud)
+    fy = -dy * (r01 * un + r11 * ue + r21 * ud)
+    fz = -dz * (r02 * un + r12 * ue + r22 * ud) - (f1 + f2 + f3 + f4)
+    inv_m = 1.0 / mass
+    an = (r00 * fx + r01 * fy + r02 * fz) * inv_m
+    ae = (r10 * fx + r11 * fy + r12 * fz) * inv_m
+    ad = (r20 * fx + r21 * fy + r22 * fz) * inv_m + grav
+    # q_dot = 1/2 q * (0, omega)
+    qw_dot = -0.5 * (qx * p + qy * q + qz * r)
+    qx_dot = 0.5 * (qw * p + qy * r - qz * q)
+    qy_dot = 0.5 * (qw * q - qx * r + qz * p)
+    qz_dot = 0.5 * (qw * r + qx * q - qy * p)
+    # I omega_dot = tau - omega x I omega, torques of eq. 11
+    p_dot = (arm * (f3 - f1) - (izz - iyy) * q * r) / ixx
+    q_dot = (arm * (f2 - f4) - (ixx - izz) * r * p) / iyy
+    r_dot = (drag * (f2 + f4 - f1 - f3) - (iyy - ixx) * p * q) / izz
+    return an, ae, ad, qw_dot, qx_dot, qy_dot, qz_dot, p_dot, q_dot, r_dot
+
+
+def derivative(
+    x: np.ndarray, rotor_speed_cmd_rad_s: np.ndarray, wind_ned_m_s: np.ndarray, params: VehicleParams
+) -> np.ndarray:
+    """x_dot of the rigid-body quadrotor: a pure function of state, inputs and parameters.
+
+    Parameters
+    ----------
+    x : ndarray, shape (17,) or (N, 17)
+        State (see the module docstring for the order); a leading axis steps N vehicles.
+    rotor_speed_cmd_rad_s : array_like, shape (4,) or (N, 4)
+        Commanded rotor speeds f1..f4, rad/s; clipped to the speed limits.
+    wind_ned_m_s : array_like, shape (3,) or (N, 3)
+        Air velocity, NED, m/s (enters through the linear drag only).
+    params : VehicleParams
+        The true vehicle.
+
+    Returns
+    -------
+    ndarray, same shape as ``x``
+        Time derivative of the state. The quaternion part is that of ``x``'s quaternion as
+        given; forces use its normalised value, so a slightly non-unit ``q`` does no harm.
+        With ``motor_time_constant_s == 0`` the rotors follow the command instantly: thrust
+        comes from the (clipped) command and the rotor-speed derivative is zero.
+    """
+    p = params
+    lo, hi = p.rotor_speed_min_rad_s, p.rotor_speed_max_rad_s
+    tau_motor = p.motor_time_constant_s
+    ixx, iyy, izz = p.inertia_kg_m2
+    dx, dy, dz = p.linear_drag_n_s_m
+    k = p.thrust_coeff_n_s2
+    if x.ndim == 1:
+        s = x.tolist()
+        cmd = [lo if c < lo else hi if c > hi else c for c in _as_list(rotor_speed_cmd_rad_s)]
+        speeds = cmd if tau_motor == 0.0 else s[13:17]
+        acc = _rates(
+            *s[3:13], *[k * w * w for w in speeds], *_as_list(wind_ned_m_s),
+            p.mass_kg, p.gravity_m_s2, p.arm_length_m, p.drag_to_thrust_m, ixx, iyy, izz, dx, dy, dz,
+        )  # fmt: skip
+        if tau_motor == 0.0:
+            return np.array([s[3], s[4], s[5], *acc, 0.0, 0.0, 0.0, 0.0])
+        rate = 1.0 / tau_motor
+        return np.array([s[3], s[4], s[5], *acc, *[(c - w) * rate for c, w in zip(cmd, speeds)]])
+    # batched: columns of an (N, 17) state
+    xs = np.asarray(x, dtype=float)
+    cmd = np.clip(np.broadcast_to(np.asarray(rotor_speed_cmd_rad_s, dtype=float), (xs.shape[0], 4)), lo, hi)
+    speeds = cmd if tau_motor == 0.0 else xs[:, ROTORS]
+    wind = np.broadcast_to(np.asarray(wind_ned_m_s, dtype=float), (xs.shape[0], 3))
+    forces = k * speeds * speeds
+    acc = _rates(
+        *xs[:, 3:13].T, *forces.T, *wind.T,
+        p.mass_kg, p.gravity_m_s2, p.arm_length_m, p.drag_to_thrust_m, ixx, iyy, izz, dx, dy, dz,
+    )  # fmt: skip
+    out = np.empty_like(xs)
+    out[:, POS] = xs[:, VEL]
+    out[:, 3:13] = np.stack(acc, axis=-1)
+    out[:, ROTORS] = 0.0 if tau_motor == 0.0 else (cmd - speeds) / tau_motor
+    return out
+
+
+def normalize(x: np.ndarray) -> np.ndarray:
+    """A copy of ``x`` with a unit quaternion (call after each integration step)."""
+    x = np.array(x, dtype=float)
+    q = x[..., QUAT]
+    x[..., QUAT] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return x
+
+
+# --- Euler angles ------------------------------------------------------------------------------
+
+
+def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
+    """ZYX Euler-angle rates from body rates: ``W_zyx^-1 omega`` (singular at pitch +-90 deg)."""
+    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
+    cp, tp = math.cos(euler_rad[1]), math.tan(euler_rad[1])
+    p, q, r = (float(v) for v in body_rate_frd_rad_s)
+    vertical = q * sr + r * cr
+    return np.array([p + vertical * tp, q * cr - r * sr, vertical / cp])
+
+
+def body_torque_from_generalized(euler_rad: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
+    """Body FRD torque that exerts the generalised torque ``tau`` on the ZYX Euler angles.
+
+    With ``omega = W_zyx eta_dot`` the virtual work is ``tau_body . W_zyx d eta``, so the
+    generalised torque of eq. 13 is ``W_zyx^T tau_body``; this solves ``W_zyx^T tau_body = tau``.
+    """
+    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
+    sp, cp = math.sin(euler_rad[1]), math.cos(euler_rad[1])
+    t1, t2, t3 = (float(v) for v in tau_generalized)
+    # rows of W^T: (1, 0, 0), (0, cr, -sr), (-sp, cp sr, cp cr)
+    vertical = (t3 + sp * t1) / cp  # = sr tau_y + cr tau_z
+    return np.array([t1, cr * t2 + sr * vertical, -sr * t2 + cr * vertical])
+
+
+# --- the adapter for VehicleSim ------------------------------------------------------------------
+
+
+class RigidBodyModel:
+    """The rigid body as a ``simulation.Model``: thrust and body torque in, through the mixer.
+
+    Parameters
+    ----------
+    params : VehicleParams
+        The true vehicle.
+
+    Notes
+    -----
+    ``derivative(x, thrust_n, torque_nm, wind)`` takes the collective thrust and the **body
+    FRD** torque, turns them into rotor speed commands with ``rotor_speeds_for`` (cached while
+    the inputs do not change, as within one RK4 step) and returns the rigid body's ``x_dot``.
+    """
+
+    state_size = STATE_SIZE
+
+    def __init__(self, params: VehicleParams) -> None:
+        self.params = params
+        self._inputs: tuple[float, float, float, float] | None = None
+        self._cmd = np.zeros(4)
+
+    def initial_state(self, pos_ned_m: np.ndarray, yaw_rad: float) -> np.ndarray:
+        """At rest at ``pos_ned_m``, level, heading ``yaw_rad``, rotors stopped."""
+        x = np.zeros(STATE_SIZE)
+        x[POS] = pos_ned_m
+        x[QUAT] = quat_from_euler(0.0, 0.0, yaw_rad)
+        return x
+
+    def rotor_speed_command(self, thrust_n: float, torque_nm: np.ndarray) -> np.ndarray:
+        """The mixer's rotor speed commands (rad/s, f1..f4) for a thrust and body torque."""
+        inputs = (float(thrust_n), float(torque_nm[0]), float(torque_nm[1]), float(torque_nm[2]))
+        if inputs != self._inputs:
+            self._cmd = rotor_speeds_for(inputs[0], inputs[1:], self.params)
+            self._inputs = inputs
+        return self._cmd
+
+    def derivative(self, x: np.ndarray, thrust_n: float, torque_nm: np.ndarray, wind_ned_m_s: np.ndarray) -> np.ndarray:
+        return derivative(x, self.rotor_speed_command(thrust_n, torque_nm), wind_ned_m_s, self.params)
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        """Post-step hook: the state with its quaternion renormalised."""
+        return normalize(x)
+
+    def euler(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ZYX (roll, pitch, yaw) of the quaternion and their rates ``W_zyx^-1 omega``."""
+        eta = euler_from_quat(x[QUAT] / np.linalg.norm(x[QUAT]))
+        return eta, euler_rates_from_body_rates(eta, x[RATES])
+
+    def torque_from_generalized(self, x: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
+        """Body torque exerting ``tau_generalized`` on the ZYX angles (``W_zyx^-T tau``)."""
+        eta = euler_from_quat(x[QUAT] / np.linalg.norm(x[QUAT]))
+        return body_torque_from_generalized(eta, tau_generalized)
+
+    def ground_contact(self, x: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Contact with the ground plane down = 0 (also renormalises the quaternion).
+
+        Above the ground, or on it and moving up, the vehicle is free. Pressed into it (down > 0,
+        or down = 0 and not rising) it rests: down clamped to 0, velocity and body rates zeroed,
+        roll and pitch levelled, yaw kept; the rotors keep their speeds.
+        """
+        x = normalize(x)
+        if x[2] < 0.0 or (x[2] == 0.0 and x[5] < 0.0):
+            return x, False
+        yaw = euler_from_quat(x[QUAT])[2]
+        x[2] = 0.0
+        x[VEL] = 0.0
+        x[QUAT] = quat_from_euler(0.0, 0.0, yaw)
+        x[RATES] = 0.0
+        return x, True
+
+    def vehicle_state(self, x: np.ndarray, time_s: float, xdot: np.ndarray) -> VehicleState:
+        """What the autopilot reports; acceleration is kinematic (``xdot``'s velocity part)."""
+        q = x[QUAT] / np.linalg.norm(x[QUAT])
+        eta, eta_dot = self.euler(x)
+        speeds = self._cmd.copy() if self.params.motor_time_constant_s == 0.0 else x[ROTORS].copy()
+        return VehicleState(
+            time_s=time_s,
+            pos_ned_m=x[POS].copy(),
+            vel_ned_m_s=x[VEL].copy(),
+            acc_ned_m_s2=np.array(xdot[VEL], dtype=float),
+            euler_rad=eta,
+            euler_rate_rad_s=eta_dot,
+            body_rate_frd_rad_s=x[RATES].copy(),
+            quat_wxyz=q,
+            motor_speeds_rad_s=speeds,
+            on_ground=bool(x[2] >= 0.0 and not np.any(x[VEL])),
+        )
