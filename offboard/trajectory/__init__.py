@@ -1,5 +1,32 @@
-"""Trajectories in the local NED frame; see ``base.Trajectory``."""
+"""Trajectories in the local NED frame; see ``base.Trajectory``.
 
+Segments (each one named phase): ``Hold``, ``Line``, ``Helix`` (``circle``), ``Lissajous``
+(``figure_eight``), ``Polygon`` (``square``), ``WaypointLegs`` (``Waypoint``) and
+``VerticalMove`` (take-off, descent, landing). ``Sequence`` plays segments one after another.
+"""
+
+from offboard.trajectory.analytic import Helix, Hold, Line, Lissajous, circle, figure_eight
 from offboard.trajectory.base import Phase, Reference, Trajectory
+from offboard.trajectory.polygon import Polygon, square
+from offboard.trajectory.segment import Segment
+from offboard.trajectory.sequence import Sequence
+from offboard.trajectory.waypoints import VerticalMove, Waypoint, WaypointLegs
 
-__all__ = ["Phase", "Reference", "Trajectory"]
+__all__ = [
+    "Helix",
+    "Hold",
+    "Line",
+    "Lissajous",
+    "Phase",
+    "Polygon",
+    "Reference",
+    "Segment",
+    "Sequence",
+    "Trajectory",
+    "VerticalMove",
+    "Waypoint",
+    "WaypointLegs",
+    "circle",
+    "figure_eight",
+    "square",
+]

@@ -1,0 +1,148 @@
+"""Sample a trajectory on a time grid, and summarise it (lengths, bounds, peak speed, jumps).
+
+Used by ``offboard mission show`` and by the mission checks; pure (no files, no printing).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from offboard.trajectory.base import Trajectory
+from offboard.trajectory.segment import wrap_pi
+from offboard.trajectory.sequence import Sequence
+
+#: Default grid spacing for summaries and checks (s): 10 ms, five times the controller's rate.
+DEFAULT_DT_S = 0.01
+
+
+@dataclass(frozen=True)
+class Samples:
+    """A trajectory sampled at times ``t_s`` (shape (n,)); vectors have shape (n, 3), NED."""
+
+    t_s: np.ndarray
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    acc_ned_m_s2: np.ndarray
+    yaw_rad: np.ndarray
+    yaw_rate_rad_s: np.ndarray
+
+
+def sample(traj: Trajectory, dt_s: float = DEFAULT_DT_S, t_start_s: float = 0.0, t_end_s: float | None = None) -> Samples:
+    """Evaluate ``traj.reference`` on a grid from ``t_start_s`` to ``t_end_s`` (default: its end), both included."""
+    t_end = traj.duration_s if t_end_s is None else t_end_s
+    n = max(2, int(math.ceil((t_end - t_start_s) / dt_s)) + 1)
+    t = np.linspace(t_start_s, t_end, n)
+    pos = np.empty((n, 3))
+    vel = np.empty((n, 3))
+    acc = np.empty((n, 3))
+    yaw = np.empty(n)
+    yaw_rate = np.empty(n)
+    for i, ti in enumerate(t):
+        ref = traj.reference(float(ti))
+        pos[i] = ref.pos_ned_m
+        vel[i] = ref.vel_ned_m_s
+        acc[i] = ref.acc_ned_m_s2
+        yaw[i] = ref.yaw_rad
+        yaw_rate[i] = ref.yaw_rate_rad_s
+    return Samples(t, pos, vel, acc, yaw, yaw_rate)
+
+
+@dataclass(frozen=True)
+class SegmentSummary:
+    """One segment: where it sits in time and how long, fast and hard it is (sampled)."""
+
+    name: str
+    type: str
+    kind: str
+    start_s: float
+    duration_s: float
+    length_m: float
+    max_speed_m_s: float
+    max_accel_m_s2: float
+    max_yaw_rate_rad_s: float
+
+
+@dataclass(frozen=True)
+class Jump:
+    """A discontinuity of the reference where one segment hands over to the next."""
+
+    t_s: float
+    position_m: float
+    yaw_rad: float
+    from_segment: str
+    to_segment: str
+
+
+@dataclass(frozen=True)
+class Summary:
+    """A trajectory at a glance; bounds are NED metres, [min, max] per axis."""
+
+    segments: tuple[SegmentSummary, ...]
+    jumps: tuple[Jump, ...]
+    duration_s: float
+    length_m: float
+    min_ned_m: tuple[float, float, float]
+    max_ned_m: tuple[float, float, float]
+    max_speed_m_s: float
+    max_accel_m_s2: float
+    max_yaw_rate_rad_s: float
+
+
+def _segments(traj: Trajectory) -> list[tuple[float, Trajectory]]:
+    if isinstance(traj, Sequence):
+        out: list[tuple[float, Trajectory]] = []
+        for t0, seg in zip(traj.starts_s, traj.segments):
+            out.extend((t0 + t1, inner) for t1, inner in _segments(seg))
+        return out
+    return [(0.0, traj)]
+
+
+def summarize(traj: Trajectory, dt_s: float = DEFAULT_DT_S) -> Summary:
+    """Per-segment and overall figures of ``traj`` from samples every ``dt_s`` seconds.
+
+    Lengths are the sampled path lengths inside segments (a jump between segments is not
+    path); jumps larger than 1 mm or 1 mrad are listed separately.
+    """
+    rows: list[SegmentSummary] = []
+    jumps: list[Jump] = []
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    prev_end = None
+    prev_name = ""
+    for t0, seg in _segments(traj):
+        s = sample(seg, dt_s)
+        speed = np.linalg.norm(s.vel_ned_m_s, axis=1)
+        accel = np.linalg.norm(s.acc_ned_m_s2, axis=1)
+        length = float(np.linalg.norm(np.diff(s.pos_ned_m, axis=0), axis=1).sum())
+        name = getattr(seg, "name", type(seg).__name__)
+        kind = seg.phases()[0].kind if len(seg.phases()) == 1 else "mixed"
+        rows.append(
+            SegmentSummary(
+                name, type(seg).__name__, kind, t0, seg.duration_s, length,
+                float(speed.max()), float(accel.max()), float(np.abs(s.yaw_rate_rad_s).max()),
+            )
+        )
+        lo = np.minimum(lo, s.pos_ned_m.min(axis=0))
+        hi = np.maximum(hi, s.pos_ned_m.max(axis=0))
+        start = seg.reference(0.0)
+        if prev_end is not None:
+            dp = float(np.linalg.norm(start.pos_ned_m - prev_end.pos_ned_m))
+            dyaw = wrap_pi(start.yaw_rad - prev_end.yaw_rad)
+            if dp > 1e-3 or abs(dyaw) > 1e-3:
+                jumps.append(Jump(t0, dp, dyaw, prev_name, name))
+        prev_end = seg.reference(seg.duration_s)
+        prev_name = name
+    return Summary(
+        segments=tuple(rows),
+        jumps=tuple(jumps),
+        duration_s=float(traj.duration_s),
+        length_m=float(sum(r.length_m for r in rows)),
+        min_ned_m=tuple(float(x) for x in lo),  # type: ignore[arg-type]
+        max_ned_m=tuple(float(x) for x in hi),  # type: ignore[arg-type]
+        max_speed_m_s=max(r.max_speed_m_s for r in rows),
+        max_accel_m_s2=max(r.max_accel_m_s2 for r in rows),
+        max_yaw_rate_rad_s=max(r.max_yaw_rate_rad_s for r in rows),
+    )
