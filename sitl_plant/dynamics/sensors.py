@@ -1,0 +1,298 @@
+"""Sensor models: what the controller measures of the true ``VehicleState``.
+
+Each model is an object with ``measure(truth) -> VehicleState``, called once per control
+sample with the true state, and ``reset()`` to start a new run with the same seed. Kinds:
+
+- ``CleanSensors``: the truth.
+- ``PaperAccelNoise``: the paper's Simulation 2 (Section 4): white Gaussian noise on the
+  measured accelerations, 5 % of their value, with velocity and position obtained by
+  integrating them (so their errors drift as random walks); attitude and rates clean.
+- ``ImuNoise``: ordinary white noise on position, velocity, attitude, rates and acceleration,
+  the size of a GPS/EKF estimate's sample-to-sample jitter.
+
+Two ways in: a command-line spec (``sensors_from_spec("paper:0.05", seed)``) and a TOML
+table (``sensors_from_table``). See ``docs/model.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Protocol
+
+import numpy as np
+
+from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
+from sitl_plant.dynamics.rotations import euler_from_quat, quat_multiply, wrap_pi
+from sitl_plant.errors import UserError
+from sitl_plant.state import VehicleState
+from sitl_plant.tomlfile import Fields
+
+__all__ = [
+    "SensorModel",
+    "SensorSpecError",
+    "CleanSensors",
+    "PaperAccelNoise",
+    "ImuNoise",
+    "IMU_DEFAULTS",
+    "sensors_from_spec",
+    "sensors_from_table",
+    "SENSOR_SPEC_HELP",
+]
+
+SENSOR_SPEC_HELP = "clean | paper[:FRACTION] | imu[:pos=M,vel=M_S,att=RAD,rate=RAD_S,acc=M_S2]"
+
+
+class SensorModel(Protocol):
+    """What the controller sees of the true state."""
+
+    def measure(self, truth: VehicleState) -> VehicleState:
+        """The measured state for this control sample."""
+        ...
+
+    def reset(self) -> None:
+        """Forget past samples and restart the noise from the seed."""
+        ...
+
+
+class SensorSpecError(UserError, ValueError):
+    """A sensor spec string the user wrote is malformed; the message is one line."""
+
+
+class CleanSensors:
+    """Perfect measurements: ``measure`` returns the truth."""
+
+    def measure(self, truth: VehicleState) -> VehicleState:
+        return truth
+
+    def reset(self) -> None:
+        pass
+
+    def __repr__(self) -> str:
+        return "CleanSensors()"
+
+
+class PaperAccelNoise:
+    """The paper's measurement noise: 5 % on the accelerations, integrated into speed and position.
+
+    Between samples n and n+1 (interval ``dt``) the mean acceleration is
+    ``a = (v(n+1) - v(n)) / dt``; the accelerometer reads it with white Gaussian noise
+    ``eta ~ N(0, (fraction |a_i|)^2)`` on each axis. Integrating the noisy acceleration adds
+    ``eta dt`` to the measured velocity and, over the interval, ``dt (e_v(n) + e_v(n+1)) / 2``
+    to the measured position (exact for an error that grows linearly over the interval)::
+
+        v_meas(n+1) = v_meas(n) + (v(n+1) - v(n)) + eta dt
+        p_meas(n+1) = p_meas(n) + (p(n+1) - p(n)) + dt (e_v(n) + e_v(n+1)) / 2,  e_v = v_meas - v
+
+    so with ``fraction = 0`` the measurement is the truth exactly (no integration drift), and
+    otherwise the velocity and position errors are random walks. The reported acceleration
+    is the truth plus ``eta``. Attitude, angular rates and everything else are clean. The
+    first sample (or one whose time is not after the previous) starts a new integration
+    from the truth.
+
+    Parameters
+    ----------
+    fraction : float
+        Noise standard deviation as a fraction of the acceleration's magnitude, per axis
+        (the paper's 5 % = 0.05), >= 0.
+    seed : int or sequence of int
+        Seeds ``numpy.random.default_rng``.
+    """
+
+    def __init__(self, fraction: float = 0.05, seed: int | Sequence[int] = 0) -> None:
+        if not (math.isfinite(fraction) and fraction >= 0):
+            raise ValueError(f"fraction must be >= 0, got {fraction}")
+        self.fraction = float(fraction)
+        self.seed = seed
+        self.reset()
+
+    def reset(self) -> None:
+        self._rng = np.random.default_rng(np.random.SeedSequence(self.seed))
+        self._previous: VehicleState | None = None
+        self._vel_error = np.zeros(3)
+        self._pos_error = np.zeros(3)
+
+    def measure(self, truth: VehicleState) -> VehicleState:
+        previous, self._previous = self._previous, truth
+        if previous is None or not truth.time_s > previous.time_s:
+            self._vel_error = np.zeros(3)
+            self._pos_error = np.zeros(3)
+            noise = self.fraction * np.abs(truth.acc_ned_m_s2) * self._rng.standard_normal(3)
+        else:
+            dt = truth.time_s - previous.time_s
+            mean_acc = (truth.vel_ned_m_s - previous.vel_ned_m_s) / dt
+            noise = self.fraction * np.abs(mean_acc) * self._rng.standard_normal(3)
+            vel_error = self._vel_error + noise * dt
+            self._pos_error = self._pos_error + 0.5 * dt * (self._vel_error + vel_error)
+            self._vel_error = vel_error
+        return replace(
+            truth,
+            pos_ned_m=truth.pos_ned_m + self._pos_error,
+            vel_ned_m_s=truth.vel_ned_m_s + self._vel_error,
+            acc_ned_m_s2=truth.acc_ned_m_s2 + noise,
+        )
+
+    def __repr__(self) -> str:
+        return f"PaperAccelNoise(fraction={self.fraction}, seed={self.seed})"
+
+
+# Standard deviations of ImuNoise's defaults: the sample-to-sample jitter of a PX4 EKF2 local
+# position estimate with a good GNSS fix and a calibrated IMU (not its slowly varying bias).
+IMU_DEFAULTS = {"pos": 0.02, "vel": 0.05, "att": 0.002, "rate": 0.01, "acc": 0.1}
+
+
+class ImuNoise:
+    """Independent white Gaussian noise on each measured quantity.
+
+    - position and velocity (NED): ``N(0, pos_std^2)``, ``N(0, vel_std^2)`` per axis;
+    - attitude: the true quaternion turned by a small body rotation vector of
+      ``N(0, att_std^2)`` per axis; the Euler angles change by the same rotation (keeping the
+      truth's yaw branch, so an unwrapped yaw stays unwrapped);
+    - body rates: ``N(0, rate_std^2)`` per axis, and the Euler rates by ``W_zyx^-1`` of it;
+    - acceleration: ``N(0, acc_std^2)`` per axis.
+
+    Parameters
+    ----------
+    pos_std_m, vel_std_m_s, att_std_rad, rate_std_rad_s, acc_std_m_s2 : float
+        Standard deviations, >= 0 (defaults ``IMU_DEFAULTS``).
+    seed : int or sequence of int
+        Seeds ``numpy.random.default_rng``.
+    """
+
+    def __init__(
+        self,
+        pos_std_m: float = IMU_DEFAULTS["pos"],
+        vel_std_m_s: float = IMU_DEFAULTS["vel"],
+        att_std_rad: float = IMU_DEFAULTS["att"],
+        rate_std_rad_s: float = IMU_DEFAULTS["rate"],
+        acc_std_m_s2: float = IMU_DEFAULTS["acc"],
+        seed: int | Sequence[int] = 0,
+    ) -> None:
+        stds = (pos_std_m, vel_std_m_s, att_std_rad, rate_std_rad_s, acc_std_m_s2)
+        for name, value in zip(("pos_std_m", "vel_std_m_s", "att_std_rad", "rate_std_rad_s", "acc_std_m_s2"), stds):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        self.pos_std_m, self.vel_std_m_s, self.att_std_rad, self.rate_std_rad_s, self.acc_std_m_s2 = (
+            float(v) for v in stds
+        )
+        self.seed = seed
+        self.reset()
+
+    def reset(self) -> None:
+        self._rng = np.random.default_rng(np.random.SeedSequence(self.seed))
+
+    def measure(self, truth: VehicleState) -> VehicleState:
+        noise = self._rng.standard_normal((5, 3))
+        rotation = self.att_std_rad * noise[2]
+        angle = float(np.linalg.norm(rotation))
+        if angle > 0.0:
+            turn = np.concatenate([[math.cos(0.5 * angle)], math.sin(0.5 * angle) / angle * rotation])
+            quat = quat_multiply(truth.quat_wxyz, turn)
+            change = euler_from_quat(quat) - euler_from_quat(truth.quat_wxyz)
+            euler = truth.euler_rad + np.array([wrap_pi(float(c)) for c in change])
+        else:
+            quat, euler = truth.quat_wxyz, truth.euler_rad
+        rate_noise = self.rate_std_rad_s * noise[3]
+        return replace(
+            truth,
+            pos_ned_m=truth.pos_ned_m + self.pos_std_m * noise[0],
+            vel_ned_m_s=truth.vel_ned_m_s + self.vel_std_m_s * noise[1],
+            quat_wxyz=quat,
+            euler_rad=euler,
+            body_rate_frd_rad_s=truth.body_rate_frd_rad_s + rate_noise,
+            euler_rate_rad_s=truth.euler_rate_rad_s + euler_rates_from_body_rates(euler, rate_noise),
+            acc_ned_m_s2=truth.acc_ned_m_s2 + self.acc_std_m_s2 * noise[4],
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"ImuNoise(pos_std_m={self.pos_std_m}, vel_std_m_s={self.vel_std_m_s}, att_std_rad={self.att_std_rad}, "
+            f"rate_std_rad_s={self.rate_std_rad_s}, acc_std_m_s2={self.acc_std_m_s2}, seed={self.seed})"
+        )
+
+
+# --- the command-line spec and the TOML table ----------------------------------------------------
+
+
+def _number(spec: str, name: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise SensorSpecError(f"sensor spec {spec!r}: {name} must be a number, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise SensorSpecError(f"sensor spec {spec!r}: {name} must be a number >= 0, got {text!r}")
+    return value
+
+
+def sensors_from_spec(spec: str, seed: int = 0) -> SensorModel:
+    """A sensor model from a command-line spec (``SENSOR_SPEC_HELP``).
+
+    ``clean``; ``paper`` or ``paper:FRACTION`` (default 0.05); ``imu`` or
+    ``imu:pos=M,vel=M_S,att=RAD,rate=RAD_S,acc=M_S2`` (any subset, the rest ``IMU_DEFAULTS``).
+
+    Raises
+    ------
+    SensorSpecError
+        (a ``ValueError``) naming the bad part, in one line.
+    """
+    text = spec.strip()
+    kind, _, args = text.partition(":")
+    kind, args = kind.strip().lower(), args.strip()
+    if kind == "clean":
+        if args:
+            raise SensorSpecError(f"sensor spec {spec!r}: 'clean' takes no arguments")
+        return CleanSensors()
+    if kind == "paper":
+        return PaperAccelNoise(_number(spec, "fraction", args) if args else 0.05, seed)
+    if kind == "imu":
+        values = dict(IMU_DEFAULTS)
+        given: set[str] = set()
+        for item in args.split(",") if args else []:
+            key, sep, value = (s.strip() for s in item.partition("="))
+            if not sep or key not in IMU_DEFAULTS:
+                raise SensorSpecError(
+                    f"sensor spec {spec!r}: expected key=value with key one of {', '.join(IMU_DEFAULTS)}, got {item.strip()!r}"
+                )
+            if key in given:
+                raise SensorSpecError(f"sensor spec {spec!r}: option {key!r} given twice")
+            given.add(key)
+            values[key] = _number(spec, key, value)
+        return ImuNoise(values["pos"], values["vel"], values["att"], values["rate"], values["acc"], seed)
+    raise SensorSpecError(f"sensor spec {spec!r}: unknown model {kind!r} (expected {SENSOR_SPEC_HELP})")
+
+
+_TABLE_KEYS = {
+    "pos": "pos_std_m",
+    "vel": "vel_std_m_s",
+    "att": "att_std_rad",
+    "rate": "rate_std_rad_s",
+    "acc": "acc_std_m_s2",
+}
+
+
+def sensors_from_table(fields: Fields, seed: int = 0) -> SensorModel:
+    """A sensor model from a TOML table::
+
+        [sensors]
+        model = "paper"                 # clean | paper | imu
+        accel_noise_fraction = 0.05     # paper only (default 0.05)
+        # imu only, each optional (defaults IMU_DEFAULTS):
+        # pos_std_m, vel_std_m_s, att_std_rad, rate_std_rad_s, acc_std_m_s2
+
+    Raises
+    ------
+    ParameterFileError
+        Naming the file and the field (a key of another model is an unknown field).
+    """
+    model = fields.string("model", choices=("clean", "paper", "imu"))
+    sensors: SensorModel
+    if model == "clean":
+        sensors = CleanSensors()
+    elif model == "paper":
+        sensors = PaperAccelNoise(fields.number("accel_noise_fraction", 0.05, ge=0), seed)
+    else:
+        stds = {short: fields.number(key, IMU_DEFAULTS[short], ge=0) for short, key in _TABLE_KEYS.items()}
+        sensors = ImuNoise(stds["pos"], stds["vel"], stds["att"], stds["rate"], stds["acc"], seed)
+    fields.reject_unknown()
+    return sensors
