@@ -1,0 +1,251 @@
+"""The law of eq. 28-42: closed form against the pseudo-inverse, Appendix A recursions, options."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from offboard.controller import (
+    PAPER_CONTROLLER_FILE,
+    ActionLimits,
+    LawMemory,
+    RosalesController,
+    TrackingReference,
+    law_step,
+    load_controller,
+)
+from offboard.controller.law import NUMPY_OPS
+from offboard.errors import ParameterFileError
+
+PARAMS = load_controller(PAPER_CONTROLLER_FILE)
+
+
+def random_case(rng: np.random.Generator):
+    x = rng.uniform(-1, 1, 12)
+    x[[6, 8]] = rng.uniform(-0.5, 0.5, 2)  # moderate roll/pitch
+    memory = LawMemory(*rng.uniform(-1, 1, 8))
+    ref_n = TrackingReference(*rng.uniform(-2, 2, 3), rng.uniform(-math.pi, math.pi))
+    ref_n1 = TrackingReference(*(np.array(ref_n[:3]) + rng.uniform(-0.1, 0.1, 3)), ref_n.yaw_rad + 0.01)
+    return tuple(x), memory, ref_n, ref_n1
+
+
+def increments(params, memory, x, ref_n, ref_n1):
+    """Eq. 31-34 written out independently of law_step: (dx2, dx4, dx6, x8ref-x8, x10ref-x10, x12ref-x12)."""
+    k, to = params.gains, params.sample_time_s
+    x2d = (ref_n1.x_m - k.kx1 * (ref_n.x_m - x[0]) - x[0]) / to
+    x4d = (ref_n1.y_m - k.kx3 * (ref_n.y_m - x[2]) - x[2]) / to
+    x6d = (ref_n1.z_up_m - k.kx5 * (ref_n.z_up_m - x[4]) - x[4]) / to
+    dx2 = x2d - k.kx2 * (memory.x2d - x[1]) - x[1]
+    dx4 = x4d - k.kx4 * (memory.x4d - x[3]) - x[3]
+    dx6 = x6d - k.kx6 * (memory.x6d - x[5]) - x[5]
+    return dx2, dx4, dx6
+
+
+@pytest.mark.parametrize("seed", range(200))
+def test_closed_form_equals_pseudo_inverse_of_eq34(seed):
+    rng = np.random.default_rng(seed)
+    x, memory, ref_n, ref_n1 = random_case(rng)
+    out, _ = law_step(PARAMS, memory, x, ref_n, ref_n1)
+    to, m, g = PARAMS.sample_time_s, PARAMS.mass_kg, PARAMS.gravity_m_s2
+    dx2, dx4, dx6 = increments(PARAMS, memory, x, ref_n, ref_n1)
+    phi, theta = out.roll_ref_rad, out.pitch_ref_rad
+    a = np.zeros((6, 4))  # eq. 34 with the angles of eq. 28-29
+    a[:3, 0] = [-math.sin(theta) / m, math.cos(theta) * math.sin(phi) / m, math.cos(theta) * math.cos(phi) / m]
+    a[3:, 1:] = np.eye(3)
+    rates = np.array(out.euler_rate_ref_rad_s) - np.array([x[7], x[9], x[11]])
+    b = np.concatenate([[dx2, dx4, dx6 + g * to], rates]) / to
+    w = np.linalg.pinv(a) @ b  # eq. 35
+    assert_allclose([out.thrust_n, *out.tau_tilde], w, rtol=1e-9, atol=1e-9)
+    # eq. 28-29 make eq. 27 exactly solvable: no residual
+    assert_allclose(a @ w, b, rtol=1e-9, atol=1e-9)
+
+
+def test_eq29_has_no_singularity_without_sideways_motion():
+    """Eq. 29 as printed divides by dx4; rows 1 and 3 of eq. 27 give the pitch without it."""
+    x = (0.0,) * 12
+    memory = LawMemory.from_state(x)
+    out, _ = law_step(PARAMS, memory, x, TrackingReference(0, 0, 0, 0), TrackingReference(1.0, 0, 0, 0))
+    assert math.isfinite(out.pitch_ref_rad) and out.pitch_ref_rad < 0  # pitch down to go north
+    assert out.roll_ref_rad == 0.0
+
+
+def test_downward_step_keeps_principal_angles_and_reverses_thrust():
+    """dx6 + g To < 0: the principal branch, u < 0, not an upside-down attitude."""
+    x = (0.0,) * 12
+    out, _ = law_step(PARAMS, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, 0), TrackingReference(0.3, 0.2, -2.0, 0))
+    assert abs(out.roll_ref_rad) < math.pi / 2 and abs(out.pitch_ref_rad) < math.pi / 2
+    assert out.thrust_n < 0
+
+
+def discrete_model_step(x, u, tau_tilde, params):
+    """Eq. 23 with the angles at n+1 in the translational rows, as Appendix A (A.3, A.11, A.20) uses."""
+    to, m, g = params.sample_time_s, params.mass_kg, params.gravity_m_s2
+    x = np.array(x, dtype=float)
+    x[[7, 9, 11]] += to * np.asarray(tau_tilde)
+    x[[6, 8, 10]] += to * x[[7, 9, 11]]
+    phi, theta = x[6], x[8]
+    x[1] += -u / m * math.sin(theta) * to
+    x[3] += u / m * math.cos(theta) * math.sin(phi) * to
+    x[5] += (u / m * math.cos(theta) * math.cos(phi) - g) * to
+    x[[0, 2, 4]] += to * x[[1, 3, 5]]
+    return x
+
+
+def test_appendix_a_recursions_on_the_discretised_model():
+    """A.1: e12(n+1) = kx12 e12(n); likewise the roll and pitch rates (kx8, kx10)."""
+    controller = RosalesController(PARAMS)
+    x = np.zeros(12)
+    k = PARAMS.gains
+    previous = None
+    for n in range(40):
+        t = n * PARAMS.sample_time_s
+        ref = lambda tt: TrackingReference(math.cos(tt), math.sin(tt), 1 + 0.5 * tt, 0.3 * tt)  # noqa: E731
+        out = controller.step(x, ref(t), ref(t + PARAMS.sample_time_s))
+        memory = controller.memory
+        x = discrete_model_step(x, out.thrust_n, out.tau_tilde, PARAMS)
+        # errors of the rates at n+1 against the desired values at n+1, which the memory now holds
+        errors = np.array([memory.x8d - x[7], memory.x10d - x[9], memory.x12d - x[11]])
+        if previous is not None:
+            assert_allclose(errors, np.array([k.kx8, k.kx10, k.kx12]) * previous, atol=1e-9)
+        previous = errors
+
+
+def test_position_errors_vanish_on_the_discretised_model():
+    """Appendix A's conclusion: on eq. 23 the tracking error of a helix tends to zero."""
+    controller = RosalesController(PARAMS)
+    x = np.zeros(12)
+    x[0], x[4] = 2.0, 2.0  # start on the helix
+    to = PARAMS.sample_time_s
+
+    def ref(t):
+        return TrackingReference(2 * math.cos(t), 2 * math.sin(t), 2 + 0.8 * t, math.pi / 2)
+
+    for n in range(400):
+        out = controller.step(x, ref(n * to), ref((n + 1) * to))
+        x = discrete_model_step(x, out.thrust_n, out.tau_tilde, PARAMS)
+    final = ref(400 * to)
+    assert_allclose([x[0], x[2], x[4]], final[:3], atol=1e-3)
+
+
+def test_hover_at_the_reference_needs_m_g():
+    x = (0.0, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ref = TrackingReference(0.0, 0.0, 5.0, 0.0)
+    out = RosalesController(PARAMS).step(x, ref, ref)
+    assert out.thrust_n == pytest.approx(PARAMS.mass_kg * PARAMS.gravity_m_s2)
+    assert_allclose(out.tau_tilde, 0.0, atol=1e-12)
+    assert_allclose(out.torques_nm, 0.0, atol=1e-12)
+
+
+def test_startup_memory_is_the_measured_state():
+    controller = RosalesController(PARAMS)
+    x = np.arange(12, dtype=float) / 10
+    controller.step(x, TrackingReference(0, 0, 0, 0), TrackingReference(0, 0, 0, 0))
+    controller.reset()
+    assert controller.memory is None
+    memory = LawMemory.from_state(tuple(x))
+    assert memory.x2d == x[1] and memory.x7ez == x[6] and memory.x9ez == x[8] and memory.x12d == x[11]
+
+
+def test_yaw_aware_law_rotates_the_horizontal_part_into_the_heading_frame():
+    """At psi = 90 deg, going north is a move to the vehicle's left: a roll, not a pitch."""
+    params = PARAMS.with_changes(yaw_aware=True)
+    x = (0.0,) * 10 + (math.pi / 2, 0.0)
+    out, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, math.pi / 2),
+                      TrackingReference(0.5, 0, 0, math.pi / 2))
+    assert out.roll_ref_rad < -0.1  # roll left (towards north when facing east)
+    assert abs(out.pitch_ref_rad) < 1e-12
+    plain, _ = law_step(PARAMS, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, math.pi / 2),
+                        TrackingReference(0.5, 0, 0, math.pi / 2))
+    assert plain.pitch_ref_rad < -0.1 and abs(plain.roll_ref_rad) < 1e-12
+
+
+def test_yaw_aware_equals_the_paper_at_zero_yaw():
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        x, memory, ref_n, ref_n1 = random_case(rng)
+        x = x[:10] + (0.0, x[11])
+        a, _ = law_step(PARAMS, memory, x, ref_n, ref_n1)
+        b, _ = law_step(PARAMS.with_changes(yaw_aware=True), memory, x, ref_n, ref_n1)
+        flat = lambda o: [o.thrust_n, *o.tau_tilde, o.roll_ref_rad, o.pitch_ref_rad, *o.euler_rate_ref_rad_s]  # noqa: E731
+        assert flat(a) == flat(b)
+
+
+def test_limits_bound_thrust_and_tilt():
+    limits = ActionLimits(thrust_min_n=0.0, thrust_max_n=8.0, tilt_max_rad=math.radians(30))
+    params = PARAMS.with_changes(limits=limits)
+    x = (0.0,) * 12
+    up, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, 0), TrackingReference(3, -3, 5, 0))
+    down, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, 0), TrackingReference(0, 0, -5, 0))
+    assert up.thrust_n == 8.0 and down.thrust_n == 0.0
+    assert abs(up.roll_ref_rad) == pytest.approx(math.radians(30))
+    assert 0.1 < abs(up.pitch_ref_rad) <= math.radians(30) + 1e-12
+
+
+def test_yaw_difference_is_wrapped():
+    """A reference 2 pi away from the measured yaw is the same heading: no spin."""
+    x = (0.0,) * 10 + (0.1, 0.0)
+    out, _ = law_step(PARAMS, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, 0.1 + 2 * math.pi),
+                      TrackingReference(0, 0, 0, 0.1 + 2 * math.pi))
+    assert abs(out.tau_tilde[2]) < 1e-9
+
+
+def test_batched_law_matches_scalar_law():
+    rng = np.random.default_rng(3)
+    cases = [random_case(rng) for _ in range(16)]
+    scalar = [law_step(PARAMS, m, x, r0, r1)[0] for x, m, r0, r1 in cases]
+    xs = tuple(np.array([c[0][i] for c in cases]) for i in range(12))
+    memory = LawMemory(*(np.array([c[1][i] for c in cases]) for i in range(8)))
+    ref_n = TrackingReference(*(np.array([c[2][i] for c in cases]) for i in range(4)))
+    ref_n1 = TrackingReference(*(np.array([c[3][i] for c in cases]) for i in range(4)))
+    batched, _ = law_step(PARAMS, memory, xs, ref_n, ref_n1, ops=NUMPY_OPS)
+    assert_allclose(batched.thrust_n, [s.thrust_n for s in scalar], rtol=1e-12)
+    assert_allclose(np.array(batched.tau_tilde).T, [s.tau_tilde for s in scalar], rtol=1e-12, atol=1e-12)
+
+
+def test_nan_state_gives_non_finite_output_that_is_flagged():
+    x = (math.nan,) + (0.0,) * 11
+    out = RosalesController(PARAMS).step(x, TrackingReference(0, 0, 0, 0), TrackingReference(0, 0, 0, 0))
+    assert not out.is_finite()
+
+
+# --- the parameter file ------------------------------------------------------------------
+
+
+def test_paper_file_holds_table_one():
+    g = PARAMS.gains
+    assert (g.kx1, g.kx6, g.kx8, g.kx12) == (0.78, 0.95, 0.67, 0.85)
+    assert PARAMS.sample_time_s == 0.05 and PARAMS.mass_kg == 0.5
+    assert PARAMS.inertia_kg_m2 == (3.8e-3, 3.8e-3, 7.1e-3)
+    assert not PARAMS.yaw_aware and not PARAMS.limits.any
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("kx3 = 0.77", "kx3 = 1.2"), "paper.toml: gains.kx3: must lie in (0, 1), got 1.2"),
+        (("kx3 = 0.77", "kx3 = 0"), "paper.toml: gains.kx3: must lie in (0, 1), got 0"),
+        (("kx3 = 0.77\n", ""), "paper.toml: gains.kx3: missing"),
+        (("kx3 = 0.77", 'kx3 = "fast"'), "paper.toml: gains.kx3: expected a number, got 'fast'"),
+        (("sample_time_s = 0.05", "sample_time_s = -0.05"), "paper.toml: law.sample_time_s: must be > 0, got -0.05"),
+        (("mass_kg = 0.5", "mass_kg = 0"), "paper.toml: model.mass_kg: must be > 0, got 0"),
+        (("inertia_kg_m2 = [3.8e-3, 3.8e-3, 7.1e-3]", "inertia_kg_m2 = [3.8e-3, 3.8e-3]"),
+         "paper.toml: model.inertia_kg_m2: expected 3 numbers, got 2"),
+        (("kx12 = 0.85", "kx12 = 0.85\nkx13 = 0.5"), "paper.toml: gains.kx13: unknown field"),
+        (("[law]", "[law"), "paper.toml: not valid TOML"),
+        (("euler_rate_form = \"castillo\"", "euler_rate_form = \"xyz\""),
+         "paper.toml: model.euler_rate_form: expected one of castillo, printed, zyx, got 'xyz'"),
+    ],
+)
+def test_bad_parameter_files_give_one_line_naming_file_and_field(tmp_path, edit, message):
+    text = PAPER_CONTROLLER_FILE.read_text()
+    old, new = edit
+    assert old in text
+    path = tmp_path / "paper.toml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(ParameterFileError) as info:
+        load_controller(path)
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
