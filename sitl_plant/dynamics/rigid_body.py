@@ -318,6 +318,10 @@ def derivative(
 def normalize(x: np.ndarray) -> np.ndarray:
     """A copy of ``x`` with a unit quaternion (call after each integration step)."""
     x = np.array(x, dtype=float)
+    if x.ndim == 1:
+        qw, qx, qy, qz = x[QUAT].tolist()
+        x[QUAT] *= 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        return x
     q = x[..., QUAT]
     x[..., QUAT] = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return x
