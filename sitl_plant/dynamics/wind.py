@@ -38,6 +38,7 @@ __all__ = [
     "GustWind",
     "DrydenTurbulence",
     "CompositeWind",
+    "DrydenParameters",
     "dryden_parameters",
     "wind_from_spec",
     "wind_from_table",
