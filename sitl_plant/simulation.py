@@ -3,7 +3,7 @@
 No sockets, files or clocks here: the MAVLink autopilot and the in-process ``offboard simulate``
 both drive a ``VehicleSim`` the same way, which is what makes them comparable sample for sample.
 
-- A **model** (``PaperModel``, ``RigidBodyModel``) is a pure ``derivative(x, thrust, torque, wind)``
+- A **model** (``PaperModel`` here, ``sitl_plant.dynamics.rigid_body.RigidBodyModel``) is a pure ``derivative(x, thrust, torque, wind)``
   plus the conversions of its state to a ``VehicleState`` in NED/FRD.
 - An **actuation** is what the autopilot's inner loop asks of the model at each physics step:
   ``HeldActuation`` (thrust and torques held for the sample: the paper's eq. 16 torques computed
@@ -54,6 +54,10 @@ class Model(Protocol):
         """State after contact with the ground plane, and whether it rests on it."""
         ...
 
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        """The state after an integration step, projected back onto its manifold (unit quaternion)."""
+        ...
+
 
 class PaperModel:
     """The paper's model (eq. 13, 18) in its own z-up frame; see ``dynamics.paper_model``."""
@@ -81,6 +85,9 @@ class PaperModel:
 
     def torque_from_generalized(self, x: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
         return tau_generalized
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        return x  # Euler angles need no projection
 
     def ground_contact(self, x: np.ndarray) -> tuple[np.ndarray, bool]:
         if x[4] > 0.0 or (x[4] == 0.0 and x[5] > 0.0):
@@ -202,7 +209,7 @@ class VehicleSim:
             def f(x: np.ndarray) -> np.ndarray:
                 return model.derivative(x, thrust, torque, wind)
 
-            x_new = rk4_step(f, self.x, dt)
+            x_new = model.normalize(rk4_step(f, self.x, dt))
             self._last_xdot = (x_new - self.x) / dt
             if self.ground:
                 x_new, self.on_ground = model.ground_contact(x_new)
