@@ -139,6 +139,15 @@ def test_hover_at_the_reference_needs_m_g():
     assert_allclose(out.torques_nm, 0.0, atol=1e-12)
 
 
+def test_rotor_forces_give_back_u_and_the_torques_by_eq_9_to_11():
+    x = (0.1, 0.2, -0.3, 0.1, 2.0, 0.0, 0.05, 0.3, -0.04, 0.2, 0.7, 0.5)
+    out = RosalesController(PARAMS).step(x, TrackingReference(0.5, 0, 2.5, 1.0), TrackingReference(0.55, 0.0, 2.6, 1.0))
+    f1, f2, f3, f4 = out.rotor_forces_n
+    l, c = PARAMS.arm_length_m, PARAMS.drag_to_thrust_m
+    assert f1 + f2 + f3 + f4 == pytest.approx(out.thrust_n)  # eq. 9
+    assert_allclose([(f3 - f1) * l, (f2 - f4) * l, c * (f2 + f4 - f1 - f3)], out.torques_nm, rtol=1e-12, atol=1e-12)
+
+
 def test_startup_memory_is_the_measured_state():
     controller = RosalesController(PARAMS)
     x = np.arange(12, dtype=float) / 10

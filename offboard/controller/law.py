@@ -43,6 +43,7 @@ import numpy as np
 
 from offboard.controller.params import ControllerParams
 from sitl_plant.dynamics.euler_lagrange import real_torques
+from sitl_plant.dynamics.rigid_body import rotor_forces
 
 #: Math namespace for scalar (Python float) evaluation of ``law_step``.
 MATH_OPS = SimpleNamespace(
@@ -195,10 +196,14 @@ class ControlOutput:
     torques_nm : ndarray, shape (3,)
         The real (generalised) torques of eq. 16, ``C(eta, eta_dot) eta_dot + J(eta) tau~``,
         with the controller's belief of the inertia, at the measured state.
+    rotor_forces_n : ndarray, shape (4,)
+        f1..f4 that give u and those torques through eq. 9-11 (rotor layout in
+        ``sitl_plant.vehicle``); unbounded, so they may be negative.
     """
 
     law: LawOutput
     torques_nm: np.ndarray
+    rotor_forces_n: np.ndarray
 
     @property
     def thrust_n(self) -> float:
@@ -241,4 +246,5 @@ class RosalesController:
         eta = np.array((state[6], state[8], state[10]))
         eta_dot = np.array((state[7], state[9], state[11]))
         torques = real_torques(eta, eta_dot, np.array(law.tau_tilde), self._inertia, self.params.euler_rate_form)
-        return ControlOutput(law=law, torques_nm=torques)
+        forces = rotor_forces(law.thrust_n, torques, self.params.arm_length_m, self.params.drag_to_thrust_m)
+        return ControlOutput(law=law, torques_nm=torques, rotor_forces_n=forces)
