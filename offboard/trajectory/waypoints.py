@@ -507,15 +507,27 @@ class VerticalMove(WaypointLegs):
     speed_m_s, accel_m_s2 : float
         Speed and acceleration limits, > 0.
     yaw_rad : float
-        Held heading.
+        Heading at the start.
     name : str
+    end_yaw_rad : float or None
+        Heading at the end, reached linearly in height (the shorter way round); None holds ``yaw_rad``.
     """
 
     def __init__(
-        self, start_ned_m: object, to_down_m: float, speed_m_s: float, accel_m_s2: float, yaw_rad: float = 0.0, name: str = "descent"
+        self,
+        start_ned_m: object,
+        to_down_m: float,
+        speed_m_s: float,
+        accel_m_s2: float,
+        yaw_rad: float = 0.0,
+        name: str = "descent",
+        end_yaw_rad: float | None = None,
     ) -> None:
         start = vec3(start_ned_m, "start_ned_m")
         end = (float(start[0]), float(start[1]), finite(to_down_m, "to_down_m"))
         if abs(end[2] - start[2]) < LENGTH_EPS_M:
             raise ValueError(f"{name}: already at down = {end[2]:g} m; nothing to climb or descend")
-        super().__init__(start, [Waypoint(end)], speed_m_s, accel_m_s2, "stop", 0.0, "fixed", yaw_rad, yaw_rad, name=name)
+        yaw_mode = "fixed" if end_yaw_rad is None else "waypoint"
+        super().__init__(
+            start, [Waypoint(end, yaw_rad=end_yaw_rad)], speed_m_s, accel_m_s2, "stop", 0.0, yaw_mode, yaw_rad, yaw_rad, name=name
+        )

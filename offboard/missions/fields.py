@@ -1,0 +1,48 @@
+"""TOML fields of mission files: ``sitl_plant.tomlfile.Fields`` raising ``MissionFormatError``.
+
+Same one-line messages (``file: mission.segment #2 (hold-12m): radius_m: must be > 0, got -2``),
+but of the mission kind, so callers can tell a bad mission from a bad parameter file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from offboard.errors import MissionFormatError, ParameterFileError
+from sitl_plant.tomlfile import Fields, read_toml
+
+
+class MissionFields(Fields):
+    """``Fields`` whose errors are ``MissionFormatError``."""
+
+    def __init__(self, table: Mapping[str, Any], source: str, prefix: str = "") -> None:
+        if not isinstance(table, Mapping):
+            where = prefix.rstrip(". ") or "file"
+            raise MissionFormatError(f"{source}: {where}: expected a table, got {type(table).__name__}")
+        super().__init__(table, source, prefix)
+
+    def error(self, key: str, message: str) -> MissionFormatError:  # type: ignore[override]
+        return MissionFormatError(f"{self.where(key)}: {message}")
+
+    def sub(self, key: str, *, optional: bool = False) -> MissionFields:
+        value = self.raw(key, {} if optional else ...)
+        if not isinstance(value, Mapping):
+            raise self.error(key, f"expected a table, got {type(value).__name__}")
+        return MissionFields(value, self.source, f"{self.prefix}{key}.")
+
+    def table_list(self, key: str) -> list[Any]:
+        """An array of tables (``[[mission.segment]]``), at least one."""
+        value = self.raw(key)
+        if not isinstance(value, list) or not value:
+            raise self.error(key, "expected one or more tables ([[...]] entries)")
+        return value
+
+
+def read_mission_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML mission file; I/O and syntax errors become ``MissionFormatError``."""
+    try:
+        return read_toml(path)
+    except ParameterFileError as exc:
+        raise MissionFormatError(str(exc)) from None
