@@ -1,0 +1,247 @@
+"""``sitl-plant``: a simulated PX4 quadrotor speaking MAVLink 2 over UDP.
+
+Fly it as you would fly PX4 SITL: an offboard program or MAVSDK on ``udpin:0.0.0.0:14540``, a
+ground station on UDP 14550. See ``docs/plant.md`` for messages, parameters, modes and lockstep.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import TextIO
+
+from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
+from sitl_plant.codec import Home
+from sitl_plant.errors import UserError
+from sitl_plant.inner_loops import InnerLoops
+from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
+from sitl_plant.params import plant_params
+from sitl_plant.server import LOCKSTEP_EPOCH_S, MODELS, Plant, PlantConfig, run_lockstep, run_realtime
+from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+
+API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
+GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link
+
+
+class ArgumentError(UserError, ValueError):
+    """An option's value is well-formed for argparse but meaningless (e.g. ``--speed 0``)."""
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows defaults, except where there is none to show (flags, unset options)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default in (None, "", False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sitl-plant",
+        description="A simulated PX4-style quadrotor autopilot speaking MAVLink 2 over UDP. "
+        "Connect an offboard program with udpin:0.0.0.0:14540 (plus --instance), a ground station on UDP 14550.",
+        formatter_class=_Formatter,
+    )
+    sim = parser.add_argument_group("simulation")
+    sim.add_argument("--model", choices=MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
+    sim.add_argument("--vehicle", metavar="FILE", type=Path, default=PAPER_VEHICLE_FILE, help="vehicle parameter file (TOML)")
+    sim.add_argument("--inner-loop", choices=InnerLoops.KINDS, default="px4", help="how attitude setpoints are flown: PX4's attitude/rate controllers, or the paper's tau_tilde with eq. 16")
+    sim.add_argument("--wind", metavar="SPEC", default="none", help="wind: none | constant:N,E,D | dryden:SPEED[,dir=DEG,...] | gust:t=S,amp=M_S,dur=S, joined with '+'")
+    sim.add_argument("--noise", metavar="SPEC", default="clean", help="sensor model for the telemetry: clean | paper[:FRACTION] | imu[:pos=M,vel=M_S,att=RAD,rate=RAD_S,acc=M_S2]")
+    sim.add_argument("--seed", type=int, default=0, help="seed of wind and sensor noise")
+    sim.add_argument("--home", metavar="LAT,LON,ALT", default="47.397742,8.545594,488.0", help="origin of the local frame: degrees, degrees, metres AMSL")
+    sim.add_argument("--physics-dt", metavar="S", type=float, default=0.001, help="RK4 step, seconds")
+    sim.add_argument("--unhealthy", metavar="UNITS", default="", help=f"simulated sensor failures that block arming, comma-separated: {', '.join(FAILURE_UNITS.values())}")
+    timing = parser.add_argument_group("time")
+    timing.add_argument("--speed", metavar="N", type=float, default=1.0, help="run N times faster than real time (ignored in lockstep)")
+    timing.add_argument("--lockstep", action="store_true", help="advance one period each time the setpoint answering the latest telemetry arrives (deterministic)")
+    timing.add_argument("--lockstep-period", metavar="S", type=float, default=0.05, help="lockstep period, seconds: a whole number of milliseconds and of physics steps")
+    timing.add_argument("--duration", metavar="S", type=float, default=None, help="stop after S seconds of simulation time (default: run until Ctrl-C)")
+    net = parser.add_argument_group("links")
+    net.add_argument("--instance", metavar="N", type=int, default=0, help="added to the default ports, as PX4 SITL's -i N (the GCS remote stays 14550)")
+    net.add_argument("--api-bind", metavar="HOST:PORT", default=None, help=f"offboard/API link local address (default 0.0.0.0:{API_BIND_PORT}+instance)")
+    net.add_argument("--api-remote", metavar="HOST:PORT", default=None, help=f"where the API link sends until a client talks (default 127.0.0.1:{API_REMOTE_PORT}+instance; 'none': wait to be talked to)")
+    net.add_argument("--gcs-bind", metavar="HOST:PORT", default=None, help=f"ground-station link local address (default 0.0.0.0:{GCS_BIND_PORT}+instance; 'none' switches the link off)")
+    net.add_argument("--gcs-remote", metavar="HOST:PORT", default=None, help=f"where the GCS link sends until a client talks (default 127.0.0.1:{GCS_REMOTE_PORT}; 'none': wait)")
+    net.add_argument("--sysid", metavar="N", type=int, default=1, help="MAVLink system id (component is 1, the autopilot)")
+    net.add_argument("--log", metavar="FILE.tlog", type=Path, default=None, help="record every packet sent and received (tlog)")
+    parser.add_argument("--quiet", action="store_true", help="no banner, status line or summary")
+    return parser
+
+
+def _check(args: argparse.Namespace) -> None:
+    if not 1 <= args.sysid <= 255:
+        raise ArgumentError(f"--sysid: must be 1..255, got {args.sysid}")
+    if not 0 <= args.instance <= 1000:
+        raise ArgumentError(f"--instance: must be 0..1000, got {args.instance}")
+    if not args.speed > 0 or args.speed != args.speed:
+        raise ArgumentError(f"--speed: must be > 0, got {args.speed}")
+    if not args.physics_dt > 0:
+        raise ArgumentError(f"--physics-dt: must be > 0, got {args.physics_dt}")
+    if args.duration is not None and not args.duration > 0:
+        raise ArgumentError(f"--duration: must be > 0, got {args.duration}")
+
+
+def _address(text: str | None, default: str, what: str) -> tuple[str, int] | None:
+    try:
+        return parse_address(default if text is None else text, what)
+    except ValueError as exc:
+        raise ArgumentError(str(exc)) from None
+
+
+def _unhealthy(text: str) -> set[str]:
+    units = {u.strip().lower() for u in text.split(",") if u.strip()}
+    unknown = units - set(FAILURE_UNITS.values())
+    if unknown:
+        raise ArgumentError(f"--unhealthy: unknown unit(s) {', '.join(sorted(unknown))}; expected some of {', '.join(FAILURE_UNITS.values())}")
+    return units
+
+
+def _wind_and_sensors(args: argparse.Namespace) -> tuple[object | None, object | None]:
+    from sitl_plant.dynamics.sensors import CleanSensors, sensors_from_spec
+    from sitl_plant.dynamics.wind import wind_from_spec
+
+    wind = None if args.wind.strip().lower() == "none" else wind_from_spec(args.wind, args.seed)
+    sensors = sensors_from_spec(args.noise, args.seed)
+    return wind, (None if isinstance(sensors, CleanSensors) else sensors)
+
+
+class _StatusLine:
+    """The one-line status: refreshed in place on a terminal, a line every 10 s otherwise."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.tty = stream.isatty()
+        self._last = 0.0
+        self._shown = False
+
+    def __call__(self, line: str) -> None:
+        if self.tty:
+            self.stream.write("\r" + line + "\x1b[K")
+            self.stream.flush()
+            self._shown = True
+        elif time.monotonic() - self._last >= 10.0:
+            self._last = time.monotonic()
+            print(line, file=self.stream, flush=True)
+
+    def end(self) -> None:
+        if self._shown:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except UserError as exc:
+        print(f"sitl-plant: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    _check(args)
+    n = args.instance
+    api_bind = _address(args.api_bind, f"0.0.0.0:{API_BIND_PORT + n}", "--api-bind")
+    api_remote = _address(args.api_remote, f"127.0.0.1:{API_REMOTE_PORT + n}", "--api-remote")
+    gcs_bind = _address(args.gcs_bind, f"0.0.0.0:{GCS_BIND_PORT + n}", "--gcs-bind")
+    gcs_remote = _address(args.gcs_remote, f"127.0.0.1:{GCS_REMOTE_PORT}", "--gcs-remote")
+    if api_bind is None:
+        raise ArgumentError("--api-bind: the API link cannot be switched off")
+    try:
+        home = Home.parse(args.home)
+    except ValueError as exc:
+        raise ArgumentError(f"--home: {exc}") from None
+    failures = _unhealthy(args.unhealthy)
+    vehicle = load_vehicle(args.vehicle)
+    wind, sensors = _wind_and_sensors(args)
+
+    config = PlantConfig(
+        model=args.model,
+        inner_loop=args.inner_loop,
+        physics_dt_s=args.physics_dt,
+        lockstep=args.lockstep,
+        lockstep_period_s=args.lockstep_period,
+        home=home,
+        sysid=args.sysid,
+        start_epoch_s=LOCKSTEP_EPOCH_S if args.lockstep else time.time(),
+    )
+    params = plant_params(vehicle, sysid=args.sysid)
+    autopilot = Autopilot(params, home_alt_amsl_m=home.alt_m, failures=failures)
+    try:
+        plant = Plant(config, vehicle, params, autopilot, wind=wind, sensors=sensors)
+    except ValueError as exc:
+        raise ArgumentError(str(exc)) from None
+
+    endpoints = [Endpoint("api", api_bind, api_remote, args.sysid, config.compid)]
+    try:
+        if gcs_bind is not None:
+            endpoints.append(Endpoint("gcs", gcs_bind, gcs_remote, args.sysid, config.compid))
+        tlog = TlogWriter(args.log) if args.log is not None else None
+    except UserError:
+        for e in endpoints:
+            e.close()
+        raise
+    link = Link(endpoints, tlog, plant.epoch_us)
+
+    stopping = {"flag": False}
+
+    def request_stop(signum: int, frame: object) -> None:
+        stopping["flag"] = True
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    status = None if args.quiet else _StatusLine(sys.stderr)
+    if not args.quiet:
+        _banner(args, plant, link)
+    try:
+        if args.lockstep:
+            stats = run_lockstep(plant, link, stop=lambda: stopping["flag"], status=status, max_sim_s=args.duration)
+        else:
+            stats = run_realtime(plant, link, speed=args.speed, stop=lambda: stopping["flag"], status=status, max_sim_s=args.duration)
+    finally:
+        link.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if status is not None:
+            status.end()
+    if not args.quiet:
+        _summary(plant, link, stats)
+    return 0
+
+
+def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
+    lines = [f"sitl-plant: {args.model} model of {plant.vehicle.name} ({args.vehicle}), inner loop {args.inner_loop}"]
+    for e in link.endpoints:
+        host, port = e.local_address
+        remote = "whoever talks first" if e.remote is None else f"{e.remote[0]}:{e.remote[1]}"
+        lines.append(f"  {e.name} link: UDP {host}:{port} -> {remote}")
+    if args.lockstep:
+        lines.append(f"  lockstep, period {args.lockstep_period:g} s (physics {args.physics_dt:g} s)")
+    else:
+        lines.append(f"  real time x{args.speed:g} (physics {args.physics_dt:g} s)")
+    if args.log is not None:
+        lines.append(f"  logging to {args.log}")
+    print("\n".join(lines), file=sys.stderr, flush=True)
+
+
+def _summary(plant: Plant, link: Link, stats: object) -> None:
+    c = plant.counters
+    api = link.endpoints[0].counters
+    bad = sum(e.counters.bad_packets for e in link.endpoints)
+    wall = getattr(stats, "wall_s", 0.0)
+    periods = getattr(stats, "periods", 0)
+    rate = f", {periods / wall:.0f} periods/s" if wall > 0 else ""
+    print(
+        f"sitl-plant: stopped at t={plant.time_s:.2f} s after {wall:.1f} s{rate}; "
+        f"api in {api.packets_in} out {api.packets_out}; bad packets {bad}, refused setpoints {c.refused_setpoints}, "
+        f"foreign {c.foreign}, unhandled {c.unhandled}",
+        file=sys.stderr,
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,403 @@
+"""MAVLink encoding and decoding for the plant: pure functions, no sockets.
+
+Outgoing: ``VehicleState`` and the autopilot's ``Status`` become pymavlink message objects
+(``heartbeat``, ``attitude``, ``local_position_ned`` ...), to be packed by the link.
+Incoming: pymavlink messages become validated ``AttitudeSetpoint``, ``ActuatorSetpoint`` and
+``Command`` objects; a field the plant cannot use raises ``Refused`` (counted by the caller, never
+flown). Everything is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
+
+Frames and units follow MAVLink: positions NED in metres, attitude as ZYX Euler angles and the
+quaternion (w, x, y, z) of body FRD to NED, body rates FRD in rad/s, ``time_boot_ms`` = simulation
+time. Latitude/longitude come from the local NED position by PX4's azimuthal equidistant
+projection about ``Home``.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl_plant.autopilot import (
+    ActuatorSetpoint,
+    AttitudeSetpoint,
+    Command,
+    Mode,
+    Status,
+)
+from sitl_plant.dynamics.rotations import rotation_matrix
+from sitl_plant.state import VehicleState
+
+MAVLink = mavlink.MAVLink
+MAVLinkMessage = mavlink.MAVLink_message
+
+EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
+# Earth's magnetic field near PX4 SITL's default home (Zurich), gauss, NED
+MAG_FIELD_NED_GAUSS = (0.21, 0.0, 0.43)
+
+PX4_FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # "v1.14.0", official release
+
+#: Sensors the plant reports in SYS_STATUS, and the failure unit that makes each unhealthy.
+SENSOR_BITS = {
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO: "gyro",
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL: "accel",
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG: "mag",
+    mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE: "baro",
+    mavlink.MAV_SYS_STATUS_SENSOR_GPS: "gps",
+    mavlink.MAV_SYS_STATUS_SENSOR_BATTERY: "battery",
+    mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS: "motor",
+    mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL: None,
+    mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION: None,
+    mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION: None,
+    mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL: None,
+    mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL: None,
+    mavlink.MAV_SYS_STATUS_AHRS: None,
+    mavlink.MAV_SYS_STATUS_PREARM_CHECK: None,
+}
+
+ATTITUDE_IGNORE = mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE  # 128
+THROTTLE_IGNORE = mavlink.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE  # 64
+THRUST_BODY_SET = 32  # ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET (newer common.xml than pymavlink's)
+RATE_IGNORE = (
+    mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE,
+    mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE,
+    mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE,
+)
+_SET_ATTITUDE_TARGET_BASE_LEN = 39  # payload bytes before the thrust_body extension
+MAX_BODY_RATE_RAD_S = 100.0  # beyond this a rate setpoint is refused as nonsense (PX4 limits far lower)
+QUAT_NORM_TOLERANCE = 0.1
+
+
+class Refused(ValueError):
+    """An incoming message the plant refuses (NaN, out of range, wrong group): not flown."""
+
+
+# --- where the vehicle is --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Home:
+    """The origin of the local NED frame: latitude, longitude (deg WGS84), altitude AMSL (m)."""
+
+    lat_deg: float = 47.397742
+    lon_deg: float = 8.545594
+    alt_m: float = 488.0
+
+    def __post_init__(self) -> None:
+        if not -90.0 <= self.lat_deg <= 90.0 or not -180.0 <= self.lon_deg <= 180.0 or not math.isfinite(self.alt_m):
+            raise ValueError(f"home must be LAT,LON,ALT with |lat| <= 90, |lon| <= 180, got {self}")
+
+    @classmethod
+    def parse(cls, text: str) -> Home:
+        """``"LAT,LON,ALT"`` (degrees, degrees, metres AMSL)."""
+        parts = text.split(",")
+        if len(parts) != 3:
+            raise ValueError(f"expected LAT,LON,ALT, got {text!r}")
+        try:
+            lat, lon, alt = (float(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"expected three numbers LAT,LON,ALT, got {text!r}") from None
+        return cls(lat, lon, alt)
+
+
+def ned_to_geodetic(pos_ned_m: np.ndarray, home: Home) -> tuple[float, float, float]:
+    """(lat deg, lon deg, alt m AMSL) of a local NED point (PX4's azimuthal equidistant map)."""
+    lat0, lon0 = math.radians(home.lat_deg), math.radians(home.lon_deg)
+    x_rad = float(pos_ned_m[0]) / EARTH_RADIUS_M
+    y_rad = float(pos_ned_m[1]) / EARTH_RADIUS_M
+    c = math.hypot(x_rad, y_rad)
+    if c > 0.0:
+        sin_c, cos_c = math.sin(c), math.cos(c)
+        lat = math.asin(cos_c * math.sin(lat0) + x_rad * sin_c * math.cos(lat0) / c)
+        lon = lon0 + math.atan2(y_rad * sin_c, c * math.cos(lat0) * cos_c - x_rad * math.sin(lat0) * sin_c)
+    else:
+        lat, lon = lat0, lon0
+    return math.degrees(lat), math.degrees(lon), home.alt_m - float(pos_ned_m[2])
+
+
+def pressure_hpa(alt_amsl_m: float) -> float:
+    """ISA static pressure at an altitude (troposphere)."""
+    return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+# --- outgoing ---------------------------------------------------------------------------------
+
+
+def heartbeat(status: Status) -> MAVLinkMessage:
+    base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if status.armed:
+        base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    if status.mode in (Mode.OFFBOARD,) or status.mode.value[0] == 4:
+        base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+    return mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, status.mode.custom_mode, status.system_status, 3
+    )
+
+
+def attitude(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    e, w = st.euler_rad, st.body_rate_frd_rad_s
+    return mavlink.MAVLink_attitude_message(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
+
+
+def attitude_quaternion(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    q, w = st.quat_wxyz, st.body_rate_frd_rad_s
+    return mavlink.MAVLink_attitude_quaternion_message(t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2], (0.0, 0.0, 0.0, 0.0))
+
+
+def local_position_ned(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    p, v = st.pos_ned_m, st.vel_ned_m_s
+    return mavlink.MAVLink_local_position_ned_message(t_ms, p[0], p[1], p[2], v[0], v[1], v[2])
+
+
+def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessage:
+    lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
+    v = st.vel_ned_m_s
+    hdg = int(round(math.degrees(st.euler_rad[2]) * 100.0)) % 36000
+    return mavlink.MAVLink_global_position_int_message(
+        t_ms,
+        int(round(lat * 1e7)),
+        int(round(lon * 1e7)),
+        int(round(alt * 1000.0)),
+        int(round(-float(st.pos_ned_m[2]) * 1000.0)),
+        _clip16(v[0] * 100.0),
+        _clip16(v[1] * 100.0),
+        _clip16(v[2] * 100.0),
+        hdg,
+    )
+
+
+def highres_imu(t_us: int, st: VehicleState, home: Home, gravity_m_s2: float = 9.81) -> MAVLinkMessage:
+    """Body FRD specific force (accelerometer), rates (gyro), magnetic field, pressure."""
+    r_t = rotation_matrix(st.quat_wxyz).T
+    acc = r_t @ (np.asarray(st.acc_ned_m_s2) - np.array([0.0, 0.0, gravity_m_s2]))
+    mag = r_t @ np.array(MAG_FIELD_NED_GAUSS)
+    w = st.body_rate_frd_rad_s
+    alt = home.alt_m - float(st.pos_ned_m[2])
+    return mavlink.MAVLink_highres_imu_message(
+        t_us, acc[0], acc[1], acc[2], w[0], w[1], w[2], mag[0], mag[1], mag[2], pressure_hpa(alt), 0.0, alt, 25.0, 0x1FFF
+    )
+
+
+def sys_status(status: Status, *, bad_packets: int = 0) -> MAVLinkMessage:
+    present = 0
+    health = 0
+    for bit, unit in SENSOR_BITS.items():
+        present |= bit
+        if unit is None or unit not in status.failures:
+            health |= bit
+    if not status.prearm_ok:
+        health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    battery_ok = "battery" not in status.failures
+    return mavlink.MAVLink_sys_status_message(
+        present, present, health, 0, 16200 if battery_ok else 13200, -1, 100 if battery_ok else 5, 0, min(bad_packets, 65535), 0, 0, 0, 0
+    )
+
+
+def extended_sys_state(status: Status) -> MAVLinkMessage:
+    return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, status.landed_state)
+
+
+def home_position(t_us: int, home: Home, home_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MAVLinkMessage:
+    lat, lon, alt = ned_to_geodetic(np.asarray(home_ned_m), home)
+    return mavlink.MAVLink_home_position_message(
+        int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000.0)),
+        home_ned_m[0], home_ned_m[1], home_ned_m[2], (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, t_us,
+    )  # fmt: skip
+
+
+def battery_status(status: Status) -> MAVLinkMessage:
+    ok = "battery" not in status.failures
+    cell_mv = 4050 if ok else 3300
+    voltages = [cell_mv] * 4 + [65535] * 6
+    return mavlink.MAVLink_battery_status_message(
+        0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 32767, voltages, -1, -1, -1, 100 if ok else 5
+    )
+
+
+def attitude_target(t_ms: int, q_wxyz: tuple[float, float, float, float], rates: tuple[float, float, float], thrust_norm: float) -> MAVLinkMessage:
+    return mavlink.MAVLink_attitude_target_message(t_ms, 0, q_wxyz, rates[0], rates[1], rates[2], thrust_norm)
+
+
+def servo_output_raw(t_us: int, motor_speeds_rad_s: np.ndarray, max_speed_rad_s: float, armed: bool) -> MAVLinkMessage:
+    """Motor outputs as PWM: 1000 us (stopped) to 2000 us (top speed), 900 us disarmed."""
+    if armed:
+        pwm = [int(round(1000.0 + 1000.0 * min(max(float(w) / max_speed_rad_s, 0.0), 1.0))) for w in motor_speeds_rad_s[:4]]
+    else:
+        pwm = [900] * 4
+    return mavlink.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0)
+
+
+def system_time(unix_us: int, t_ms: int) -> MAVLinkMessage:
+    return mavlink.MAVLink_system_time_message(unix_us, t_ms & 0xFFFFFFFF)
+
+
+def statustext(severity: int, text: str, chunk_id: int = 0) -> list[MAVLinkMessage]:
+    """STATUSTEXT, split into 50-byte chunks sharing ``chunk_id`` when longer (MAVLink 2)."""
+    data = text.encode("utf-8", "replace")
+    if len(data) <= 50:
+        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
+    chunks = [data[i : i + 50] for i in range(0, len(data), 50)]
+    return [mavlink.MAVLink_statustext_message(severity, c, chunk_id, n) for n, c in enumerate(chunks)]
+
+
+def command_ack(command: int, result: int, target_system: int, target_component: int) -> MAVLinkMessage:
+    return mavlink.MAVLink_command_ack_message(command, result, 0, 0, target_system, target_component)
+
+
+def param_value(name: str, value: float, is_int: bool, count: int, index: int) -> MAVLinkMessage:
+    """PARAM_VALUE; an INT32 parameter travels as its bytes in the float field (PX4's encoding)."""
+    if is_int:
+        wire = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+        kind = mavlink.MAV_PARAM_TYPE_INT32
+    else:
+        wire = value
+        kind = mavlink.MAV_PARAM_TYPE_REAL32
+    return mavlink.MAVLink_param_value_message(name.encode("ascii"), wire, kind, count, index)
+
+
+def param_set_value(msg: MAVLinkMessage) -> float:
+    """The value a PARAM_SET carries, decoding INT32 from the float's bytes (PX4's encoding)."""
+    if msg.param_type in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT32, mavlink.MAV_PARAM_TYPE_INT16,
+                          mavlink.MAV_PARAM_TYPE_UINT16, mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_UINT8):  # fmt: skip
+        return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+    return float(msg.param_value)
+
+
+def param_name(raw: bytes | str) -> str:
+    """A param_id field as text (NUL-terminated, at most 16 characters)."""
+    if isinstance(raw, bytes):
+        raw = raw.split(b"\x00", 1)[0].decode("ascii", "replace")
+    return raw.split("\x00", 1)[0][:16]
+
+
+def autopilot_version(sysid: int) -> MAVLinkMessage:
+    caps = (
+        mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+        | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    )
+    return mavlink.MAVLink_autopilot_version_message(
+        caps, PX4_FLIGHT_SW_VERSION, 0, 0, 0, list(b"sitlplnt"), [0] * 8, [0] * 8, 0, 0, 0x5171_0000 + sysid
+    )
+
+
+def timesync_reply(now_ns: int, ts1: int) -> MAVLinkMessage:
+    return mavlink.MAVLink_timesync_message(now_ns, ts1)
+
+
+def message_interval(message_id: int, interval_us: int) -> MAVLinkMessage:
+    return mavlink.MAVLink_message_interval_message(message_id, interval_us)
+
+
+def _clip16(value: float) -> int:
+    return int(max(-32768, min(32767, round(value))))
+
+
+# --- incoming ---------------------------------------------------------------------------------
+
+
+def _payload(msg: MAVLinkMessage) -> bytes:
+    """The raw payload bytes of a received message (MAVLink 1 or 2)."""
+    buf = msg.get_msgbuf()
+    header = 10 if buf[0] == mavlink.PROTOCOL_MARKER_V2 else 6
+    return bytes(buf[header : header + buf[1]])
+
+
+def decode_attitude_target(msg: MAVLinkMessage) -> AttitudeSetpoint:
+    """SET_ATTITUDE_TARGET as PX4's ``handle_message_set_attitude_target`` reads it.
+
+    type_mask: bits 0-2 ignore body roll/pitch/yaw rate, bit 5 thrust_body set, bit 6 ignore
+    thrust, bit 7 ignore attitude. ``thrust`` is normalised; with bit 5 the collective thrust is
+    ``-thrust_body[2]`` (the newer extension field, read from the raw payload).
+
+    Raises
+    ------
+    Refused
+        A used field that is NaN/infinite, a quaternion far from unit norm, an absurd rate.
+    """
+    mask = int(msg.type_mask)
+    q = None
+    if not mask & ATTITUDE_IGNORE:
+        q = tuple(float(v) for v in msg.q)
+        if not all(math.isfinite(v) for v in q):
+            raise Refused("attitude quaternion not finite")
+        norm = math.sqrt(sum(v * v for v in q))
+        if abs(norm - 1.0) > QUAT_NORM_TOLERANCE:
+            raise Refused(f"attitude quaternion norm {norm:.3g}, expected 1")
+        q = tuple(v / norm for v in q)
+    rates: list[float | None] = []
+    for bit, value in zip(RATE_IGNORE, (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)):
+        if mask & bit:
+            rates.append(None)
+            continue
+        value = float(value)
+        if not math.isfinite(value):
+            raise Refused("body rate not finite")
+        if abs(value) > MAX_BODY_RATE_RAD_S:
+            raise Refused(f"body rate {value:.3g} rad/s beyond {MAX_BODY_RATE_RAD_S:g}")
+        rates.append(value)
+    thrust: float | None = None
+    if mask & THRUST_BODY_SET:
+        payload = _payload(msg).ljust(_SET_ATTITUDE_TARGET_BASE_LEN + 12, b"\x00")
+        tb = struct.unpack_from("<3f", payload, _SET_ATTITUDE_TARGET_BASE_LEN)
+        if not all(math.isfinite(v) for v in tb):
+            raise Refused("thrust_body not finite")
+        thrust = -tb[2]
+    elif not mask & THROTTLE_IGNORE:
+        thrust = float(msg.thrust)
+        if not math.isfinite(thrust):
+            raise Refused("thrust not finite")
+    return AttitudeSetpoint(int(msg.time_boot_ms), q, (rates[0], rates[1], rates[2]), thrust)  # type: ignore[arg-type]
+
+
+def decode_actuator_target(msg: MAVLinkMessage) -> ActuatorSetpoint:
+    """SET_ACTUATOR_CONTROL_TARGET, group 0 only: controls[0..3] = roll, pitch, yaw, thrust.
+
+    Values are clipped to [-1, 1] (torques) and [0, 1] (thrust) as PX4's mixer saturates them.
+
+    Raises
+    ------
+    Refused
+        Another group, or a NaN/infinite control among the four used.
+    """
+    if int(msg.group_mlx) != 0:
+        raise Refused(f"actuator control group {msg.group_mlx} not supported (only 0)")
+    c = [float(v) for v in msg.controls[:4]]
+    if not all(math.isfinite(v) for v in c):
+        raise Refused("actuator control not finite")
+    controls = (
+        min(max(c[0], -1.0), 1.0),
+        min(max(c[1], -1.0), 1.0),
+        min(max(c[2], -1.0), 1.0),
+        min(max(c[3], 0.0), 1.0),
+    )
+    return ActuatorSetpoint(int(msg.time_usec), controls)
+
+
+def decode_command(msg: MAVLinkMessage) -> Command:
+    """COMMAND_LONG or COMMAND_INT as one ``Command`` (unused params may be NaN: normal)."""
+    if msg.get_type() == "COMMAND_INT":
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
+    else:
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+    return Command(int(msg.command), tuple(float(p) for p in params), msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[arg-type]
+
+
+def decode_set_mode(msg: MAVLinkMessage) -> Mode | None:
+    """The legacy SET_MODE message: PX4 custom mode in ``custom_mode`` when the flag is set."""
+    if not int(msg.base_mode) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return None
+    return Mode.from_custom_mode(int(msg.custom_mode))
+
+
+def addressed_to(msg: MAVLinkMessage, sysid: int, compid: int) -> bool:
+    """Whether a targeted message is for us (0 = broadcast); untargeted messages always are."""
+    ts = getattr(msg, "target_system", None)
+    if ts is not None and ts not in (0, sysid):
+        return False
+    tc = getattr(msg, "target_component", None)
+    return tc is None or tc in (0, compid)

@@ -1,0 +1,298 @@
+"""The plant's sockets and its telemetry log: the only module of ``sitl-plant`` doing network I/O.
+
+Two links, as PX4 SITL has them, each **one** UDP socket that sends and receives:
+
+- the offboard/API link binds UDP 14580 and sends to 127.0.0.1:14540 (where ``offboard`` or
+  MAVSDK listens with ``udpin:0.0.0.0:14540``);
+- the ground-station link binds UDP 18570 and sends to 127.0.0.1:14550 (QGroundControl,
+  MAVProxy).
+
+Each answers whoever talks to it: the remote address becomes the sender of the last valid
+MAVLink packet. Outgoing messages of one tick go out batched in one datagram (as PX4 batches
+them), which every MAVLink client parses.
+
+Incoming datagrams are parsed by pymavlink with robust parsing, one datagram at a time (MAVLink
+over UDP never splits a packet across datagrams, so a truncated or corrupted datagram cannot
+spoil the next one): bad bytes are counted, never raised.
+
+``--log FILE.tlog`` records every packet sent and received on both links in the standard tlog
+format: for each packet an 8-byte big-endian timestamp in microseconds since the Unix epoch and
+the raw MAVLink packet, as pymavlink's ``mavutil.mavlink_connection(path)`` and
+``mavlogdump.py`` read it. The timestamp comes from the caller (the server uses a start epoch
+plus simulation time, so lockstep logs are reproducible to the byte).
+"""
+
+from __future__ import annotations
+
+import errno
+import select
+import socket
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import BinaryIO
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl_plant.errors import UserError
+
+MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
+_TLOG_STAMP = struct.Struct(">Q")
+
+
+class LinkError(UserError, OSError):
+    """A socket cannot be opened (address in use, bad address) or a log cannot be written."""
+
+
+def parse_address(text: str, what: str) -> tuple[str, int] | None:
+    """``HOST:PORT`` to a tuple; ``none`` (or empty) to None (the link is switched off)."""
+    text = text.strip()
+    if text.lower() in ("", "none", "off"):
+        return None
+    host, sep, port = text.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"{what}: expected HOST:PORT, got {text!r}")
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"{what}: port must be a number, got {port!r}") from None
+    if not 0 <= number <= 65535:
+        raise ValueError(f"{what}: port must be 0..65535, got {number}")
+    return host, number
+
+
+class TlogWriter:
+    """Appends ``(timestamp, packet)`` records to a tlog file; ``close()`` flushes."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._fh: BinaryIO | None = self.path.open("wb")
+        except OSError as exc:
+            raise LinkError(f"{self.path}: cannot write the log: {exc.strerror}") from None
+        self.records = 0
+
+    def write(self, time_us: int, packet: bytes | bytearray) -> None:
+        if self._fh is not None:
+            self._fh.write(_TLOG_STAMP.pack(time_us))
+            self._fh.write(packet)
+            self.records += 1
+
+    def flush(self) -> None:
+        if self._fh is not None:
+            self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.flush()
+            self._fh.close()
+            self._fh = None
+
+
+@dataclass
+class LinkCounters:
+    """Per-link traffic counters (shown on the status line and in the exit summary)."""
+
+    packets_in: int = 0
+    packets_out: int = 0
+    bad_packets: int = 0
+    unknown_messages: int = 0
+    send_errors: int = 0
+    by_type_in: dict[str, int] = field(default_factory=dict)
+
+
+class Endpoint:
+    """One UDP socket: MAVLink in and out, with the remote learnt from who talks to it.
+
+    Parameters
+    ----------
+    name : str
+        ``"api"`` or ``"gcs"`` (for messages and counters).
+    bind : (host, port)
+        Local address (port 0 lets the OS choose).
+    remote : (host, port) or None
+        Where to send before anyone talked to us; None: only answer who talks.
+    sysid, compid : int
+        Our MAVLink identity on this link.
+    """
+
+    def __init__(self, name: str, bind: tuple[str, int], remote: tuple[str, int] | None, sysid: int, compid: int) -> None:
+        self.name = name
+        self.remote = remote
+        self.counters = LinkCounters()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+            self.sock.bind(bind)
+        except OSError as exc:
+            self.sock.close()
+            raise LinkError(f"{name} link: cannot bind UDP {bind[0]}:{bind[1]}: {exc.strerror}") from None
+        except (OverflowError, socket.gaierror) as exc:
+            self.sock.close()
+            raise LinkError(f"{name} link: bad bind address {bind[0]}:{bind[1]}: {exc}") from None
+        self.sock.setblocking(False)
+        self.packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.remembered: dict[str, list[bytes]] = {}
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        return self.sock.getsockname()  # type: ignore[no-any-return]
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def pack(self, messages: list[mavlink.MAVLink_message]) -> list[bytes]:
+        """Serialise messages with this link's sequence numbers."""
+        out = []
+        packer = self.packer
+        for msg in messages:
+            out.append(msg.pack(packer))
+            packer.seq = (packer.seq + 1) & 0xFF
+        return out
+
+    def send_packets(self, packets: list[bytes]) -> list[bytes]:
+        """Send packed packets batched into datagrams; returns the datagrams sent."""
+        if self.remote is None or not packets:
+            return []
+        datagrams: list[bytes] = []
+        chunk = bytearray()
+        for p in packets:
+            if chunk and len(chunk) + len(p) > MAX_DATAGRAM:
+                datagrams.append(bytes(chunk))
+                chunk = bytearray()
+            chunk += p
+        if chunk:
+            datagrams.append(bytes(chunk))
+        for d in datagrams:
+            self.send_datagram(d)
+        self.counters.packets_out += len(packets)
+        return datagrams
+
+    def send_datagram(self, data: bytes) -> None:
+        if self.remote is None:
+            return
+        try:
+            self.sock.sendto(data, self.remote)
+        except OSError as exc:
+            # nobody listening (ICMP port unreachable), buffer full: UDP is best effort
+            if exc.errno not in (errno.ECONNREFUSED, errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS, errno.EHOSTUNREACH, errno.ENETUNREACH):
+                raise
+            self.counters.send_errors += 1
+
+    def receive(self) -> list[mavlink.MAVLink_message]:
+        """Every valid message waiting on the socket (bad bytes counted, unknown ids kept)."""
+        out: list[mavlink.MAVLink_message] = []
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError as exc:
+                if exc.errno == errno.ECONNREFUSED:  # an earlier send found nobody listening
+                    continue
+                raise
+            good = self._parse_datagram(data, out)
+            if good:
+                self.remote = addr
+
+    def _parse_datagram(self, data: bytes, out: list[mavlink.MAVLink_message]) -> bool:
+        parser = self.parser
+        counters = self.counters
+        found = False
+        try:
+            messages = parser.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - a malformed packet must never stop the plant
+            messages = []
+            counters.bad_packets += 1
+        for msg in messages:
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                counters.bad_packets += 1
+                continue
+            found = True
+            counters.packets_in += 1
+            if kind == "UNKNOWN" or kind.startswith("UNKNOWN_"):
+                counters.unknown_messages += 1
+            counters.by_type_in[kind] = counters.by_type_in.get(kind, 0) + 1
+            out.append(msg)
+        # drop whatever partial packet is left: the next datagram starts afresh
+        parser.buf = bytearray()
+        parser.buf_index = 0
+        parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+        return found
+
+
+class Link:
+    """The plant's endpoints (API first, then GCS) and the optional tlog.
+
+    Parameters
+    ----------
+    endpoints : list of Endpoint
+    tlog : TlogWriter or None
+    log_time_us : callable
+        The tlog timestamp for packets logged now (microseconds since the Unix epoch).
+    """
+
+    def __init__(self, endpoints: list[Endpoint], tlog: TlogWriter | None, log_time_us: Callable[[], int]) -> None:
+        self.endpoints = endpoints
+        self.tlog = tlog
+        self.log_time_us = log_time_us
+        self._socks = [e.sock for e in endpoints]
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a socket is readable or the timeout passes; whether one is readable."""
+        if timeout_s < 0:
+            timeout_s = 0.0
+        try:
+            readable, _, _ = select.select(self._socks, [], [], timeout_s)
+        except InterruptedError:
+            return False
+        return bool(readable)
+
+    def receive(self) -> list[tuple[int, mavlink.MAVLink_message]]:
+        """Messages waiting on every endpoint, as (endpoint index, message); not yet logged."""
+        out: list[tuple[int, mavlink.MAVLink_message]] = []
+        for i, endpoint in enumerate(self.endpoints):
+            for msg in endpoint.receive():
+                out.append((i, msg))
+        return out
+
+    def log_received(self, msg: mavlink.MAVLink_message) -> None:
+        """Record a received message in the tlog, stamped now (call it as the message is handled,
+        so its timestamp is the plant time at which it acted)."""
+        if self.tlog is not None:
+            self.tlog.write(self.log_time_us(), msg.get_msgbuf())
+
+    def send(self, index: int, messages: list[mavlink.MAVLink_message], *, remember: str | None = None) -> None:
+        """Pack, log and send messages on one endpoint; ``remember`` keeps the datagrams by key."""
+        if not messages:
+            return
+        endpoint = self.endpoints[index]
+        packets = endpoint.pack(messages)
+        if self.tlog is not None:
+            t = self.log_time_us()
+            for p in packets:
+                self.tlog.write(t, p)
+        datagrams = endpoint.send_packets(packets)
+        if remember is not None:
+            endpoint.remembered[remember] = datagrams
+
+    def resend_remembered(self) -> None:
+        """Send the remembered datagrams again (lockstep keepalive); not logged."""
+        for endpoint in self.endpoints:
+            for datagrams in endpoint.remembered.values():
+                for d in datagrams:
+                    endpoint.send_datagram(d)
+
+    def flush(self) -> None:
+        if self.tlog is not None:
+            self.tlog.flush()
+
+    def close(self) -> None:
+        for e in self.endpoints:
+            e.close()
+        if self.tlog is not None:
+            self.tlog.close()

@@ -1,0 +1,235 @@
+"""The MAVLink parameter table of ``sitl-plant`` (PARAM_VALUE / PARAM_SET), pure.
+
+Names follow PX4 where PX4 has the parameter (``COM_OF_LOSS_T``, ``MC_ROLLRATE_P`` ...) and use
+the ``SIM_`` prefix for the simulated vehicle's physical values, which the ``offboard`` process
+reads to learn the vehicle it flies. Every name is at most 16 characters (the MAVLink limit).
+
+Values are stored as Python floats; an ``int`` parameter travels as MAV_PARAM_TYPE_INT32, and a
+``real`` one as MAV_PARAM_TYPE_REAL32, so it is rounded to float32 on the wire (the table keeps
+the rounded value too, so what a client reads back is what the plant uses).
+
+``ParamTable.set`` validates like PX4's parameter handler: non-finite, out-of-range, read-only
+or unknown values are refused and the old value stays (the caller answers with it).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import Iterator
+
+from sitl_plant.vehicle import VehicleParams
+
+REAL = "real"
+INT = "int"
+
+#: Physical parameters whose change rebuilds the simulated vehicle (refused while armed).
+PHYSICAL = ("SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KF", "SIM_KM_KF", "SIM_W_MAX", "SIM_MOT_TAU")
+
+#: COM_OBL_RC_ACT values the plant implements (PX4's numbering).
+OBL_ACT_LAND = 4
+OBL_ACT_HOLD = 5
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name, default, kind, admissible range, unit and meaning."""
+
+    name: str
+    default: float
+    kind: str = REAL
+    min: float = -math.inf
+    max: float = math.inf
+    unit: str = ""
+    description: str = ""
+    read_only: bool = False
+    choices: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if len(self.name) > 16:
+            raise ValueError(f"parameter name {self.name!r} is longer than 16 characters")
+        if self.kind not in (REAL, INT):
+            raise ValueError(f"{self.name}: kind must be {REAL!r} or {INT!r}")
+
+
+@dataclass(frozen=True)
+class SetOutcome:
+    """What ``ParamTable.set`` did: ``accepted`` and, when refused, why."""
+
+    accepted: bool
+    reason: str = ""
+
+
+def to_float32(value: float) -> float:
+    """The value a REAL32 parameter holds once it has crossed the wire."""
+    return struct.unpack("<f", struct.pack("<f", value))[0]
+
+
+class ParamTable:
+    """Ordered parameters with validation; ``version`` counts accepted changes."""
+
+    def __init__(self, specs: list[ParamSpec]) -> None:
+        self._specs = {s.name: s for s in specs}
+        if len(self._specs) != len(specs):
+            raise ValueError("duplicate parameter names")
+        self._names = [s.name for s in specs]
+        self._index = {name: i for i, name in enumerate(self._names)}
+        self._values = {s.name: self._stored(s, s.default) for s in specs}
+        self.version = 0
+
+    @staticmethod
+    def _stored(spec: ParamSpec, value: float) -> float:
+        return float(int(value)) if spec.kind == INT else to_float32(float(value))
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._specs
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def spec(self, name: str) -> ParamSpec:
+        return self._specs[name]
+
+    def index(self, name: str) -> int:
+        return self._index[name]
+
+    def name_at(self, index: int) -> str | None:
+        return self._names[index] if 0 <= index < len(self._names) else None
+
+    def set(self, name: str, value: float) -> SetOutcome:
+        """Validate and store ``value``; the old value stays when refused."""
+        spec = self._specs.get(name)
+        if spec is None:
+            return SetOutcome(False, f"unknown parameter {name}")
+        if spec.read_only:
+            return SetOutcome(False, f"{name} is read-only")
+        if not math.isfinite(value):
+            return SetOutcome(False, f"{name}: refused non-finite value {value}")
+        if spec.kind == INT and value != int(value):
+            return SetOutcome(False, f"{name}: expected an integer, got {value:g}")
+        if not spec.min <= value <= spec.max:
+            return SetOutcome(False, f"{name}: {value:g} outside [{spec.min:g}, {spec.max:g}]")
+        if spec.choices is not None and int(value) not in spec.choices:
+            allowed = ", ".join(str(c) for c in spec.choices)
+            return SetOutcome(False, f"{name}: {value:g} not one of {allowed}")
+        stored = self._stored(spec, value)
+        if stored != self._values[name]:
+            self._values[name] = stored
+            self.version += 1
+        return SetOutcome(True)
+
+    def force(self, name: str, value: float) -> None:
+        """Store a value the plant computed itself (derived, read-only parameters)."""
+        spec = self._specs[name]
+        stored = self._stored(spec, value)
+        if stored != self._values[name]:
+            self._values[name] = stored
+            self.version += 1
+
+
+# --- the table --------------------------------------------------------------------------------
+
+
+def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpec]:
+    """Every parameter of the plant, with defaults from ``vehicle`` (see docs/plant.md)."""
+    ixx, iyy, izz = vehicle.inertia_kg_m2
+    thr_max = vehicle.max_thrust_n
+    hover = min(0.9, max(0.05, vehicle.mass_kg * vehicle.gravity_m_s2 / thr_max))
+    return [
+        # identity, as a ground station expects of PX4
+        ParamSpec("SYS_AUTOSTART", 10016, INT, read_only=True, description="airframe id (PX4 SITL quadrotor)"),
+        ParamSpec("MAV_SYS_ID", sysid, INT, read_only=True, description="MAVLink system id (set with --sysid)"),
+        ParamSpec("MAV_TYPE", 2, INT, read_only=True, description="MAV_TYPE_QUADROTOR"),
+        ParamSpec("SYS_FAILURE_EN", 0, INT, 0, 1, description="enable MAV_CMD_INJECT_FAILURE"),
+        # the simulated vehicle (--vehicle FILE); changes rebuild the model, refused while armed
+        ParamSpec("SIM_MASS", vehicle.mass_kg, min=1e-3, max=1e3, unit="kg", description="vehicle mass m"),
+        ParamSpec("SIM_ARM_LEN", vehicle.arm_length_m, min=1e-3, max=100.0, unit="m", description="arm length l"),
+        ParamSpec("SIM_IXX", ixx, min=1e-7, max=1e3, unit="kg m^2", description="inertia about body x (FRD)"),
+        ParamSpec("SIM_IYY", iyy, min=1e-7, max=1e3, unit="kg m^2", description="inertia about body y (FRD)"),
+        ParamSpec("SIM_IZZ", izz, min=1e-7, max=1e3, unit="kg m^2", description="inertia about body z (FRD)"),
+        ParamSpec("SIM_KF", vehicle.thrust_coeff_n_s2, min=1e-12, max=1.0, unit="N/(rad/s)^2", description="rotor thrust coefficient k"),
+        ParamSpec("SIM_KM_KF", vehicle.drag_to_thrust_m, min=1e-6, max=10.0, unit="m", description="rotor drag-to-thrust c"),
+        ParamSpec("SIM_W_MAX", vehicle.rotor_speed_max_rad_s, min=1.0, max=1e5, unit="rad/s", description="top rotor speed"),
+        ParamSpec("SIM_MOT_TAU", vehicle.motor_time_constant_s, min=0.0, max=10.0, unit="s", description="motor time constant"),
+        ParamSpec("SIM_THR_MAX", thr_max, read_only=True, unit="N", description="collective thrust at normalised thrust 1"),
+        ParamSpec("SIM_TQ_RP_MAX", vehicle.max_roll_pitch_torque_nm, read_only=True, unit="N m", description="roll/pitch torque at normalised 1"),
+        ParamSpec("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm, read_only=True, unit="N m", description="yaw torque at normalised 1"),
+        # commander
+        ParamSpec("COM_OF_LOSS_T", 1.0, min=0.0, max=60.0, unit="s", description="offboard-loss timeout"),
+        ParamSpec("COM_OBL_RC_ACT", OBL_ACT_LAND, INT, choices=(OBL_ACT_LAND, OBL_ACT_HOLD), description="offboard-loss action: 4 land (after COM_FAIL_ACT_T of hold), 5 hold"),
+        ParamSpec("COM_FAIL_ACT_T", 5.0, min=0.0, max=25.0, unit="s", description="hold before a failsafe action"),
+        ParamSpec("COM_DISARM_LAND", 2.0, min=-1.0, max=20.0, unit="s", description="auto-disarm after landing (<= 0 off)"),
+        ParamSpec("COM_DISARM_PRFLT", 10.0, min=-1.0, max=20.0, unit="s", description="auto-disarm if no takeoff (<= 0 off)"),
+        # the paper's inner loop (--inner-loop paper)
+        ParamSpec("PAP_TO", 0.05, min=1e-4, max=10.0, unit="s", description="paper's sample time To"),
+        ParamSpec("PAP_IXX", ixx, min=1e-7, max=1e3, unit="kg m^2", description="inertia the paper loop believes"),
+        ParamSpec("PAP_IYY", iyy, min=1e-7, max=1e3, unit="kg m^2", description="inertia the paper loop believes"),
+        ParamSpec("PAP_IZZ", izz, min=1e-7, max=1e3, unit="kg m^2", description="inertia the paper loop believes"),
+        # PX4 attitude (P) and rate (PID) loops, PX4 1.14 defaults; output is normalised torque
+        ParamSpec("MC_ROLL_P", 6.5, min=0.0, max=12.0, unit="1/s"),
+        ParamSpec("MC_PITCH_P", 6.5, min=0.0, max=12.0, unit="1/s"),
+        ParamSpec("MC_YAW_P", 2.8, min=0.0, max=5.0, unit="1/s"),
+        ParamSpec("MC_ROLLRATE_P", 0.15, min=0.0, max=0.5, unit="1/(rad/s)"),
+        ParamSpec("MC_ROLLRATE_I", 0.2, min=0.0, max=10.0, unit="1/rad"),
+        ParamSpec("MC_ROLLRATE_D", 0.003, min=0.0, max=0.01, unit="1/(rad/s^2)"),
+        ParamSpec("MC_PITCHRATE_P", 0.15, min=0.0, max=0.6, unit="1/(rad/s)"),
+        ParamSpec("MC_PITCHRATE_I", 0.2, min=0.0, max=10.0, unit="1/rad"),
+        ParamSpec("MC_PITCHRATE_D", 0.003, min=0.0, max=0.01, unit="1/(rad/s^2)"),
+        ParamSpec("MC_YAWRATE_P", 0.2, min=0.0, max=0.6, unit="1/(rad/s)"),
+        ParamSpec("MC_YAWRATE_I", 0.1, min=0.0, max=10.0, unit="1/rad"),
+        ParamSpec("MC_YAWRATE_D", 0.0, min=0.0, max=0.01, unit="1/(rad/s^2)"),
+        ParamSpec("MC_RR_INT_LIM", 0.3, min=0.0, max=1.0, description="roll rate integrator limit"),
+        ParamSpec("MC_PR_INT_LIM", 0.3, min=0.0, max=1.0, description="pitch rate integrator limit"),
+        ParamSpec("MC_YR_INT_LIM", 0.3, min=0.0, max=1.0, description="yaw rate integrator limit"),
+        ParamSpec("MC_ROLLRATE_MAX", 220.0, min=0.0, max=1800.0, unit="deg/s"),
+        ParamSpec("MC_PITCHRATE_MAX", 220.0, min=0.0, max=1800.0, unit="deg/s"),
+        ParamSpec("MC_YAWRATE_MAX", 200.0, min=0.0, max=1800.0, unit="deg/s"),
+        # the small built-in position controller of the hold / land / takeoff / RTL modes
+        ParamSpec("MPC_XY_P", 0.95, min=0.0, max=2.0, unit="1/s"),
+        ParamSpec("MPC_Z_P", 1.0, min=0.1, max=1.5, unit="1/s"),
+        ParamSpec("MPC_XY_VEL_P_ACC", 1.8, min=1.2, max=5.0, unit="1/s"),
+        ParamSpec("MPC_XY_VEL_I_ACC", 0.4, min=0.0, max=60.0, unit="1/s^2"),
+        ParamSpec("MPC_Z_VEL_P_ACC", 4.0, min=2.0, max=15.0, unit="1/s"),
+        ParamSpec("MPC_Z_VEL_I_ACC", 2.0, min=0.2, max=3.0, unit="1/s^2"),
+        ParamSpec("MPC_XY_VEL_MAX", 12.0, min=0.0, max=20.0, unit="m/s"),
+        ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, min=0.5, max=8.0, unit="m/s"),
+        ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, min=0.5, max=4.0, unit="m/s"),
+        ParamSpec("MPC_TILTMAX_AIR", 45.0, min=20.0, max=89.0, unit="deg"),
+        ParamSpec("MPC_THR_HOVER", hover, min=0.05, max=0.9, description="normalised hover thrust"),
+        ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s"),
+        ParamSpec("MPC_TKO_SPEED", 1.5, min=1.0, max=5.0, unit="m/s"),
+        ParamSpec("MIS_TAKEOFF_ALT", 2.5, min=0.0, max=80.0, unit="m", description="default takeoff height"),
+        ParamSpec("NAV_ACC_RAD", 2.0, min=0.05, max=200.0, unit="m", description="RTL acceptance radius"),
+    ]
+
+
+def plant_params(vehicle: VehicleParams, *, sysid: int = 1) -> ParamTable:
+    """The plant's parameter table for ``vehicle``."""
+    return ParamTable(plant_param_specs(vehicle, sysid=sysid))
+
+
+def vehicle_from_params(table: ParamTable, base: VehicleParams) -> VehicleParams:
+    """``base`` with the physical ``SIM_*`` values of ``table``."""
+    return base.with_changes(
+        mass_kg=table["SIM_MASS"],
+        arm_length_m=table["SIM_ARM_LEN"],
+        inertia_kg_m2=(table["SIM_IXX"], table["SIM_IYY"], table["SIM_IZZ"]),
+        thrust_coeff_n_s2=table["SIM_KF"],
+        drag_to_thrust_m=table["SIM_KM_KF"],
+        rotor_speed_max_rad_s=max(table["SIM_W_MAX"], base.rotor_speed_min_rad_s + 1.0),
+        motor_time_constant_s=table["SIM_MOT_TAU"],
+    )
+
+
+def refresh_derived(table: ParamTable, vehicle: VehicleParams) -> None:
+    """Recompute the read-only maxima after a physical parameter changed."""
+    table.force("SIM_THR_MAX", vehicle.max_thrust_n)
+    table.force("SIM_TQ_RP_MAX", vehicle.max_roll_pitch_torque_nm)
+    table.force("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm)
