@@ -1,0 +1,220 @@
+"""The paper's figures (Fig. 2-6) of any ``FlightRecord``, as PNG files, headless.
+
+One figure per question the paper's Section 4 answers:
+
+=================  =========================================================================
+``path3d.png``     3D path flown and its reference (Fig. 2); north, east, up (= -down), metres
+``position.png``   x north, y east, z up against time, with their references (Fig. 3)
+``attitude.png``   roll, pitch, yaw against time with the law's x7ez, x9ez and the yaw
+                   reference, degrees (Fig. 4)
+``errors.png``     position errors per axis (reference - flown, z up) and the wrapped yaw
+                   error, against time (Fig. 5)
+``actions.png``    u and the real torques of eq. 16, tau_phi, tau_theta, tau_psi (Fig. 6)
+=================  =========================================================================
+
+Phase boundaries are light vertical lines. Columns that a record does not hold (NaN, as in a
+replayed log without commands) leave their lines empty rather than failing; a one-sample
+record draws markers instead of lines.
+
+The figures are built on ``matplotlib.figure.Figure`` with the Agg canvas, never through
+``pyplot``: nothing opens a window, nothing needs a display, no global backend is switched
+under a caller (a notebook keeps its own), and each figure is freed when its last reference
+goes, so a long batch of runs does not accumulate open figures.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from offboard.record import FlightRecord
+from sitl_plant.dynamics.rotations import wrap_pi
+
+#: File stems of the figures ``write_figures`` writes, in order.
+FIGURE_NAMES = ("path3d", "position", "attitude", "errors", "actions")
+
+FLOWN = {"color": "tab:blue", "linewidth": 1.3}
+REFERENCE = {"color": "tab:red", "linewidth": 1.0, "linestyle": "--", "zorder": 3}  # on top: visible where tracking is good
+PHASE_LINE = {"color": "0.75", "linewidth": 0.8, "zorder": 0}
+DPI = 100
+LAYOUT = None  # "constrained" looks a little tidier but doubles the drawing time
+
+
+def _new_figure(rows: int, title: str, what: str) -> tuple[Figure, list]:
+    fig = Figure(figsize=(8.0, 1.9 * rows + 0.8), dpi=DPI, layout=LAYOUT)
+    FigureCanvasAgg(fig)
+    axes = list(fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0])
+    fig.suptitle(f"{title} - {what}" if title else what)
+    axes[-1].set_xlabel("t [s]")
+    return fig, axes
+
+
+def _style(n: int) -> dict:
+    """A one-sample record has no line to draw: show its point."""
+    return {"marker": "o", "markersize": 4} if n == 1 else {}
+
+
+def _phase_lines(record: FlightRecord, axes: list) -> None:
+    for phase in record.phases:
+        if phase.start_s <= 0.0:
+            continue
+        for ax in axes:
+            ax.axvline(phase.start_s, **PHASE_LINE)
+    if record.phases:
+        top = axes[0]
+        for phase in record.phases:
+            top.annotate(
+                phase.name, xy=(max(phase.start_s, 0.0), 1.0), xycoords=("data", "axes fraction"),
+                xytext=(2, -2), textcoords="offset points", fontsize=7, color="0.45", va="top",
+            )
+
+
+def _up(ned: np.ndarray) -> np.ndarray:
+    """North, east, down -> north, east, up (the paper's x, y, z)."""
+    out = np.array(ned, dtype=float, copy=True).reshape(-1, 3)
+    out[:, 2] = -out[:, 2]
+    return out
+
+
+def _finish(ax, ylabel: str) -> None:
+    ax.set_ylabel(ylabel)
+    ax.grid(True, linewidth=0.4, alpha=0.5)
+
+
+def path3d_figure(record: FlightRecord, title: str = "") -> Figure:
+    """Fig. 2: the path flown and the reference in 3D, north/east/up in metres."""
+    fig = Figure(figsize=(7.0, 6.0), dpi=DPI, layout=LAYOUT)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(projection="3d")
+    style = _style(len(record))
+    ref = _up(record["ref_pos_ned_m"])
+    pos = _up(record["pos_ned_m"])
+    ax.plot(ref[:, 0], ref[:, 1], ref[:, 2], label="reference", **REFERENCE, **style)
+    ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], label="flown", **FLOWN, **style)
+    finite = pos[np.all(np.isfinite(pos), axis=1)]
+    if len(finite):
+        ax.scatter(*finite[0], color="tab:green", s=18, label="start")
+        ax.scatter(*finite[-1], color="black", s=18, marker="x", label="end")
+    ax.set_xlabel("x north [m]")
+    ax.set_ylabel("y east [m]")
+    ax.set_zlabel("z up [m] (= -down)")
+    ax.legend(loc="upper left", fontsize=8)
+    what = "3D path (local NED shown north, east, up)"
+    fig.suptitle(f"{title} - {what}" if title else what)
+    return fig
+
+
+def position_figure(record: FlightRecord, title: str = "") -> Figure:
+    """Fig. 3: x north, y east, z up against time, with the references."""
+    fig, axes = _new_figure(3, title, "position")
+    t = record["t_s"]
+    style = _style(len(record))
+    pos, ref = _up(record["pos_ned_m"]), _up(record["ref_pos_ned_m"])
+    for i, (ax, label) in enumerate(zip(axes, ("x north [m]", "y east [m]", "z up [m]"))):
+        ax.plot(t, ref[:, i], label="reference", **REFERENCE, **style)
+        ax.plot(t, pos[:, i], label="flown", **FLOWN, **style)
+        _finish(ax, label)
+    axes[0].legend(loc="upper right", fontsize=8)
+    _phase_lines(record, axes)
+    return fig
+
+
+def attitude_figure(record: FlightRecord, title: str = "") -> Figure:
+    """Fig. 4: roll, pitch, yaw with the law's x7ez, x9ez and the yaw reference, degrees."""
+    fig, axes = _new_figure(3, title, "attitude")
+    t = record["t_s"]
+    style = _style(len(record))
+    euler = np.degrees(np.asarray(record["euler_rad"], dtype=float).reshape(-1, 3))
+    ref_euler = np.degrees(np.asarray(record["ref_euler_rad"], dtype=float).reshape(-1, 3))
+    refs = (ref_euler[:, 0], ref_euler[:, 1], np.degrees(np.asarray(record["ref_yaw_rad"], dtype=float)))
+    names = ("x7ez (roll ref.)", "x9ez (pitch ref.)", "yaw ref.")
+    labels = ("roll phi [deg]", "pitch theta [deg]", "yaw psi [deg]")
+    for i, ax in enumerate(axes):
+        ax.plot(t, refs[i], label=names[i], **REFERENCE, **style)
+        ax.plot(t, euler[:, i], label="flown", **FLOWN, **style)
+        ax.legend(loc="upper right", fontsize=8)
+        _finish(ax, labels[i])
+    _phase_lines(record, axes)
+    return fig
+
+
+def errors_figure(record: FlightRecord, title: str = "") -> Figure:
+    """Fig. 5: e = reference - flown per axis (x north, y east, z up) and the yaw error."""
+    fig, axes = _new_figure(4, title, "tracking errors (reference - flown)")
+    t = record["t_s"]
+    style = _style(len(record))
+    err = _up(record.error_ned_m)
+    yaw_err = np.degrees(wrap_pi(np.asarray(record["ref_yaw_rad"], dtype=float) - record["euler_rad"][:, 2]))
+    series = (err[:, 0], err[:, 1], err[:, 2], yaw_err)
+    labels = ("e_x north [m]", "e_y east [m]", "e_z up [m]", "e_psi [deg]")
+    for ax, values, label in zip(axes, series, labels):
+        ax.axhline(0.0, color="0.6", linewidth=0.6)
+        ax.plot(t, values, label=label, **FLOWN, **style)
+        _finish(ax, label)
+    _phase_lines(record, axes)
+    return fig
+
+
+def actions_figure(record: FlightRecord, title: str = "") -> Figure:
+    """Fig. 6: thrust u [N] and the real torques of eq. 16 [N m]."""
+    fig, axes = _new_figure(4, title, "control actions (eq. 9, 11, 16)")
+    t = record["t_s"]
+    style = _style(len(record))
+    torques = np.asarray(record["torques_nm"], dtype=float).reshape(-1, 3)
+    series = (record["thrust_n"], torques[:, 0], torques[:, 1], torques[:, 2])
+    labels = ("u [N]", "tau_phi [N m]", "tau_theta [N m]", "tau_psi [N m]")
+    for ax, values, label in zip(axes, series, labels):
+        ax.plot(t, values, label=label, **FLOWN, **style)
+        _finish(ax, label)
+    _phase_lines(record, axes)
+    return fig
+
+
+FIGURES: dict[str, Callable[[FlightRecord, str], Figure]] = {
+    "path3d": path3d_figure,
+    "position": position_figure,
+    "attitude": attitude_figure,
+    "errors": errors_figure,
+    "actions": actions_figure,
+}
+
+
+def make_figures(record: FlightRecord, title: str = "") -> dict[str, Figure]:
+    """All figures of ``record``, not yet saved, keyed by ``FIGURE_NAMES``."""
+    return {name: FIGURES[name](record, title) for name in FIGURE_NAMES}
+
+
+def save_figure(fig: Figure, path: Path) -> Path:
+    """Write one figure as PNG (the figure is freed with its last reference; no pyplot registry)."""
+    fig.savefig(path, format="png", dpi=DPI)
+    return path
+
+
+def write_figures(record: FlightRecord, run_dir: Path, title: str = "") -> list[Path]:
+    """Write the five figures of ``record`` into ``run_dir`` (created if needed).
+
+    Parameters
+    ----------
+    record : FlightRecord
+        Any flight: in-process, MAVLink, or replayed (NaN columns allowed).
+    run_dir : Path
+        Folder for ``path3d.png``, ``position.png``, ``attitude.png``, ``errors.png``,
+        ``actions.png``.
+    title : str
+        Prefix of every figure title (scenario or log name).
+
+    Returns
+    -------
+    list of Path
+        The files written, in ``FIGURE_NAMES`` order.
+    """
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in FIGURE_NAMES:
+        paths.append(save_figure(FIGURES[name](record, title), run_dir / f"{name}.png"))
+    return paths
