@@ -87,7 +87,7 @@ class _Context:
 
     def to_ned(self, xyz: tuple[float, ...]) -> np.ndarray:
         v = np.array(xyz, dtype=float)
-        return ned_from_paper_position(v) if self.frame == "paper-zup" else v
+        return (ned_from_paper_position(v) if self.frame == "paper-zup" else v) + 0.0  # no -0.0 in reports
 
     def angle_value(self, f: MissionFields, key: str, value: Any) -> float:
         if isinstance(value, str):
