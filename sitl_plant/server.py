@@ -151,6 +151,7 @@ class Counters:
     refused_setpoints: int = 0
     foreign: int = 0
     unhandled: int = 0
+    stale_answers: int = 0
     refusals: dict[str, int] = field(default_factory=dict)
 
 
@@ -242,14 +243,23 @@ class Plant:
 
     # -- incoming --------------------------------------------------------------------------------
 
-    def lockstep_echo(self, msg: mavlink.MAVLink_message) -> bool:
-        """Whether ``msg`` is the lockstep answer to the telemetry stamped now."""
+    def lockstep_stamp_ms(self, msg: mavlink.MAVLink_message) -> float | None:
+        """The telemetry time (ms) a setpoint answers, or None for other messages."""
         kind = msg.get_type()
         if kind == "SET_ATTITUDE_TARGET":
-            return int(msg.time_boot_ms) == self.time_ms
+            return int(msg.time_boot_ms)
         if kind == "SET_ACTUATOR_CONTROL_TARGET":
-            return int(msg.time_usec) == self.time_ms * 1000
-        return False
+            return int(msg.time_usec) / 1000.0
+        return None
+
+    def lockstep_echo(self, msg: mavlink.MAVLink_message) -> bool:
+        """Whether ``msg`` is the lockstep answer to the telemetry stamped now."""
+        return self.lockstep_stamp_ms(msg) == self.time_ms
+
+    def lockstep_stale(self, msg: mavlink.MAVLink_message) -> bool:
+        """Whether ``msg`` answers telemetry older than now (a repeat after a keepalive resend)."""
+        stamp = self.lockstep_stamp_ms(msg)
+        return stamp is not None and stamp < self.time_ms
 
     def handle(self, index: int, msg: mavlink.MAVLink_message) -> None:
         """React to one message from link ``index``; replies go to ``self.outbox``."""
@@ -630,6 +640,9 @@ def run_lockstep(
         now = clock()
         if link.wait(min(0.05, max(0.0, last_send + keepalive_s - now))):
             for index, msg in link.receive():
+                if index == API and plant.lockstep_stale(msg):
+                    plant.counters.stale_answers += 1  # a repeated answer: dropped, not logged
+                    continue
                 link.log_received(msg)
                 echo = index == API and plant.lockstep_echo(msg)
                 plant.handle(index, msg)
