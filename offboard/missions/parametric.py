@@ -430,6 +430,12 @@ def _check_above_ground(segment: Any, ground_down_m: float, where: str, t0_s: fl
 def read_parametric(path: Path, table: dict[str, Any]) -> ParsedMission:
     """A standalone mission file: only a ``[mission]`` table at the top level."""
     f = MissionFields(table, path.name)
+    if not f.has("mission"):
+        scenario = table.get("scenario")
+        hint = ""
+        if isinstance(scenario, dict) and isinstance(scenario.get("mission"), str):
+            hint = f" (this looks like a scenario file: its mission is {scenario['mission']!r})"
+        raise f.error("mission", f"missing; expected a [mission] table{hint}")
     mission_table = f.raw("mission")
     parsed = parse_mission_table(mission_table, path.name, "mission.", path.stem)
     f.reject_unknown()

@@ -314,11 +314,14 @@ class WaypointLegs(Segment):
             arc = _Arc(points[k + 1] - u1 * d + normal * r, normal, u1, r, 0.0, r * theta)
             v_arc = min(speeds[k], speeds[k + 1], math.sqrt(self.accel_m_s2 * r))
             if path_yaw:
-                samples = np.linspace(0.0, arc.length, 33)
-                tangents = np.array([arc.tangent(s) for s in samples])
-                if np.hypot(tangents[:, 0], tangents[:, 1]).min() < _MIN_HORIZONTAL_TANGENT:
+                phi = np.linspace(0.0, theta, 257)[:, None]
+                tangent = u1 * np.cos(phi) + normal * np.sin(phi)
+                dtangent = normal * np.cos(phi) - u1 * np.sin(phi)
+                horizontal_sq = tangent[:, 0] ** 2 + tangent[:, 1] ** 2
+                if np.sqrt(horizontal_sq.min()) < _MIN_HORIZONTAL_TANGENT:
                     continue
-                max_rate = max(abs(arc.heading_turn(s)[1]) for s in samples)
+                dheading = (tangent[:, 0] * dtangent[:, 1] - tangent[:, 1] * dtangent[:, 0]) / horizontal_sq
+                max_rate = 1.01 * float(np.abs(dheading).max())  # 1 % for what falls between samples
                 if max_rate > 0:
                     v_arc = min(v_arc, self.max_yaw_rate_rad_s * r / max_rate)
             arcs[k] = (arc, d, theta, v_arc)
