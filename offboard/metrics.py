@@ -91,6 +91,8 @@ def summarize(record: FlightRecord, phases: list[Phase] | None = None) -> Summar
         _phase_stats(record, f"after {SETTLE_S:g} s", SETTLE_S, end, False),
     ]
     for phase in phases:
+        if not len(t) or phase.start_s >= t[-1]:
+            continue  # the flight ended (or was cut short) before this phase began
         rows.append(_phase_stats(record, phase.name, phase.start_s, phase.end_s, phase.kind == "hold"))
     euler = record["euler_rad"]
     tilt = np.degrees(np.arccos(np.clip(np.cos(euler[:, 0]) * np.cos(euler[:, 1]), -1, 1))) if len(euler) else np.zeros(1)
