@@ -88,12 +88,13 @@ def _short(command: int) -> str:
     return command_name(command).removeprefix("MAV_CMD_")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MissionItem:
     """One MISSION_ITEM as stored in a file (degrees for global x/y, metres otherwise).
 
     ``seq`` is its number in the file (home = 0) and ``where`` locates it for messages
-    (``"line 5 (item 4)"``); neither is compared.
+    (``"line 5 (item 4)"``); neither is compared. NaN parameters (MAVLink's "unchanged")
+    compare equal to each other, so items read back from a file equal the ones written.
     """
 
     command: int
@@ -105,6 +106,18 @@ class MissionItem:
     autocontinue: bool = True
     seq: int = field(default=0, compare=False)
     where: str = field(default="", compare=False)
+
+    def _key(self) -> tuple:
+        numbers = tuple("nan" if math.isnan(v) else v for v in (*self.params, self.x, self.y, self.z))
+        return (self.command, self.frame, numbers, self.autocontinue)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, MissionItem):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
 
 
 @dataclass(frozen=True)

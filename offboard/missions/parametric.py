@@ -308,7 +308,7 @@ def _vertical(ctx: _Context, f: MissionFields, name: str, climb: bool, ground_do
     speed = f.number("speed_m_s", gt=0)
     accel = f.number("accel_m_s2", gt=0)
     end_yaw = _angle(ctx, f, "yaw", None)
-    here_up = -float(ctx.pos[2])
+    here_up = 0.0 - float(ctx.pos[2]) + 0.0  # no "-0 m" in messages
     if climb and not to_down < ctx.pos[2] - 1e-9:
         raise f.error(key, f"a take-off must climb; expected an altitude above the segment's start ({here_up:g} m), got {-to_down:g}")
     if not climb and not to_down > ctx.pos[2] + 1e-9:
