@@ -3,7 +3,9 @@
 Three ways a setpoint becomes thrust and torque (``InnerLoops.actuation_for``):
 
 - ``px4`` inner loop (default, ``Px4Loop``): PX4's ``mc_att_control`` (quaternion attitude error
-  with reduced-attitude/yaw weighting, P gains ``MC_*_P``, rate limits ``MC_*RATE_MAX``) and
+  with reduced-attitude/yaw weighting, P gains ``MC_*_P``, rate limits ``MC_*RATE_MAX``; on the
+  paper model, whose W_eta is not a rigid body's kinematics away from psi = 0, the same P acts on
+  the Euler-angle errors and ``omega_sp = W_eta eta_dot_sp``) and
   ``mc_rate_control`` (PID ``MC_*RATE_P/I/D`` with integrator limits ``MC_*_INT_LIM``), run at
   every physics step. As in PX4 the rate PID's output is the **normalised torque** in [-1, 1];
   the body FRD torque is ``u * SIM_TQ_RP_MAX`` (roll, pitch) and ``u * SIM_TQ_Y_MAX`` (yaw), and
@@ -238,6 +240,10 @@ class Px4Loop:
         self._read = _state_reader(model)
         self._write = _torque_writer(model)
         self._paper_translation = isinstance(model, PaperModel)
+        # the paper model's W_eta (castillo form) is not a rigid body's kinematics away from
+        # psi = 0: its attitude loop acts on the Euler angles themselves (see rates_for_attitude)
+        self._euler_attitude = isinstance(model, PaperModel)
+        self._form = model_euler_form(model)
 
     def reload(self) -> None:
         p = self.params
@@ -311,6 +317,32 @@ class Px4Loop:
             min(max(rates[1], -rmax[1]), rmax[1]),
             min(max(rates[2], -rmax[2]), rmax[2]),
         )
+
+    def euler_attitude_rates(self, eta: tuple[float, float, float], q_sp: Quat, yaw_ff: float) -> Vec3:
+        """Attitude P on the Euler angles, for models whose angles are generalised coordinates:
+        ``eta_dot_sp = K_P (eta_sp - eta)`` (yaw error wrapped), ``omega_sp = W_eta eta_dot_sp``."""
+        w, x, y, z = q_sp
+        roll_sp = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        pitch_sp = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+        yaw_sp = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        kp = self.params
+        yaw_err = (yaw_sp - eta[2] + math.pi) % (2.0 * math.pi) - math.pi
+        eta_dot_sp = np.array(
+            [kp["MC_ROLL_P"] * (roll_sp - eta[0]), kp["MC_PITCH_P"] * (pitch_sp - eta[1]), kp["MC_YAW_P"] * yaw_err + yaw_ff]
+        )
+        omega = euler_rate_matrix(np.asarray(eta), self._form) @ eta_dot_sp
+        rmax = self._rate_max
+        return (
+            min(max(float(omega[0]), -rmax[0]), rmax[0]),
+            min(max(float(omega[1]), -rmax[1]), rmax[1]),
+            min(max(float(omega[2]), -rmax[2]), rmax[2]),
+        )
+
+    def rates_for_attitude(self, q: Quat, eta: tuple[float, float, float], q_sp: Quat, yaw_ff: float) -> Vec3:
+        """The body-rate setpoint for an attitude setpoint, the right way for this model."""
+        if self._euler_attitude:
+            return self.euler_attitude_rates(eta, q_sp, yaw_ff)
+        return self.attitude_rates(q, q_sp, yaw_ff)
 
     def rate_torque(self, rates: Vec3, rates_sp: Vec3) -> Vec3:
         """PX4 RateControl::update: normalised torque in [-1, 1] from the rate error."""
@@ -386,9 +418,9 @@ class Px4Loop:
                 self._q_sp, self._thrust_n = self.position_attitude(x, eta[2])
                 self._yaw_ff = 0.0
             self._pos_count += 1
-            rates_sp = self.attitude_rates(q, self._q_sp, 0.0)
+            rates_sp = self.rates_for_attitude(q, eta, self._q_sp, 0.0)
         elif self._mode == "attitude":
-            rates_sp = self.attitude_rates(q, self._q_sp, self._yaw_ff)
+            rates_sp = self.rates_for_attitude(q, eta, self._q_sp, self._yaw_ff)
         elif self._mode == "rates":
             rates_sp = self._rates_sp
         else:
@@ -520,8 +552,8 @@ class InnerLoops:
         return self._current
 
     def _attitude_rates_now(self, x: np.ndarray) -> Callable[[Quat], Vec3]:
-        q, _, _ = self.px4._read(x)
-        return lambda q_sp: self.px4.attitude_rates(q, q_sp, 0.0)
+        q, _, eta = self.px4._read(x)
+        return lambda q_sp: self.px4.rates_for_attitude(q, eta, q_sp, 0.0)
 
     def last_output(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         """The thrust (N) and model torque input last applied (for the motor-output telemetry)."""
