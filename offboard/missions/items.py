@@ -322,10 +322,14 @@ def trajectory_from_items(
     for item in mission.items:
         cmd = item.command
         if cmd not in SUPPORTED_COMMANDS:
+            hint = ""
+            if cmd == _MAV.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+                hint = " (its path depends on the autopilot's return altitude: use NAV_WAYPOINT to home, then NAV_LAND)"
             raise _err(
                 mission, item, "command",
                 f"{command_name(cmd)} ({cmd}) is not supported; expected one of "
-                + ", ".join(f"{_short(c)} ({c})" for c in SUPPORTED_COMMANDS),
+                + ", ".join(f"{_short(c)} ({c})" for c in SUPPORTED_COMMANDS)
+                + hint,
             )
         if cmd == DO_CHANGE_SPEED:
             kind = _param(mission, item, 1, "speed type")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -40,7 +41,7 @@ def plot_path(
         Sampling step (s).
     """
     path = Path(path)
-    fig = Figure(figsize=(12, 5.5), dpi=100)
+    fig = Figure(figsize=(14, 5.5), dpi=100)
     FigureCanvasAgg(fig)
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     ax2 = fig.add_subplot(1, 2, 2)
@@ -48,7 +49,11 @@ def plot_path(
         parts = list(zip(trajectory.starts_s, trajectory.segments))
     else:
         parts = [(0.0, trajectory)]
-    colours = [f"C{k % 10}" for k in range(len(parts))]
+    if len(parts) <= 10:
+        colours = [f"C{k}" for k in range(len(parts))]
+    else:  # distinct colours for up to 20 segments, then they repeat
+        palette = matplotlib.colormaps["tab20"]
+        colours = [palette(k % 20) for k in range(len(parts))]
     prev_end: np.ndarray | None = None
     for (t0, seg), colour in zip(parts, colours):
         s = sample(seg, dt_s)
@@ -73,7 +78,7 @@ def plot_path(
     ax2.set_title("top view")
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.grid(True, alpha=0.3)
-    ax2.legend(fontsize="small", loc="best")
+    ax2.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
