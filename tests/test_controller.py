@@ -258,3 +258,44 @@ def test_bad_parameter_files_give_one_line_naming_file_and_field(tmp_path, edit,
         load_controller(path)
     assert message in str(info.value)
     assert "\n" not in str(info.value)
+
+
+# --- the optional integral action (issue: remove the steady-state error of model errors) ---
+
+
+def _hover_with_mass_error(integral_gain_per_s: float):
+    from offboard.inprocess import Scenario, run_scenario
+    from offboard.trajectory import Hold, Sequence
+    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+
+    params = PARAMS.with_changes(mass_kg=0.6, integral_gain_per_s=integral_gain_per_s)  # Table II's mass
+    scenario = Scenario("hover", Sequence([Hold([0, 0, -2], 0.0, 30.0, "hold")]), load_vehicle(PAPER_VEHICLE_FILE),
+                        params, initial_pos_ned_m=(0.0, 0.0, -2.0))
+    record = run_scenario(scenario)
+    late = record["t_s"] > 25.0
+    return float(np.mean(record.error_ned_m[late, 2]))
+
+
+def test_without_integral_the_mass_error_leaves_the_closed_form_offset():
+    k = PARAMS.gains
+    expected_down = -9.81 * 0.05**2 * (0.5 / 0.6 - 1) / ((1 - k.kx5) * (1 - k.kx6))  # +0.8175 m (down error)
+    assert _hover_with_mass_error(0.0) == pytest.approx(expected_down, rel=1e-3)
+
+
+def test_integral_action_removes_the_steady_state_error():
+    assert abs(_hover_with_mass_error(1.0)) < 1e-3
+
+
+def test_integral_contribution_is_clamped():
+    params = PARAMS.with_changes(integral_gain_per_s=10.0, integral_limit_m_s=0.5)
+    x = (0.0,) * 12
+    memory = LawMemory.from_state(x)
+    for _ in range(50):
+        _, memory = law_step(params, memory, x, TrackingReference(0, 0, 100.0, 0), TrackingReference(0, 0, 100.0, 0))
+    assert memory.i5 == pytest.approx(0.5) and memory.i1 == 0.0
+
+
+def test_integral_off_by_default_and_validated():
+    assert PARAMS.integral_gain_per_s == 0.0
+    with pytest.raises(ValueError, match="integral_gain_per_s"):
+        PARAMS.with_changes(integral_gain_per_s=-1.0)

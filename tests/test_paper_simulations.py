@@ -94,6 +94,13 @@ def test_sim2_with_noise_is_reproducible_and_drifts_as_integrated_noise_does():
     assert noisy_err > clean_err + 0.1
 
 
+def test_sim2_with_the_integral_option_loses_the_z_offset():
+    _, record, _ = fly("paper-sim2-integral.toml")
+    assert record.status is FlightStatus.COMPLETE, record.status_detail
+    late = (record["t_s"] > 9.0) & (record["t_s"] < 12.0)
+    assert abs(np.mean(record.error_ned_m[late, 2])) < 0.1  # against 0.82 m without it
+
+
 def test_sim2_over_the_whole_mission_diverges_at_the_yaw_switch():
     _, record, _ = fly("paper-sim2-as-stated.toml")
     assert record.status is FlightStatus.DIVERGED

@@ -27,6 +27,11 @@ Choices where the paper is silent or garbled (each pinned by a test):
   upside-down solution a plain ``atan2(num, den)`` would give.
 - **Start-up memory.** At n = 0 the previous desired values are initialised from the measured
   state: x2d(0) = x2(0), ..., x7ez(0) = x7(0), x9ez(0) = x9(0).
+- **Integral action** (``integral_gain_per_s`` > 0, off by default): the paper names the mass
+  error as the law's weakness (Simulation 2's steady z error, docs/reproduction.md). An integral
+  of each position error, ``i(n+1) = i(n) + ki To (x_d(n) - x(n))`` clamped to
+  ``integral_limit_m_s``, is added to the desired speed of eq. 32; at steady state the error
+  that feeds it must vanish. Off reproduces the paper exactly.
 - **Yaw differences** ``x11d - x11`` are wrapped to [-pi, pi), so a yaw reference and a measured
   yaw that differ by whole turns do not spin the vehicle; the paper's steps (pi and pi/2) are
   flown in the same direction as unwrapped differences would.
@@ -67,7 +72,11 @@ class TrackingReference(NamedTuple):
 
 
 class LawMemory(NamedTuple):
-    """The controller's memory of sample n: desired speeds and angle references (eq. 31-33)."""
+    """The controller's memory of sample n: desired speeds and angle references (eq. 31-33).
+
+    ``i1, i3, i5`` hold the optional integral action's contribution to the desired speeds
+    (m/s); they stay zero with the paper's law.
+    """
 
     x2d: float
     x4d: float
@@ -77,6 +86,9 @@ class LawMemory(NamedTuple):
     x12d: float
     x7ez: float
     x9ez: float
+    i1: float = 0.0
+    i3: float = 0.0
+    i5: float = 0.0
 
     @classmethod
     def from_state(cls, x: tuple[float, ...] | np.ndarray) -> LawMemory:
@@ -134,6 +146,14 @@ def law_step(
     x2d = (ref_n1.x_m - g.kx1 * (ref_n.x_m - x1) - x1) / to
     x4d = (ref_n1.y_m - g.kx3 * (ref_n.y_m - x3) - x3) / to
     x6d = (ref_n1.z_up_m - g.kx5 * (ref_n.z_up_m - x5) - x5) / to
+    i1, i3, i5 = memory.i1, memory.i3, memory.i5
+    ki = params.integral_gain_per_s
+    if ki > 0.0:  # optional integral action on the position errors (not in the paper)
+        cap = params.integral_limit_m_s
+        i1 = ops.minimum(ops.maximum(i1 + ki * to * (ref_n.x_m - x1), -cap), cap)
+        i3 = ops.minimum(ops.maximum(i3 + ki * to * (ref_n.y_m - x3), -cap), cap)
+        i5 = ops.minimum(ops.maximum(i5 + ki * to * (ref_n.z_up_m - x5), -cap), cap)
+        x2d, x4d, x6d = x2d + i1, x4d + i3, x6d + i5
     x12d = (ops.wrap(ref_n1.yaw_rad - x11) - g.kx11 * ops.wrap(ref_n.yaw_rad - x11)) / to
 
     # eq. 33-34: reference speeds and the increments of eq. 34
@@ -182,7 +202,7 @@ def law_step(
         yaw_ref_rad=ref_n1.yaw_rad,
         euler_rate_ref_rad_s=(x8ref, x10ref, x12ref),
     )
-    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez)
+    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5)
 
 
 @dataclass(frozen=True)

@@ -91,6 +91,11 @@ class ControllerParams:
         a vehicle whose thrust turns with yaw needs.
     limits : ActionLimits
         Off by default, so the reproduction is exact.
+    integral_gain_per_s : float
+        ki of the optional integral action on the position errors (``law`` module docstring);
+        0 (the default) is the paper's law.
+    integral_limit_m_s : float
+        Anti-windup: the integral's contribution to each desired speed is clamped to +- this.
     """
 
     sample_time_s: float = 0.05
@@ -103,6 +108,8 @@ class ControllerParams:
     gains: ControllerGains = field(default_factory=ControllerGains)
     yaw_aware: bool = False
     limits: ActionLimits = field(default_factory=ActionLimits)
+    integral_gain_per_s: float = 0.0
+    integral_limit_m_s: float = 3.0
 
     def __post_init__(self) -> None:
         for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
@@ -111,6 +118,10 @@ class ControllerParams:
                 raise ValueError(f"{key} must be > 0, got {value}")
         if len(self.inertia_kg_m2) != 3 or min(self.inertia_kg_m2) <= 0:
             raise ValueError(f"inertia_kg_m2 must be 3 positive numbers, got {self.inertia_kg_m2}")
+        if not (math.isfinite(self.integral_gain_per_s) and self.integral_gain_per_s >= 0):
+            raise ValueError(f"integral_gain_per_s must be >= 0, got {self.integral_gain_per_s}")
+        if not (math.isfinite(self.integral_limit_m_s) and self.integral_limit_m_s > 0):
+            raise ValueError(f"integral_limit_m_s must be > 0, got {self.integral_limit_m_s}")
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
 
@@ -138,6 +149,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
     params = ControllerParams(
         sample_time_s=law.number("sample_time_s", gt=0),
         yaw_aware=law.boolean("yaw_aware", False),
+        integral_gain_per_s=law.number("integral_gain_per_s", 0.0, ge=0),
+        integral_limit_m_s=law.number("integral_limit_m_s", 3.0, gt=0),
         mass_kg=model.number("mass_kg", gt=0),
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]
