@@ -153,6 +153,13 @@ def _duration(ctx: _Context, f: MissionFields, extra: tuple[str, ...] = (), per_
     return count * (per_unit_s or {})[key]
 
 
+def _optional_number(f: MissionFields, key: str, **bounds: float) -> float | None:
+    if not f.has(key):
+        f.raw(key, None)
+        return None
+    return f.number(key, **bounds)
+
+
 def _points(ctx: _Context, f: MissionFields, key: str, minimum: int) -> list[np.ndarray]:
     value = f.raw(key)
     if not isinstance(value, list) or len(value) < minimum:
@@ -275,8 +282,8 @@ def _waypoints(ctx: _Context, f: MissionFields, name: str) -> WaypointLegs:
             pos = ctx.to_ned(pf.vector("position", 3))
             wp_yaw = _angle(ctx, pf, "yaw", None)
             hold = pf.number("hold_s", 0.0, ge=0)
-            speed = pf.number("speed_m_s", None, gt=0) if pf.has("speed_m_s") else pf.raw("speed_m_s", None)
-            blend = pf.number("blend_radius_m", None, ge=0) if pf.has("blend_radius_m") else pf.raw("blend_radius_m", None)
+            speed = _optional_number(pf, "speed_m_s", gt=0)
+            blend = _optional_number(pf, "blend_radius_m", ge=0)
             stop = pf.boolean("stop", False)
             label = pf.string("label", "")
             pf.reject_unknown()
@@ -416,7 +423,27 @@ def parse_mission_table(table: Any, source: str, prefix: str = "mission.", defau
     return ParsedMission(name, description, Sequence(segments), home, tuple(start.tolist()), start_yaw)  # type: ignore[arg-type]
 
 
+def _lowest_down_m(segment: Any) -> float | None:
+    """The segment's largest NED down coordinate where it follows from the geometry, else None.
+
+    Straight pieces and blending arcs stay within their corner points; a helix is monotone in
+    height.
+    """
+    if isinstance(segment, Hold):
+        return float(segment.pos_ned_m[2])
+    if isinstance(segment, (Line, Helix)):
+        return max(float(segment.start_reference.pos_ned_m[2]), float(segment.end_reference.pos_ned_m[2]))
+    if isinstance(segment, Polygon):
+        return float(segment.vertices_ned_m[:, 2].max())
+    if isinstance(segment, WaypointLegs):
+        return max([float(segment.start_ned_m[2])] + [w.pos_ned_m[2] for w in segment.waypoints])
+    return None
+
+
 def _check_above_ground(segment: Any, ground_down_m: float, where: str, t0_s: float) -> None:
+    lowest = _lowest_down_m(segment)
+    if lowest is not None and lowest <= ground_down_m + 1e-6:
+        return
     s = sample(segment, GROUND_CHECK_DT_S)
     depth = s.pos_ned_m[:, 2] - ground_down_m
     k = int(np.argmax(depth))
