@@ -1,0 +1,395 @@
+"""MAVLink encoding and decoding for the offboard process: pure functions, no sockets.
+
+Incoming: ATTITUDE and LOCAL_POSITION_NED become a ``MeasuredState`` (NED/FRD), which
+``controller_state`` turns into the paper's 12-state (``offboard.frames``); HEARTBEAT,
+COMMAND_ACK, PARAM_VALUE and TIMESYNC become small typed values.
+Outgoing: the law's output becomes SET_ATTITUDE_TARGET (``attitude_setpoint``) or
+SET_ACTUATOR_CONTROL_TARGET (``actuator_setpoint``) fields, and commands are built as
+COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
+
+Frames and units are MAVLink's: NED metres, FRD body rates in rad/s, the quaternion (w, x, y, z)
+rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboard.md):
+
+- ``attitude``: q = ZYX quaternion of (x7ez, x9ez, x11d(n+1)); body rates
+  ``omega = W_eta(eta(n)) @ (x8ref, x10ref, x12ref)`` (eq. 3) with the controller's W_eta form at
+  the measured attitude of sample n; thrust ``u / SIM_THR_MAX`` clipped to [0, 1]; type_mask 0.
+- ``actuator``: group 0, controls = (tau_roll / SIM_TQ_RP_MAX, tau_pitch / SIM_TQ_RP_MAX,
+  tau_yaw / SIM_TQ_Y_MAX) clipped to [-1, 1] and ``u / SIM_THR_MAX`` clipped to [0, 1], where the
+  torque is the body torque ``solve(W_eta^T, tau_gen)`` for a rigid body (virtual work:
+  ``tau_gen = W_eta^T tau_body``) and the generalised torque of eq. 16 itself for the paper model.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from offboard.controller.law import ControlOutput
+from offboard.frames import body_rates_from_euler_rates, euler_rates_from_body_rates, paper_state
+from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+from sitl_plant.dynamics.rotations import quat_from_euler
+
+MAVLinkMessage = mavlink.MAVLink_message
+
+#: PX4's custom main modes (px4_custom_mode.h) the offboard process cares about.
+PX4_MAIN_MODE_OFFBOARD = 6
+PX4_MAIN_MODE_AUTO = 4
+PX4_SUB_MODE_AUTO_LAND = 6
+#: Names of PX4's main modes and AUTO sub modes, for messages.
+PX4_MAIN_MODES = {1: "Manual", 2: "Altitude", 3: "Position", 4: "Auto", 5: "Acro", 6: "Offboard", 7: "Stabilized", 8: "Rattitude"}
+PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Return", 6: "Land", 8: "Follow", 9: "Precland"}
+
+#: The vehicle models the offboard process knows how to talk to (``--model``).
+MODELS = ("rigid-body", "paper")
+
+FORCE_ARM_MAGIC = 21196  # PX4: param2 of ARM_DISARM that skips the checks (not used by default)
+
+
+class BadTelemetry(ValueError):
+    """A telemetry message with a non-finite field: ignored (counted), never used."""
+
+
+# --- incoming: the measured state ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MeasuredState:
+    """The vehicle's report of one sample, NED/FRD.
+
+    Attributes
+    ----------
+    time_boot_ms : int
+        The ATTITUDE stamp (the one a lockstep setpoint echoes).
+    position_time_boot_ms : int
+        The LOCAL_POSITION_NED stamp (equal to ``time_boot_ms`` in lockstep).
+    pos_ned_m, vel_ned_m_s : ndarray (3,)
+    euler_rad : ndarray (3,)
+        (roll, pitch, yaw) as ATTITUDE reports them.
+    body_rate_frd_rad_s : ndarray (3,)
+        (p, q, r) as ATTITUDE reports them.
+    """
+
+    time_boot_ms: int
+    position_time_boot_ms: int
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    euler_rad: np.ndarray
+    body_rate_frd_rad_s: np.ndarray
+
+
+def check_attitude(msg: MAVLinkMessage) -> None:
+    """Raise ``BadTelemetry`` unless every field of an ATTITUDE message is finite."""
+    values = (msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    if not all(math.isfinite(v) for v in values):
+        raise BadTelemetry("ATTITUDE with a non-finite field")
+
+
+def check_local_position(msg: MAVLinkMessage) -> None:
+    """Raise ``BadTelemetry`` unless every field of a LOCAL_POSITION_NED message is finite."""
+    values = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+    if not all(math.isfinite(v) for v in values):
+        raise BadTelemetry("LOCAL_POSITION_NED with a non-finite field")
+
+
+def measured_state(attitude: MAVLinkMessage, local_position: MAVLinkMessage) -> MeasuredState:
+    """The measured state from one ATTITUDE and one LOCAL_POSITION_NED message.
+
+    Raises
+    ------
+    BadTelemetry
+        A field of either message is NaN or infinite.
+    """
+    check_attitude(attitude)
+    check_local_position(local_position)
+    return MeasuredState(
+        time_boot_ms=int(attitude.time_boot_ms),
+        position_time_boot_ms=int(local_position.time_boot_ms),
+        pos_ned_m=np.array([local_position.x, local_position.y, local_position.z], dtype=float),
+        vel_ned_m_s=np.array([local_position.vx, local_position.vy, local_position.vz], dtype=float),
+        euler_rad=np.array([attitude.roll, attitude.pitch, attitude.yaw], dtype=float),
+        body_rate_frd_rad_s=np.array([attitude.rollspeed, attitude.pitchspeed, attitude.yawspeed], dtype=float),
+    )
+
+
+def controller_state(measured: MeasuredState, euler_rate_form: str) -> tuple[float, ...]:
+    """The paper's 12-state (eq. 22) of a measurement: Euler rates from body rates by eq. 3."""
+    euler_rates = euler_rates_from_body_rates(measured.euler_rad, measured.body_rate_frd_rad_s, euler_rate_form)
+    return paper_state(measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, euler_rates)
+
+
+def euler_rate_form_for(model: str, controller_form: str) -> str:
+    """The W_eta that matches what the vehicle reports.
+
+    A rigid body (any real vehicle, PX4, ``sitl-plant --model rigid-body``) reports ZYX Euler
+    angles and true body rates, so ``zyx``; the paper's model reports its generalised
+    coordinates with its own W_eta, which the controller file names (``castillo``).
+    """
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    return "zyx" if model == "rigid-body" else controller_form
+
+
+# --- outgoing: setpoints -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """The vehicle's published scaling of normalised setpoints.
+
+    Attributes
+    ----------
+    thrust_max_n : float
+        Collective thrust at normalised thrust 1 (``SIM_THR_MAX``).
+    torque_roll_pitch_max_nm, torque_yaw_max_nm : float or None
+        Torque at normalised torque 1 (``SIM_TQ_RP_MAX``, ``SIM_TQ_Y_MAX``); needed only for the
+        actuator output.
+    """
+
+    thrust_max_n: float
+    torque_roll_pitch_max_nm: float | None = None
+    torque_yaw_max_nm: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.thrust_max_n) and self.thrust_max_n > 0):
+            raise ValueError(f"thrust_max_n must be > 0, got {self.thrust_max_n}")
+        for name in ("torque_roll_pitch_max_nm", "torque_yaw_max_nm"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
+
+
+@dataclass(frozen=True)
+class AttitudeSetpoint:
+    """SET_ATTITUDE_TARGET fields: q (w, x, y, z) body FRD to NED, FRD body rates, thrust 0..1."""
+
+    q_wxyz: tuple[float, float, float, float]
+    body_rates_frd_rad_s: tuple[float, float, float]
+    thrust_norm: float
+
+
+@dataclass(frozen=True)
+class ActuatorSetpoint:
+    """SET_ACTUATOR_CONTROL_TARGET group 0: normalised roll, pitch, yaw torque and thrust."""
+
+    controls: tuple[float, float, float, float]
+
+
+def thrust_norm(thrust_n: float, scaling: Scaling) -> float:
+    """``u / SIM_THR_MAX`` clipped to [0, 1] (PX4 clips it the same way)."""
+    return min(max(thrust_n / scaling.thrust_max_n, 0.0), 1.0)
+
+
+def attitude_setpoint(out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling) -> AttitudeSetpoint:
+    """The ``attitude`` output of one sample (module docstring).
+
+    Parameters
+    ----------
+    out : ControlOutput
+        The controller's output for sample n.
+    euler_rad : ndarray (3,)
+        The measured attitude of sample n, at which W_eta maps the Euler-rate references.
+    euler_rate_form : str
+        The controller's W_eta form.
+    scaling : Scaling
+    """
+    law = out.law
+    q = quat_from_euler(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad)
+    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
+    return AttitudeSetpoint(
+        q_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+        body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
+        thrust_norm=thrust_norm(law.thrust_n, scaling),
+    )
+
+
+def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
+    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
+
+    By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
+    (eq. 3), so ``tau_gen = W_eta^T tau_body``.
+    """
+    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))
+
+
+def actuator_setpoint(out: ControlOutput, euler_rad: np.ndarray, model: str, euler_rate_form: str, scaling: Scaling) -> ActuatorSetpoint:
+    """The ``actuator`` output of one sample: eq. 16 torques and u, normalised (module docstring).
+
+    Raises
+    ------
+    ValueError
+        The scaling lacks the torque maxima.
+    """
+    if scaling.torque_roll_pitch_max_nm is None or scaling.torque_yaw_max_nm is None:
+        raise ValueError("the actuator output needs the vehicle's torque scaling (SIM_TQ_RP_MAX, SIM_TQ_Y_MAX)")
+    tau = np.asarray(out.torques_nm, dtype=float)
+    if model == "rigid-body":
+        tau = body_torque_from_generalized(tau, euler_rad, euler_rate_form)
+    rp, yw = scaling.torque_roll_pitch_max_nm, scaling.torque_yaw_max_nm
+    controls = (tau[0] / rp, tau[1] / rp, tau[2] / yw)
+    clipped = tuple(min(max(float(c), -1.0), 1.0) for c in controls)
+    return ActuatorSetpoint(controls=(clipped[0], clipped[1], clipped[2], thrust_norm(out.law.thrust_n, scaling)))
+
+
+def hold_setpoint(euler_rad: np.ndarray, thrust: float) -> AttitudeSetpoint:
+    """A setpoint that asks for the attitude the vehicle has, zero rates and ``thrust`` (0..1).
+
+    Streamed before the mission (thrust 0, disarmed: PX4's proof of offboard life) and while
+    the vehicle flies one of its own modes (not flown there; it keeps a lockstep plant going).
+    """
+    roll, pitch, yaw = (float(v) for v in euler_rad)
+    q = quat_from_euler(roll, pitch, yaw)
+    return AttitudeSetpoint((float(q[0]), float(q[1]), float(q[2]), float(q[3])), (0.0, 0.0, 0.0), min(max(thrust, 0.0), 1.0))
+
+
+def set_attitude_target(time_boot_ms: int, sp: AttitudeSetpoint, target_system: int, target_component: int) -> MAVLinkMessage:
+    """SET_ATTITUDE_TARGET with type_mask 0: attitude, body rates and thrust all used."""
+    return mavlink.MAVLink_set_attitude_target_message(
+        time_boot_ms & 0xFFFFFFFF, target_system, target_component, 0,
+        list(sp.q_wxyz), sp.body_rates_frd_rad_s[0], sp.body_rates_frd_rad_s[1], sp.body_rates_frd_rad_s[2],
+        sp.thrust_norm,
+    )  # fmt: skip
+
+
+def set_actuator_control_target(time_boot_ms: int, sp: ActuatorSetpoint, target_system: int, target_component: int) -> MAVLinkMessage:
+    """SET_ACTUATOR_CONTROL_TARGET, group 0, time_usec = time_boot_ms * 1000 (the lockstep echo)."""
+    controls = list(sp.controls) + [0.0] * 4
+    return mavlink.MAVLink_set_actuator_control_target_message(time_boot_ms * 1000, 0, target_system, target_component, controls)
+
+
+# --- commands and other outgoing messages ---------------------------------------------------------
+
+
+def heartbeat() -> MAVLinkMessage:
+    """The offboard process's own HEARTBEAT: an onboard controller, no autopilot."""
+    return mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+    )
+
+
+def command_long(target_system: int, target_component: int, command: int, params: tuple[float, ...], confirmation: int = 0) -> MAVLinkMessage:
+    """COMMAND_LONG; unused parameters are 0 (seven parameters in all)."""
+    p = list(params) + [0.0] * (7 - len(params))
+    return mavlink.MAVLink_command_long_message(target_system, target_component, command, confirmation, *p[:7])
+
+
+def set_mode_offboard_params() -> tuple[int, tuple[float, ...]]:
+    """MAV_CMD_DO_SET_MODE with PX4's custom main mode OFFBOARD (6)."""
+    return mavlink.MAV_CMD_DO_SET_MODE, (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(PX4_MAIN_MODE_OFFBOARD), 0.0)
+
+
+def arm_params(arm: bool) -> tuple[int, tuple[float, ...]]:
+    """MAV_CMD_COMPONENT_ARM_DISARM (param1 1 arm, 0 disarm; checks not forced)."""
+    return mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0 if arm else 0.0, 0.0)
+
+
+def land_params() -> tuple[int, tuple[float, ...]]:
+    """MAV_CMD_NAV_LAND at the current position (PX4: NaN latitude/longitude/yaw = here)."""
+    nan = math.nan
+    return mavlink.MAV_CMD_NAV_LAND, (0.0, 0.0, 0.0, nan, nan, nan, nan)
+
+
+def message_interval_params(message_id: int, rate_hz: float) -> tuple[int, tuple[float, ...]]:
+    """MAV_CMD_SET_MESSAGE_INTERVAL for one stream."""
+    return mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(message_id), float(round(1e6 / rate_hz)))
+
+
+def param_request_read(target_system: int, target_component: int, name: str) -> MAVLinkMessage:
+    """PARAM_REQUEST_READ by name (index -1)."""
+    return mavlink.MAVLink_param_request_read_message(target_system, target_component, name.encode("ascii"), -1)
+
+
+def timesync_request(ts1_ns: int) -> MAVLinkMessage:
+    """TIMESYNC request: tc1 = 0, ts1 = our time in nanoseconds."""
+    return mavlink.MAVLink_timesync_message(0, ts1_ns)
+
+
+# --- incoming: status, acks, parameters ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """What a vehicle's HEARTBEAT says."""
+
+    armed: bool
+    main_mode: int
+    sub_mode: int
+    system_status: int
+    custom_mode_enabled: bool
+
+    @property
+    def offboard(self) -> bool:
+        return self.custom_mode_enabled and self.main_mode == PX4_MAIN_MODE_OFFBOARD
+
+    @property
+    def landing(self) -> bool:
+        return self.custom_mode_enabled and self.main_mode == PX4_MAIN_MODE_AUTO and self.sub_mode == PX4_SUB_MODE_AUTO_LAND
+
+    @property
+    def critical(self) -> bool:
+        """System status CRITICAL or EMERGENCY: PX4 reports a failsafe this way."""
+        return self.system_status in (mavlink.MAV_STATE_CRITICAL, mavlink.MAV_STATE_EMERGENCY)
+
+    @property
+    def mode_name(self) -> str:
+        return px4_mode_name(self.main_mode, self.sub_mode) if self.custom_mode_enabled else "non-PX4 mode"
+
+
+def px4_mode_name(main_mode: int, sub_mode: int) -> str:
+    if main_mode == PX4_MAIN_MODE_AUTO:
+        return PX4_AUTO_SUB_MODES.get(sub_mode, f"Auto/{sub_mode}")
+    return PX4_MAIN_MODES.get(main_mode, f"mode {main_mode}")
+
+
+def is_autopilot_heartbeat(msg: MAVLinkMessage) -> bool:
+    """A heartbeat from a flight controller (not a ground station, camera or companion)."""
+    return msg.get_type() == "HEARTBEAT" and int(msg.autopilot) != mavlink.MAV_AUTOPILOT_INVALID and int(msg.type) not in (
+        mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+    )  # fmt: skip
+
+
+def vehicle_status(msg: MAVLinkMessage) -> VehicleStatus:
+    """Decode PX4's HEARTBEAT: custom_mode = main << 16 | sub << 24."""
+    custom = int(msg.custom_mode)
+    base = int(msg.base_mode)
+    return VehicleStatus(
+        armed=bool(base & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
+        main_mode=(custom >> 16) & 0xFF,
+        sub_mode=(custom >> 24) & 0xFF,
+        system_status=int(msg.system_status),
+        custom_mode_enabled=bool(base & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
+    )
+
+
+def mav_result_name(result: int) -> str:
+    """``MAV_RESULT_TEMPORARILY_REJECTED`` -> ``TEMPORARILY_REJECTED``."""
+    entry = mavlink.enums["MAV_RESULT"].get(int(result))
+    return entry.name.removeprefix("MAV_RESULT_") if entry is not None else f"MAV_RESULT {result}"
+
+
+def mav_cmd_name(command: int) -> str:
+    """``MAV_CMD_COMPONENT_ARM_DISARM`` (the full enum name, as users search for it)."""
+    entry = mavlink.enums["MAV_CMD"].get(int(command))
+    return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+def param_value(msg: MAVLinkMessage) -> tuple[str, float]:
+    """(name, value) of a PARAM_VALUE; integer types travel as their bytes in the float (PX4)."""
+    raw = msg.param_id
+    name = (raw.split(b"\x00", 1)[0].decode("ascii", "replace") if isinstance(raw, bytes) else raw.split("\x00", 1)[0])[:16]
+    if int(msg.param_type) in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT32, mavlink.MAV_PARAM_TYPE_INT16,
+                               mavlink.MAV_PARAM_TYPE_UINT16, mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_UINT8):  # fmt: skip
+        return name, float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+    return name, float(msg.param_value)
+
+
+def timesync_offset_ns(ts1_ns: int, tc1_ns: int, now_ns: int) -> tuple[int, int]:
+    """(offset, round trip) of a TIMESYNC reply, ns: remote time = our time + offset.
+
+    The remote stamped ``tc1`` half a round trip after we stamped ``ts1`` (PX4's estimate).
+    """
+    rtt = now_ns - ts1_ns
+    return tc1_ns - (ts1_ns + now_ns) // 2, rtt

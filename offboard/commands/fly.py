@@ -1,0 +1,301 @@
+"""`offboard fly MISSION`: fly a mission with the paper's controller over MAVLink.
+
+Against ``sitl-plant`` or a PX4 SITL, exactly as MAVSDK users fly PX4: listen on
+``udpin:0.0.0.0:14540`` (PX4's offboard port), wait for the vehicle, read its parameters,
+stream setpoints, switch to OFFBOARD, arm, fly, land, disarm. See docs/offboard.md.
+
+Exit code: ``FlightStatus.exit_code`` (0 complete, 3 diverged, 4 NaN command, 5 link lost,
+6 failsafe, 7 mode changed, 8 command rejected, 130 interrupted); 2 for a bad argument or file,
+or no vehicle at all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import TextIO
+
+from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.errors import UserError
+from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
+from offboard.metrics import format_table, summarize
+from offboard.record import FlightStatus
+
+MODELS = ("rigid-body", "paper")
+
+
+class FlyArgumentError(UserError, ValueError):
+    """An option's value is well-formed for argparse but meaningless (e.g. ``--sample-time 0``)."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "fly",
+        help="fly a mission over MAVLink (sitl-plant, PX4 SITL) with the paper's controller",
+        description="Connect to a vehicle, stream setpoints, switch to OFFBOARD, arm, fly MISSION with the "
+        "Rosales et al. controller, land and disarm; print the tracking table and leave the log, "
+        "figures and summary in a run folder. The exit code says how the flight ended.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("mission", type=Path, help="mission file: parametric .toml, QGC WPL .waypoints or .plan")
+    link = parser.add_argument_group("link")
+    link.add_argument("--connect", default="udpin:0.0.0.0:14540", metavar="URL",
+                      help="pymavlink connection string (udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial device)")
+    link.add_argument("--lockstep", action="store_true",
+                      help="sample on each telemetry burst instead of on our own clock (sitl-plant --lockstep)")
+    link.add_argument("--target-system", type=int, default=None, metavar="N", help="fly this system id (default: the first autopilot heard)")
+    link.add_argument("--sysid", type=int, default=245, metavar="N", help="our MAVLink system id")
+    link.add_argument("--compid", type=int, default=191, metavar="N", help="our MAVLink component id (191: onboard computer)")
+    link.add_argument("--heartbeat-timeout", type=float, default=10.0, metavar="S", help="wait this long for the vehicle's heartbeat")
+    link.add_argument("--telemetry-timeout", type=float, default=0.5, metavar="S",
+                      help="telemetry older than this stops the setpoints (LINK_LOST)")
+    link.add_argument("--reconnect-timeout", type=float, default=5.0, metavar="S",
+                      help="give up when telemetry has not come back within this")
+    link.add_argument("--telemetry-rate", type=float, default=50.0, metavar="HZ",
+                      help="ask for ATTITUDE and LOCAL_POSITION_NED at this rate (0: keep the vehicle's)")
+    link.add_argument("--land-timeout", type=float, default=60.0, metavar="S", help="wall-clock limit for the landing")
+    ctl = parser.add_argument_group("controller")
+    ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
+                     help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
+    ctl.add_argument("--model", choices=MODELS, default="rigid-body",
+                     help="what the vehicle is: a rigid body (ZYX angles, W_eta zyx) or sitl-plant --model paper (the file's W_eta)")
+    ctl.add_argument("--controller", type=Path, default=None, metavar="FILE",
+                     help="controller file (default: the paper's gains, believing the vehicle's SIM_* mass and inertia)")
+    ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
+    ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
+                     help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
+    ctl.add_argument("--tilt-max-deg", type=float, default=None, metavar="DEG",
+                     help="limit on x7ez and x9ez (90: none; default: the file's, else 35)")
+    ctl.add_argument("--sample-time", type=float, default=None, metavar="S", help="To (default: the file's, 0.05)")
+    ctl.add_argument("--thrust-max-n", type=float, default=None, metavar="N",
+                     help="thrust at normalised 1, for a vehicle that does not publish SIM_THR_MAX (real PX4)")
+    out = parser.add_argument_group("output")
+    out.add_argument("--log", type=Path, default=None, metavar="FILE.tlog", help="tlog of every packet (default: RUN_DIR/flight.tlog)")
+    out.add_argument("--run-dir", type=Path, default=None, metavar="DIR",
+                     help="folder for log, figures, CSV and summary (default: runs/fly-<mission>-<time>)")
+    out.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    out.add_argument("--json", action="store_true", help="print the summary as one JSON object instead of a table")
+    out.add_argument("--quiet", action="store_true", help="no events or live progress line")
+    parser.set_defaults(func=run)
+
+
+def _check(args: argparse.Namespace) -> None:
+    def positive(name: str, value: float | None) -> None:
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise FlyArgumentError(f"--{name}: must be > 0, got {value}")
+
+    for name in ("heartbeat-timeout", "telemetry-timeout", "reconnect-timeout", "land-timeout", "sample-time", "thrust-max-n"):
+        positive(name, getattr(args, name.replace("-", "_")))
+    if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
+        raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
+    if args.tilt_max_deg is not None and not (math.isfinite(args.tilt_max_deg) and args.tilt_max_deg > 0):
+        raise FlyArgumentError(f"--tilt-max-deg: must be > 0 (90 or more: no limit), got {args.tilt_max_deg}")
+    for name in ("sysid", "compid", "target_system"):
+        value = getattr(args, name)
+        if value is not None and not 1 <= value <= 255:
+            raise FlyArgumentError(f"--{name.replace('_', '-')}: must be 1..255, got {value}")
+
+
+class _Console:
+    """Events as lines, progress as one line refreshed in place (only on a terminal)."""
+
+    def __init__(self, stream: TextIO, quiet: bool) -> None:
+        self.stream = stream
+        self.quiet = quiet
+        self.live = not quiet and stream.isatty()
+        self._shown = False
+        self._last = 0.0
+
+    def event(self, text: str) -> None:
+        if self.quiet:
+            return
+        self._clear()
+        print(f"offboard: {text}", file=self.stream, flush=True)
+
+    def progress(self, p: Progress) -> None:
+        if not self.live:
+            return
+        now = time.monotonic()
+        if now - self._last < 0.1:
+            return
+        self._last = now
+        n, e, d = p.pos_ned_m
+        self.stream.write(f"\r{p.phase:<14.14} t={p.t_s:7.2f} s  N {n:7.2f}  E {e:7.2f}  D {d:7.2f} m  error {p.error_m:6.3f} m\x1b[K")
+        self.stream.flush()
+        self._shown = True
+
+    def _clear(self) -> None:
+        if self._shown:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+            self._shown = False
+
+    def end(self) -> None:
+        self._clear()
+
+
+class _Interrupts:
+    """Ctrl-C: the first asks the flight to land and stop; the second stops waiting at once."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> _Interrupts:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]
+
+
+def run(args: argparse.Namespace) -> int:
+    from offboard.link import MavLink
+    from offboard.missions import load_mission
+
+    _check(args)
+    mission = load_mission(args.mission)
+    controller_file = args.controller if args.controller is not None else PAPER_CONTROLLER_FILE
+    base = load_controller(controller_file)
+    choice = ControllerChoice(
+        base=base,
+        from_file=args.controller is not None,
+        mass_from_vehicle=args.mass_from_vehicle,
+        yaw_aware=args.yaw_aware,
+        tilt_max_deg=args.tilt_max_deg,
+        sample_time_s=args.sample_time,
+    )
+    config = FlightConfig(
+        output=args.output,
+        model=args.model,
+        lockstep=args.lockstep,
+        telemetry_timeout_s=args.telemetry_timeout,
+        reconnect_timeout_s=args.reconnect_timeout,
+        heartbeat_timeout_s=args.heartbeat_timeout,
+        land_timeout_s=args.land_timeout,
+        telemetry_rate_hz=args.telemetry_rate or None,
+        target_system=args.target_system,
+        connect=args.connect,
+    )
+    run_dir = args.run_dir or Path("runs") / f"fly-{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FlyArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    tlog = args.log if args.log is not None else run_dir / "flight.tlog"
+    log_clock = LogClock(args.lockstep)
+    console = _Console(sys.stderr, args.quiet or args.json)
+    meta = {"mission": mission.name, "mission_source": mission.source, "output": args.output, "model": args.model,
+            "lockstep": args.lockstep, "connect": args.connect, "controller": str(controller_file)}  # fmt: skip
+    started = time.monotonic()
+    link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
+    console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
+    try:
+        with _Interrupts() as interrupts:
+            flight = Flight(
+                link, mission.trajectory, choice, config,
+                thrust_max_n=args.thrust_max_n,
+                stop_requested=lambda: interrupts.requested,
+                log_clock=log_clock,
+                progress=console.progress,
+                event=console.event,
+                meta=meta,
+            )  # fmt: skip
+            result = flight.run()
+    finally:
+        console.end()
+        link.close()
+    wall = time.monotonic() - started
+    payload, table = _report(result, link.stats.to_dict(), wall, run_dir, tlog, meta, args.no_plots)
+    if args.json:
+        print(json.dumps(payload, allow_nan=True))
+    else:
+        if table:
+            print(table)
+        print(f"run folder: {run_dir} (log {tlog})")
+    if result.status is not FlightStatus.COMPLETE:
+        print(f"offboard fly: {result.status.name}: {result.detail}", file=sys.stderr)
+    return result.status.exit_code
+
+
+def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
+    """Everything the summary reports beyond the tracking table, as plain data."""
+    to = result.controller.sample_time_s if result.controller is not None else math.nan
+    c = result.controller
+    return {
+        "status": result.status.value,
+        "exit_code": result.status.exit_code,
+        "detail": result.detail,
+        "wall_time_s": wall_s,
+        "vehicle": None if result.vehicle is None else {"system": result.vehicle[0], "component": result.vehicle[1]},
+        "vehicle_params": result.vehicle_params,
+        "controller": None if c is None else {
+            "sample_time_s": c.sample_time_s, "mass_kg": c.mass_kg, "inertia_kg_m2": list(c.inertia_kg_m2),
+            "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
+            "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
+            "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
+        },  # fmt: skip
+        "messages": link_stats,
+        "loop": result.loop.to_dict(to),
+        "link_outages_s": result.outages,
+        "timesync": result.timesync,
+        "landed": result.landed,
+        "disarmed": result.disarmed,
+        "notes": result.notes,
+    }
+
+
+def format_fly_lines(extra: dict) -> str:
+    """The lines under the tracking table: messages, loop timing, outages, landing."""
+    m, loop = extra["messages"], extra["loop"]
+    lost_pct = 100.0 * m["lost"] / max(m["received"] + m["lost"], 1)
+    lines = [
+        f"messages: sent {m['sent']}, received {m['received']}, lost {m['lost']} ({lost_pct:.2f} %), "
+        f"duplicates {m['duplicates']}, bad {m['bad']}",
+        f"loop: {loop['samples']} samples in {loop['mission_wall_s']:.2f} s wall ({loop['rate_hz']:.1f} Hz), "
+        f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
+        f"max {loop['jitter_max_ms']:.2f} ms, overruns {loop['overruns']}",
+    ]
+    if extra["link_outages_s"]:
+        lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
+    if extra["timesync"]:
+        lines.append(f"timesync: offset {extra['timesync']['offset_ms']:.3f} ms, round trip {extra['timesync']['rtt_ms']:.3f} ms")
+    landing = "landed and disarmed" if extra["landed"] and extra["disarmed"] else (
+        "landed, still armed" if extra["landed"] else "landing not confirmed")
+    lines.append(f"{landing}; {extra['wall_time_s']:.1f} s wall in all")
+    return "\n".join(lines)
+
+
+def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path, tlog: Path,
+            meta: dict, no_plots: bool) -> tuple[dict, str]:
+    record = result.record
+    extra = fly_summary(result, link_stats, wall_s)
+    table = ""
+    payload: dict = {**meta, "run_dir": str(run_dir), "log": str(tlog)}
+    if len(record):
+        summary = summarize(record)
+        table = format_table(summary) + "\n" + format_fly_lines(extra)
+        payload.update(summary.to_dict())
+        record.write_csv(run_dir / "series.csv")
+        if not no_plots:
+            from offboard.plots import write_figures
+
+            payload["figures"] = [str(p) for p in write_figures(record, run_dir, title=f"{meta['mission']} over MAVLink ({meta['output']})")]
+    else:
+        table = format_fly_lines(extra)
+    payload.update(extra)
+    (run_dir / "summary.txt").write_text(table + "\n")
+    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    return payload, table

@@ -1,0 +1,993 @@
+"""A mission flown over MAVLink: the flight sequence and the control loop, with no sockets.
+
+``Flight`` is given a link (``send(msg)``, ``recv(timeout_s) -> msg | None``), a clock
+(``time.monotonic`` by default) and a stop flag, so tests can drive it with a fake link and a
+fake clock. The sequence (docs/offboard.md):
+
+1. wait for the vehicle's HEARTBEAT (``LinkTimeout`` naming the address otherwise);
+2. read the parameters it needs (PARAM_REQUEST_READ by name, with retries), synchronise time
+   (TIMESYNC), ask for the telemetry rate it needs (MAV_CMD_SET_MESSAGE_INTERVAL);
+3. stream setpoints (the vehicle's own attitude, thrust 0) **before** asking for OFFBOARD
+   (MAV_CMD_DO_SET_MODE, PX4 main mode 6), then arm (MAV_CMD_COMPONENT_ARM_DISARM);
+4. fly the mission: mission time 0 is the first sample after the arm is acknowledged; each
+   sample runs the controller on the freshest ATTITUDE and LOCAL_POSITION_NED exactly as
+   ``offboard.inprocess.run_scenario`` does on its simulated vehicle, and sends one setpoint;
+5. land with MAV_CMD_NAV_LAND (the vehicle's own landing), wait for the ground, disarm.
+
+Sampling: in **lockstep** a sample is due when an ATTITUDE and a LOCAL_POSITION_NED with the
+same ``time_boot_ms`` T have arrived (the plant then waits for the setpoint echoing T); in
+**real time** the flight keeps its own sample clock at To from the injected clock and uses the
+freshest telemetry, still echoing the ATTITUDE's ``time_boot_ms``. Every decision is taken
+while handling a message or a sample, so a lockstep flight sends the same bytes every time.
+
+How it can end (``FlightStatus``): COMPLETE; LINK_LOST (telemetry stale for longer than the
+telemetry timeout and not back within the reconnect timeout, or back after the vehicle left
+OFFBOARD; setpoints stop while it is stale and resume if it comes back in OFFBOARD); FAILSAFE or
+MODE_CHANGED (the vehicle left OFFBOARD: we stop commanding at once); REJECTED (a command
+refused or never acknowledged: ``CommandRejected``); NAN_COMMAND and DIVERGED (the output is
+never sent; the vehicle is told to land); INTERRUPTED (Ctrl-C: land, disarm).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from offboard import codec
+from offboard.codec import MeasuredState, Scaling
+from offboard.controller import ActionLimits, ControllerParams, RosalesController
+from offboard.errors import CommandRejected, LinkTimeout, UserError
+from offboard.frames import tracking_reference
+from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
+from offboard.trajectory.base import Trajectory
+from pymavlink.dialects.v20 import common as mavlink
+
+OUTPUTS = ("attitude", "actuator")
+#: tlog and TIMESYNC origin in lockstep (the plant uses the same: 2020-01-01T00:00:00Z).
+LOCKSTEP_EPOCH_S = 1_577_836_800
+#: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
+FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
+DEFAULT_TILT_MAX_DEG = 35.0
+MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
+
+
+class LockstepMismatch(UserError, ValueError):
+    """The lockstep plant's period differs from the controller's sample time."""
+
+
+class Link(Protocol):
+    """What a flight needs of a MAVLink link (``offboard.link.MavLink`` or a test double)."""
+
+    def send(self, msg: mavlink.MAVLink_message) -> None: ...
+
+    def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None: ...
+
+
+# --- configuration -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    """How to fly (the command line's choices; defaults are ``offboard fly``'s).
+
+    Attributes
+    ----------
+    output : str
+        ``attitude`` (SET_ATTITUDE_TARGET) or ``actuator`` (SET_ACTUATOR_CONTROL_TARGET).
+    model : str
+        ``rigid-body`` or ``paper``: what the vehicle's ATTITUDE angles are (``codec``).
+    lockstep : bool
+        Sample on telemetry arrival instead of on our own clock.
+    telemetry_timeout_s : float
+        Telemetry older than this (wall clock) stops the setpoints: LINK_LOST.
+    reconnect_timeout_s : float
+        How long to wait for telemetry to come back before giving up.
+    heartbeat_timeout_s : float
+        How long to wait for the vehicle's first HEARTBEAT.
+    command_timeout_s, command_attempts : float, int
+        COMMAND_ACK wait per attempt, and attempts (MAVLink's command protocol).
+    param_timeout_s, param_attempts : float, int
+        PARAM_VALUE wait per attempt, and attempts.
+    prestream_samples : int
+        Setpoints streamed before asking for OFFBOARD.
+    land_timeout_s : float
+        Wall-clock limit for the landing (then we report and stop waiting).
+    telemetry_rate_hz : float or None
+        Rate asked for LOCAL_POSITION_NED and ATTITUDE (None: leave the vehicle's defaults).
+    target_system : int or None
+        Fly this system id (None: the first autopilot heard).
+    connect : str
+        The address listened on / connected to (for messages only).
+    """
+
+    output: str = "attitude"
+    model: str = "rigid-body"
+    lockstep: bool = False
+    telemetry_timeout_s: float = 0.5
+    reconnect_timeout_s: float = 5.0
+    heartbeat_timeout_s: float = 10.0
+    command_timeout_s: float = 1.0
+    command_attempts: int = 3
+    param_timeout_s: float = 0.5
+    param_attempts: int = 3
+    prestream_samples: int = 10
+    land_timeout_s: float = 60.0
+    telemetry_rate_hz: float | None = 50.0
+    target_system: int | None = None
+    connect: str = ""
+
+    def __post_init__(self) -> None:
+        if self.output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, got {self.output!r}")
+        if self.model not in codec.MODELS:
+            raise ValueError(f"model must be one of {codec.MODELS}, got {self.model!r}")
+        for name in ("telemetry_timeout_s", "reconnect_timeout_s", "heartbeat_timeout_s", "command_timeout_s",
+                     "param_timeout_s", "land_timeout_s"):  # fmt: skip
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
+        if self.command_attempts < 1 or self.param_attempts < 1 or self.prestream_samples < 1:
+            raise ValueError("attempts and prestream_samples must be >= 1")
+
+
+@dataclass(frozen=True)
+class ControllerChoice:
+    """The controller as the user chose it, before the vehicle's parameters are known.
+
+    Attributes
+    ----------
+    base : ControllerParams
+        The controller file's parameters (``paper.toml`` when none was given).
+    from_file : bool
+        Whether the user gave ``--controller``: its mass, arm and inertia are then the
+        controller's belief (Table II makes them differ from the vehicle on purpose).
+    mass_from_vehicle : bool
+        Use SIM_MASS even with a controller file.
+    yaw_aware : bool or None
+        Explicit choice; None: the file's when given, else on for a rigid body, off for the
+        paper's model.
+    tilt_max_deg : float or None
+        Explicit tilt limit on x7ez, x9ez (>= 90: none); None: the file's, else 35 degrees.
+    sample_time_s : float or None
+        Explicit To; None: the file's.
+    """
+
+    base: ControllerParams
+    from_file: bool = False
+    mass_from_vehicle: bool = False
+    yaw_aware: bool | None = None
+    tilt_max_deg: float | None = None
+    sample_time_s: float | None = None
+
+
+#: Parameters read from the vehicle: name -> why.
+VEHICLE_PARAMS = {
+    "SIM_THR_MAX": "thrust at normalised thrust 1 (N)",
+    "SIM_TQ_RP_MAX": "roll/pitch torque at normalised torque 1 (N m)",
+    "SIM_TQ_Y_MAX": "yaw torque at normalised torque 1 (N m)",
+    "SIM_MASS": "vehicle mass (kg)",
+    "SIM_ARM_LEN": "arm length (m)",
+    "SIM_IXX": "inertia (kg m^2)",
+    "SIM_IYY": "inertia (kg m^2)",
+    "SIM_IZZ": "inertia (kg m^2)",
+    "SIM_KM_KF": "rotor drag-to-thrust (m)",
+    "COM_OF_LOSS_T": "the vehicle's offboard-loss timeout (s)",
+    "PAP_TO": "the paper inner loop's To (s)",
+}
+
+
+def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool) -> tuple[list[str], list[str]]:
+    """(required, optional) parameter names for this flight."""
+    required: list[str] = []
+    optional = ["COM_OF_LOSS_T", "PAP_TO"]
+    if not thrust_max_given:
+        required.append("SIM_THR_MAX")
+    if config.output == "actuator":
+        required += ["SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX"]
+    if not choice.from_file:
+        optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", *optional]
+    elif choice.mass_from_vehicle:
+        required.append("SIM_MASS")
+    return required, optional
+
+
+def resolve_controller(
+    choice: ControllerChoice, model: str, vehicle: Mapping[str, float], scaling: Scaling
+) -> tuple[ControllerParams, list[str]]:
+    """The controller flown, from the user's choice and the vehicle's parameters.
+
+    Precedence (docs/offboard.md): an explicit command-line option, then the controller file,
+    then the vehicle (without a controller file the controller believes the vehicle's SIM_*
+    values: Simulation 1), then the paper's values. Thrust is always bounded to what the vehicle
+    can do, ``[max(file's min, 0), min(file's max, SIM_THR_MAX)]``, so that the law and the
+    vehicle agree on u; the tilt limit defaults to 35 degrees.
+
+    Returns
+    -------
+    (ControllerParams, notes)
+        ``notes`` say, one line each, where the believed values came from.
+    """
+    base = choice.base
+    notes: list[str] = []
+    changes: dict[str, object] = {"euler_rate_form": codec.euler_rate_form_for(model, base.euler_rate_form)}
+    use_vehicle_model = not choice.from_file
+    if use_vehicle_model or choice.mass_from_vehicle:
+        if "SIM_MASS" in vehicle:
+            changes["mass_kg"] = float(vehicle["SIM_MASS"])
+            notes.append(f"mass {vehicle['SIM_MASS']:.4g} kg from the vehicle (SIM_MASS)")
+        else:
+            notes.append(f"the vehicle publishes no SIM_MASS: mass {base.mass_kg:.4g} kg from the controller file")
+    if use_vehicle_model:
+        if "SIM_ARM_LEN" in vehicle:
+            changes["arm_length_m"] = float(vehicle["SIM_ARM_LEN"])
+        if all(k in vehicle for k in ("SIM_IXX", "SIM_IYY", "SIM_IZZ")):
+            changes["inertia_kg_m2"] = (float(vehicle["SIM_IXX"]), float(vehicle["SIM_IYY"]), float(vehicle["SIM_IZZ"]))
+        if "SIM_KM_KF" in vehicle:
+            changes["drag_to_thrust_m"] = float(vehicle["SIM_KM_KF"])
+    if choice.sample_time_s is not None:
+        changes["sample_time_s"] = float(choice.sample_time_s)
+    if choice.yaw_aware is not None:
+        changes["yaw_aware"] = choice.yaw_aware
+    elif not choice.from_file:
+        changes["yaw_aware"] = model == "rigid-body"
+    limits = base.limits
+    thrust_min = 0.0 if limits.thrust_min_n is None else max(limits.thrust_min_n, 0.0)
+    thrust_max = scaling.thrust_max_n if limits.thrust_max_n is None else min(limits.thrust_max_n, scaling.thrust_max_n)
+    if choice.tilt_max_deg is not None:
+        tilt = None if choice.tilt_max_deg >= 90.0 else math.radians(choice.tilt_max_deg)
+    elif limits.tilt_max_rad is not None:
+        tilt = limits.tilt_max_rad
+    else:
+        tilt = math.radians(DEFAULT_TILT_MAX_DEG)
+    changes["limits"] = ActionLimits(thrust_min_n=thrust_min, thrust_max_n=thrust_max, tilt_max_rad=tilt)
+    params = base.with_changes(**changes)
+    tilt_text = "none" if tilt is None else f"{math.degrees(tilt):.0f} deg"
+    notes.append(
+        f"controller: To {params.sample_time_s:g} s, W_eta {params.euler_rate_form}, yaw-aware {'on' if params.yaw_aware else 'off'}, "
+        f"u in [{thrust_min:.3g}, {thrust_max:.4g}] N, tilt limit {tilt_text}"
+    )
+    return params, notes
+
+
+# --- results -------------------------------------------------------------------------------------
+
+
+@dataclass
+class LoopStats:
+    """The sample clock's behaviour over the mission."""
+
+    samples: int = 0
+    overruns: int = 0  # real time: samples skipped because we were late by a whole period
+    mission_wall_s: float = 0.0
+    periods_s: list[float] = field(default_factory=list)
+
+    def to_dict(self, sample_time_s: float) -> dict:
+        periods = np.asarray(self.periods_s, dtype=float)
+        jitter = np.abs(periods - sample_time_s) if len(periods) else np.zeros(1)
+        return {
+            "samples": self.samples,
+            "overruns": self.overruns,
+            "mission_wall_s": self.mission_wall_s,
+            "rate_hz": self.samples / self.mission_wall_s if self.mission_wall_s > 0 else math.nan,
+            "period_mean_s": float(np.mean(periods)) if len(periods) else math.nan,
+            "jitter_p50_ms": float(np.percentile(jitter, 50) * 1e3),
+            "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
+            "jitter_max_ms": float(np.max(jitter) * 1e3),
+        }
+
+
+@dataclass
+class FlightResult:
+    """What a flight leaves: the record, how it ended, and what the link and the loop did."""
+
+    record: FlightRecord
+    status: FlightStatus
+    detail: str
+    controller: ControllerParams | None
+    scaling: Scaling | None
+    vehicle_params: dict[str, float]
+    loop: LoopStats
+    outages: list[float]
+    timesync: dict[str, float] | None
+    landed: bool
+    disarmed: bool
+    notes: list[str]
+    vehicle: tuple[int, int] | None
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One live-progress sample: what the one-line display shows."""
+
+    phase: str
+    t_s: float
+    pos_ned_m: tuple[float, float, float]
+    error_m: float
+
+
+class _End(Exception):
+    """Internal: the flight ends with this status (caught in ``Flight.run``)."""
+
+    def __init__(self, status: FlightStatus, detail: str) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+
+
+@dataclass
+class _Pending:
+    command: int
+    params: tuple[float, ...]
+    name: str
+    attempts: int = 0
+    deadline: float = 0.0
+    result: int | None = None
+
+
+# --- the flight ----------------------------------------------------------------------------------
+
+
+class LogClock:
+    """The tlog's timestamps: wall time, or in lockstep the epoch plus the latest stamp seen."""
+
+    def __init__(self, lockstep: bool, wall_us: Callable[[], int] | None = None) -> None:
+        self.lockstep = lockstep
+        self._wall_us = wall_us or (lambda: int(time.time() * 1e6))
+        self.boot_ms = 0
+
+    def __call__(self) -> int:
+        if self.lockstep:
+            return LOCKSTEP_EPOCH_S * 1_000_000 + self.boot_ms * 1000
+        return self._wall_us()
+
+
+class Flight:
+    """One mission flown over a MAVLink link (module docstring).
+
+    Parameters
+    ----------
+    link : Link
+    trajectory : Trajectory
+        The mission's references, NED, mission time 0 at the first armed sample.
+    choice : ControllerChoice
+    config : FlightConfig
+    thrust_max_n : float or None
+        The vehicle's thrust at normalised 1 when it does not publish SIM_THR_MAX (real PX4).
+    clock : callable
+        Monotonic seconds (wall clock; real-time sampling and every timeout).
+    stop_requested : callable
+        True once the user asked to stop (Ctrl-C): land, disarm, INTERRUPTED.
+    log_clock : LogClock or None
+        Told the latest ``time_boot_ms`` seen, so lockstep logs are stamped by simulation time.
+    progress, event : callables or None
+        Live progress (each sample) and one-line events (connected, armed, landing ...).
+    phases : list of Phase, optional
+        Mission phases for the progress line (default: the trajectory's).
+    """
+
+    def __init__(
+        self,
+        link: Link,
+        trajectory: Trajectory,
+        choice: ControllerChoice,
+        config: FlightConfig | None = None,
+        *,
+        thrust_max_n: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        stop_requested: Callable[[], bool] = lambda: False,
+        log_clock: LogClock | None = None,
+        progress: Callable[[Progress], None] | None = None,
+        event: Callable[[str], None] | None = None,
+        meta: dict[str, object] | None = None,
+    ) -> None:
+        self.link = link
+        self.trajectory = trajectory
+        self.choice = choice
+        self.config = config or FlightConfig()
+        self.clock = clock
+        self.stop_requested = stop_requested
+        self.log_clock = log_clock
+        self._progress = progress
+        self._event = event
+        self._thrust_max_override = thrust_max_n
+        self.meta = dict(meta or {})
+        self.to = choice.sample_time_s if choice.sample_time_s is not None else choice.base.sample_time_s
+        self.phases = trajectory.phases()
+        # what we know of the vehicle
+        self.target: tuple[int, int] | None = None
+        self.status: codec.VehicleStatus | None = None
+        self.vehicle_params: dict[str, float] = {}
+        self.landed_state: int | None = None
+        self._att: mavlink.MAVLink_message | None = None
+        self._early: dict[tuple[tuple[int, int], str], mavlink.MAVLink_message] = {}
+        self._lpn: mavlink.MAVLink_message | None = None
+        self._last_telemetry_wall: float | None = None
+        self._statustexts: list[str] = []
+        self._pending: _Pending | None = None
+        self._param_wanted: str | None = None
+        self._timesync_ts1: int | None = None
+        self._timesync_reply: tuple[int, int] | None = None
+        # the sampler
+        self._source: Callable[[MeasuredState], mavlink.MAVLink_message | None] | None = None
+        self._answered_ms: int | None = None
+        self._samples_sent = 0
+        self._tick = 0
+        self._next_tick_s: float | None = None
+        self._prev_sample_ms: int | None = None
+        self._next_heartbeat: float = 0.0
+        self._next_heartbeat_ms = 0
+        # supervision
+        self._watch_telemetry = False
+        self._outage_since: float | None = None
+        self._verify_mode = False
+        self._expect_offboard = False
+        self._offboard_seen = False
+        self._non_offboard_beats = 0
+        self._expect_armed = False
+        self._armed_seen = False
+        self._disarmed_beats = 0
+        self._interrupt_enabled = True
+        # the mission
+        self.controller: RosalesController | None = None
+        self.params: ControllerParams | None = None
+        self.scaling: Scaling | None = None
+        self.rows = RecordBuilder(FLIGHT_COLUMNS)
+        self._mission_tick0: int | None = None
+        self._mission_samples = int(round(trajectory.duration_s / self.to))
+        self._mission_done = False
+        self._mission_wall0: float | None = None
+        self._last_sample_wall: float | None = None
+        self.loop = LoopStats()
+        self.outages: list[float] = []
+        self.timesync: dict[str, float] | None = None
+        self.notes: list[str] = []
+        self.armed_by_us = False
+        self.landed = False
+        self.disarmed = False
+
+    # -- public ----------------------------------------------------------------------------------
+
+    def run(self) -> FlightResult:
+        """Fly; returns how it ended. Raises ``LinkTimeout`` when no vehicle is heard at all."""
+        status, detail = FlightStatus.COMPLETE, ""
+        try:
+            try:
+                self._connect()
+                self._prepare()
+                self._stream_and_arm()
+                self._fly_mission()
+            except CommandRejected as exc:
+                status, detail = FlightStatus.REJECTED, str(exc)
+            except _End as end:
+                status, detail = end.status, end.detail
+            self._mission_done = True  # whatever happens next is not part of the mission's record
+            if status in (FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED):
+                self._source = None  # never send that output again
+            if status in (FlightStatus.COMPLETE, FlightStatus.INTERRUPTED, FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED) or (
+                status is FlightStatus.REJECTED and self.armed_by_us
+            ):
+                land_status, land_detail = self._land_and_disarm()
+                if land_status is not None and status is FlightStatus.COMPLETE:
+                    status, detail = land_status, land_detail
+        except KeyboardInterrupt:  # a second Ctrl-C: stop waiting at once
+            status = FlightStatus.INTERRUPTED
+            detail = (detail + "; " if detail else "") + "second interrupt: stopped waiting for the landing"
+        if status is FlightStatus.INTERRUPTED and not detail:
+            detail = "interrupted by the user"
+        if self._mission_wall0 is not None:
+            end = self._last_sample_wall if self._last_sample_wall is not None else self.clock()
+            self.loop.mission_wall_s = end - self._mission_wall0
+        record = self.rows.build(phases=self.phases, status=status, status_detail=detail, meta=self.meta)
+        return FlightResult(
+            record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
+            vehicle_params=dict(self.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.timesync,
+            landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.target,
+        )  # fmt: skip
+
+    # -- the sequence ----------------------------------------------------------------------------
+
+    def _connect(self) -> None:
+        cfg = self.config
+        if not self._pump(lambda: self.target is not None, cfg.heartbeat_timeout_s):
+            where = f" on {cfg.connect}" if cfg.connect else ""
+            which = f" (system {cfg.target_system})" if cfg.target_system is not None else ""
+            raise LinkTimeout(f"no vehicle heartbeat{which} heard{where} within {cfg.heartbeat_timeout_s:g} s")
+        self._say(f"vehicle {self.target[0]}/{self.target[1]} found ({self.status.mode_name if self.status else '?'}, "  # type: ignore[index]
+                  f"{'armed' if self.status and self.status.armed else 'disarmed'})")
+        self._send_heartbeat()
+        # stream from now on: a lockstep plant then never waits on us (no keepalives, same bytes
+        # every run), and PX4 sees setpoints well before OFFBOARD is asked for
+        self._watch_telemetry = True
+        self._source = self._hold_source
+
+    def _prepare(self) -> None:
+        cfg, choice = self.config, self.choice
+        required, optional = params_to_read(choice, cfg, self._thrust_max_override is not None)
+        for name in required + optional:
+            value = self._read_param(name)
+            if value is None and name in required:
+                hint = " (pass --thrust-max-n for a vehicle without it)" if name == "SIM_THR_MAX" else ""
+                raise LinkTimeout(f"the vehicle did not answer PARAM_REQUEST_READ {name} ({VEHICLE_PARAMS[name]}) "
+                                  f"after {cfg.param_attempts} tries{hint}")
+            if value is not None:
+                self.vehicle_params[name] = value
+        p = self.vehicle_params
+        try:
+            self.scaling = Scaling(
+                thrust_max_n=self._thrust_max_override if self._thrust_max_override is not None else p["SIM_THR_MAX"],
+                torque_roll_pitch_max_nm=p.get("SIM_TQ_RP_MAX"),
+                torque_yaw_max_nm=p.get("SIM_TQ_Y_MAX"),
+            )
+        except ValueError as exc:
+            raise LinkTimeout(f"the vehicle's scaling is unusable: {exc}") from None
+        self.params, notes = resolve_controller(choice, cfg.model, p, self.scaling)
+        for note in notes:
+            self._say(note)
+        if abs(self.params.sample_time_s - self.to) > 1e-12:
+            self.to = self.params.sample_time_s
+        if "PAP_TO" in p and abs(p["PAP_TO"] - self.to) > 1e-6:
+            self._say(f"note: the vehicle's PAP_TO is {p['PAP_TO']:g} s, the controller's To {self.to:g} s "
+                      "(its paper inner loop then differs from the in-process run)")
+        if "COM_OF_LOSS_T" in p and cfg.telemetry_timeout_s >= p["COM_OF_LOSS_T"]:
+            self._say(f"note: the telemetry timeout {cfg.telemetry_timeout_s:g} s is not below the vehicle's "
+                      f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
+        self.controller = RosalesController(self.params)
+        self._mission_samples = int(round(self.trajectory.duration_s / self.to))
+        self._do_timesync()
+        if cfg.telemetry_rate_hz is not None:
+            for mid in (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
+                command, params = codec.message_interval_params(mid, cfg.telemetry_rate_hz)
+                try:
+                    self._command(command, params, required=False)
+                except CommandRejected as exc:
+                    self._say(f"note: {exc} (keeping the vehicle's default rate)")
+
+    def _stream_and_arm(self) -> None:
+        target = self._samples_sent + self.config.prestream_samples
+        self._pump(lambda: self._samples_sent >= target)
+        command, params = codec.set_mode_offboard_params()
+        self._command(command, params)
+        self._expect_offboard = True
+        self._say("offboard mode accepted")
+        command, params = codec.arm_params(True)
+        self._command(command, params)
+        self.armed_by_us = True
+        self._expect_armed = True
+        self._say("armed: flying the mission")
+
+    def _fly_mission(self) -> None:
+        assert self.controller is not None
+        self.controller.reset()
+        self._mission_tick0 = None
+        self._source = self._mission_source
+        self._pump(lambda: self._mission_done)
+
+    def _land_and_disarm(self) -> tuple[FlightStatus | None, str]:
+        """NAV_LAND, wait for the ground, disarm. Returns a status only if this itself failed."""
+        self._interrupt_enabled = False
+        self._expect_offboard = False
+        self._expect_armed = False
+        if not self.armed_by_us:
+            return None, ""
+        try:
+            if self._outage_since is not None:
+                return FlightStatus.LINK_LOST, "telemetry lost before the landing"
+            self._say("landing (MAV_CMD_NAV_LAND)")
+            command, params = codec.land_params()
+            self._command(command, params)
+            self._source = self._idle_source
+            deadline = self.clock() + self.config.land_timeout_s
+            on_ground = lambda: self.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND or (  # noqa: E731
+                self.status is not None and not self.status.armed
+            )
+            if not self._pump(on_ground, deadline - self.clock()):
+                return None, self._note(f"the vehicle did not report being on the ground within {self.config.land_timeout_s:g} s")
+            self.landed = True
+            if self.status is not None and not self.status.armed:
+                self.disarmed = True
+                self._say("landed; the vehicle disarmed itself")
+                return None, ""
+            command, params = codec.arm_params(False)
+            self._command(command, params)
+            self.disarmed = True
+            self._say("landed and disarmed")
+            return None, ""
+        except CommandRejected as exc:
+            return FlightStatus.REJECTED, str(exc)
+        except _End as end:
+            return end.status, end.detail
+
+    # -- commands, parameters, time ----------------------------------------------------------------
+
+    def _command(self, command: int, params: tuple[float, ...], *, required: bool = True) -> None:
+        """Send a COMMAND_LONG and wait for its ACK, retrying (confirmation + 1) when none comes.
+
+        Raises
+        ------
+        CommandRejected
+            Not ACCEPTED, or no ACK after the attempts (result name ``NO_ACK``).
+        """
+        assert self.target is not None
+        name = codec.mav_cmd_name(command)
+        pending = _Pending(command, params, name)
+        self._pending = pending
+        try:
+            while pending.attempts < self.config.command_attempts:
+                self.link.send(codec.command_long(self.target[0], self.target[1], command, params, pending.attempts))
+                pending.attempts += 1
+                self._pump(lambda: pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS,
+                           self.config.command_timeout_s)
+                if pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS:
+                    break
+        finally:
+            self._pending = None
+        if pending.result is None:
+            raise CommandRejected(name, -1, f"NO_ACK after {pending.attempts} attempts")
+        if pending.result != mavlink.MAV_RESULT_ACCEPTED:
+            reason = self._statustexts[-1] if self._statustexts else ""
+            exc = CommandRejected(name, pending.result, codec.mav_result_name(pending.result))
+            if reason:
+                exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
+            raise exc
+
+    def _read_param(self, name: str) -> float | None:
+        assert self.target is not None
+        self._param_wanted = name
+        try:
+            for _ in range(self.config.param_attempts):
+                self.link.send(codec.param_request_read(self.target[0], self.target[1], name))
+                if self._pump(lambda: name in self.vehicle_params, self.config.param_timeout_s):
+                    return self.vehicle_params.pop(name)
+        finally:
+            self._param_wanted = None
+        return None
+
+    def _do_timesync(self) -> None:
+        for _ in range(3):
+            ts1 = self._now_ns()
+            self._timesync_ts1 = ts1
+            self._timesync_reply = None
+            self.link.send(codec.timesync_request(ts1))
+            if self._pump(lambda: self._timesync_reply is not None, 1.0):
+                tc1, now_ns = self._timesync_reply  # type: ignore[misc]
+                offset, rtt = codec.timesync_offset_ns(ts1, tc1, now_ns)
+                self.timesync = {"offset_ms": offset / 1e6, "rtt_ms": rtt / 1e6}
+                self._timesync_ts1 = None
+                return
+        self._timesync_ts1 = None
+        self._say("note: no TIMESYNC reply; continuing without")
+
+    def _now_ns(self) -> int:
+        """Our TIMESYNC time: the latest telemetry stamp in lockstep (reproducible), else the clock."""
+        if self.config.lockstep:
+            return self._boot_ms() * 1_000_000  # simulation time: reproducible
+        return int(self.clock() * 1e9)
+
+    def _boot_ms(self) -> int:
+        return int(self._att.time_boot_ms) if self._att is not None else 0
+
+    # -- the pump: every wait goes through here ----------------------------------------------------
+
+    def _pump(self, until: Callable[[], bool], timeout_s: float | None = None) -> bool:
+        """Handle messages and samples until ``until()`` holds (True) or the timeout (False)."""
+        deadline = None if timeout_s is None else self.clock() + timeout_s
+        while True:
+            if self._interrupt_enabled and self.stop_requested():
+                raise _End(FlightStatus.INTERRUPTED, "interrupted by the user")
+            self._lockstep_sample_if_due()
+            if until():
+                return True
+            now = self.clock()
+            if deadline is not None and now >= deadline:
+                return False
+            wait = self._service(now)
+            if until():
+                return True
+            if deadline is not None:
+                wait = min(wait, max(deadline - self.clock(), 0.0))
+            msg = self.link.recv(max(wait, 0.0))
+            if msg is not None:
+                self._handle(msg)
+
+    def _service(self, now: float) -> float:
+        """Time-driven work (heartbeat, real-time samples, staleness); returns how long to wait."""
+        wait = 0.05
+        if not self.config.lockstep and self.target is not None:
+            if now >= self._next_heartbeat:
+                self._send_heartbeat()
+            wait = min(wait, self._next_heartbeat - now)
+        if self._watch_telemetry:
+            self._check_telemetry(now)
+            wait = min(wait, self.config.telemetry_timeout_s / 4)
+        if not self.config.lockstep and self._source is not None:
+            if self._next_tick_s is None:
+                self._next_tick_s = now
+            if now >= self._next_tick_s:
+                late = now - self._next_tick_s
+                if late >= self.to:  # a whole period late: skip the missed samples
+                    skipped = int(late // self.to)
+                    self._tick += skipped
+                    self._next_tick_s += skipped * self.to
+                    if self._mission_tick0 is not None:
+                        self.loop.overruns += skipped
+                self._sample(now)
+                self._tick += 1
+                self._next_tick_s += self.to
+            wait = min(wait, self._next_tick_s - self.clock())
+        return max(wait, 0.0)
+
+    def _check_telemetry(self, now: float) -> None:
+        last = self._last_telemetry_wall
+        if last is None:
+            last = self._last_telemetry_wall = now
+        stale = now - last
+        if self._outage_since is None:
+            if stale > self.config.telemetry_timeout_s:
+                self._outage_since = last
+                self._say(f"telemetry lost ({stale:.2f} s without ATTITUDE/LOCAL_POSITION_NED): setpoints stopped")
+        elif now - self._outage_since > self.config.reconnect_timeout_s:
+            raise _End(FlightStatus.LINK_LOST, f"no telemetry for {now - self._outage_since:.1f} s")
+
+    def _telemetry_back(self, now: float) -> None:
+        assert self._outage_since is not None
+        gap = now - self._outage_since
+        self.outages.append(gap)
+        self._outage_since = None
+        self._verify_mode = self._expect_offboard
+        if self.controller is not None and self._mission_tick0 is not None:
+            self.controller.reset()  # its memory is a gap old: restart it from the measured state
+        self._say(f"telemetry back after {gap:.2f} s: setpoints resumed")
+
+    # -- handling one message ----------------------------------------------------------------------
+
+    def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        kind = msg.get_type()
+        if self.target is None:
+            source = (msg.get_srcSystem(), msg.get_srcComponent())
+            if kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
+                self._early[(source, kind)] = msg  # a lockstep plant may send it only once
+            elif kind == "HEARTBEAT" and codec.is_autopilot_heartbeat(msg):
+                if self.config.target_system is None or source[0] == self.config.target_system:
+                    self.target = source
+                    self.status = codec.vehicle_status(msg)
+                    for early_kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
+                        early = self._early.get((source, early_kind))
+                        if early is not None:
+                            self._on_telemetry(early)
+                    self._early.clear()
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != self.target:
+            return
+        if kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
+            self._on_telemetry(msg)
+        elif kind == "HEARTBEAT":
+            self._on_heartbeat(msg)
+        elif kind == "COMMAND_ACK":
+            p = self._pending
+            if p is not None and int(msg.command) == p.command and int(getattr(msg, "target_system", 0)) in (0, self._own_sysid()):
+                p.result = int(msg.result)
+        elif kind == "PARAM_VALUE":
+            name, value = codec.param_value(msg)
+            if name == self._param_wanted:
+                self.vehicle_params[name] = value
+        elif kind == "TIMESYNC":
+            if self._timesync_ts1 is not None and int(msg.ts1) == self._timesync_ts1:  # our request, answered
+                self._timesync_reply = (int(msg.tc1), self._now_ns())
+        elif kind == "EXTENDED_SYS_STATE":
+            self.landed_state = int(msg.landed_state)
+        elif kind == "STATUSTEXT":
+            text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+            text = text.rstrip("\x00").strip()
+            if text:
+                self._statustexts = (self._statustexts + [text])[-20:]
+                if int(msg.severity) <= mavlink.MAV_SEVERITY_WARNING:
+                    self._say(f"vehicle: {text}")
+
+    def _own_sysid(self) -> int:
+        return int(getattr(self.link, "sysid", 0))
+
+    def _on_telemetry(self, msg: mavlink.MAVLink_message) -> None:
+        try:
+            if msg.get_type() == "ATTITUDE":
+                codec.check_attitude(msg)
+                self._att = msg
+            else:
+                codec.check_local_position(msg)
+                self._lpn = msg
+        except codec.BadTelemetry as exc:
+            self._note(f"ignored: {exc}")
+            return
+        if self.log_clock is not None:
+            self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
+        now = self.clock()
+        self._last_telemetry_wall = now
+        if self._outage_since is not None and self._att is not None and self._lpn is not None:
+            self._telemetry_back(now)
+        self._lockstep_sample_if_due()
+
+    def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
+        status = codec.vehicle_status(msg)
+        self.status = status
+        if self._verify_mode:
+            self._verify_mode = False
+            if not status.offboard:
+                raise _End(FlightStatus.LINK_LOST, f"telemetry came back with the vehicle in {status.mode_name}: "
+                                                   "its failsafe took over during the outage")
+        if self._expect_offboard:
+            if status.offboard:
+                self._offboard_seen = True
+                self._non_offboard_beats = 0
+            else:
+                self._non_offboard_beats += 1
+                if self._offboard_seen or self._non_offboard_beats >= 2:
+                    failsafe = status.critical or any("failsafe" in t.lower() for t in self._statustexts[-3:])
+                    kind = FlightStatus.FAILSAFE if failsafe else FlightStatus.MODE_CHANGED
+                    why = "failsafe" if failsafe else "mode changed by someone else"
+                    last = f" (vehicle: {self._statustexts[-1]})" if self._statustexts else ""
+                    self._source = None
+                    raise _End(kind, f"the vehicle left Offboard for {status.mode_name}: {why}{last}")
+        if self._expect_armed:
+            if status.armed:
+                self._armed_seen = True
+                self._disarmed_beats = 0
+            else:
+                self._disarmed_beats += 1
+                if self._armed_seen or self._disarmed_beats >= 2:
+                    self._source = None
+                    raise _End(FlightStatus.MODE_CHANGED, "the vehicle disarmed during the mission")
+
+    # -- sampling ----------------------------------------------------------------------------------
+
+    def _lockstep_sample_if_due(self) -> None:
+        if not self.config.lockstep or self._source is None or self._att is None or self._lpn is None:
+            return
+        t_ms = int(self._att.time_boot_ms)
+        if t_ms != int(self._lpn.time_boot_ms) or t_ms == self._answered_ms:
+            return
+        if self._prev_sample_ms is not None:
+            step = t_ms - self._prev_sample_ms
+            if step != int(round(self.to * 1000)) and self._samples_sent > 1:
+                raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
+                                       f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
+        self._prev_sample_ms = t_ms
+        self._answered_ms = t_ms
+        if self._next_heartbeat_ms <= t_ms:
+            self._send_heartbeat()
+        self._sample(self.clock())
+        self._tick += 1
+
+    def _sample(self, now: float) -> None:
+        source = self._source
+        if source is None or self._att is None or self._lpn is None or self._outage_since is not None:
+            return
+        if self.config.lockstep:
+            # the plant waits for this answer: new telemetry is due within the timeout from now
+            self._last_telemetry_wall = now
+        elif self._watch_telemetry and self._last_telemetry_wall is not None and now - self._last_telemetry_wall > self.config.telemetry_timeout_s:
+            return  # stale: _check_telemetry declares the outage
+        try:
+            measured = codec.measured_state(self._att, self._lpn)
+        except codec.BadTelemetry:
+            return
+        msg = source(measured)
+        if msg is not None:
+            self.link.send(msg)
+            self._samples_sent += 1
+
+    def _setpoint_message(self, sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint, t_ms: int) -> mavlink.MAVLink_message:
+        assert self.target is not None
+        if isinstance(sp, codec.ActuatorSetpoint):
+            return codec.set_actuator_control_target(t_ms, sp, self.target[0], self.target[1])
+        return codec.set_attitude_target(t_ms, sp, self.target[0], self.target[1])
+
+    def _hold_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
+        """Before the mission: the vehicle's own attitude, thrust 0 (proof of offboard life)."""
+        return self._setpoint_message(codec.hold_setpoint(measured.euler_rad, 0.0), measured.time_boot_ms)
+
+    def _idle_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
+        """While the vehicle lands by itself: not flown; hover thrust in the air, 0 on the ground."""
+        thrust = 0.0
+        if self.params is not None and self.scaling is not None and self.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
+            thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
+        return self._setpoint_message(codec.hold_setpoint(measured.euler_rad, thrust), measured.time_boot_ms)
+
+    def _mission_source(self, measured: MeasuredState) -> mavlink.MAVLink_message | None:
+        """One sample of the mission: the same computation as ``run_scenario``'s, from telemetry."""
+        assert self.controller is not None and self.params is not None and self.scaling is not None
+        now = self.clock()
+        if self._mission_tick0 is None:
+            self._mission_tick0 = self._tick
+            self._mission_wall0 = now
+            self._say_start(measured)
+        n = self._tick - self._mission_tick0
+        recording = not self._mission_done and n <= self._mission_samples
+        t = n * self.to
+        params = self.params
+        x = codec.controller_state(measured, params.euler_rate_form)
+        ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
+        out = self.controller.step(x, tracking_reference(ref_n), tracking_reference(ref_n1))
+        law = out.law
+        why = _diverged(measured)
+        if recording:
+            if why:
+                raise _End(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
+            if self._last_sample_wall is not None:
+                self.loop.periods_s.append(now - self._last_sample_wall)
+            self._last_sample_wall = now
+            self.loop.samples += 1
+            self.rows.append(
+                t_s=t,
+                pos_ned_m=measured.pos_ned_m,
+                vel_ned_m_s=measured.vel_ned_m_s,
+                euler_rad=measured.euler_rad,
+                ref_pos_ned_m=ref_n.pos_ned_m,
+                ref_yaw_rad=ref_n.yaw_rad,
+                ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
+                thrust_n=law.thrust_n,
+                torques_nm=out.torques_nm,
+                tau_tilde=law.tau_tilde,
+                time_boot_ms=measured.time_boot_ms,
+                sample_wall_s=now - (self._mission_wall0 or now),
+            )
+            if self._progress is not None:
+                err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
+                self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]
+        if not out.is_finite():
+            self._source = None
+            raise _End(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
+        if n >= self._mission_samples:
+            self._mission_done = True
+        if self.config.output == "actuator":
+            sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint = codec.actuator_setpoint(
+                out, measured.euler_rad, self.config.model, params.euler_rate_form, self.scaling)
+        else:
+            sp = codec.attitude_setpoint(out, measured.euler_rad, params.euler_rate_form, self.scaling)
+        return self._setpoint_message(sp, measured.time_boot_ms)
+
+    def _say_start(self, measured: MeasuredState) -> None:
+        ref0 = self.trajectory.reference(0.0).pos_ned_m
+        self._say(f"mission started at t_boot {measured.time_boot_ms / 1000:.2f} s, vehicle at NED "
+                  f"({measured.pos_ned_m[0]:.2f}, {measured.pos_ned_m[1]:.2f}, {measured.pos_ned_m[2]:.2f}) m, "
+                  f"first reference ({ref0[0]:.2f}, {ref0[1]:.2f}, {ref0[2]:.2f}) m")
+
+    def _phase_at(self, t: float) -> str:
+        for phase in self.phases:
+            if phase.start_s <= t < phase.end_s:
+                return phase.name
+        return self.phases[-1].name if self.phases else "mission"
+
+    # -- small things ------------------------------------------------------------------------------
+
+    def _send_heartbeat(self) -> None:
+        self.link.send(codec.heartbeat())
+        if self.config.lockstep:
+            self._next_heartbeat_ms = self._boot_ms() + 1000
+        else:
+            self._next_heartbeat = self.clock() + 1.0
+
+    def _say(self, text: str) -> None:
+        if self._event is not None:
+            self._event(text)
+
+    def _note(self, text: str) -> str:
+        self.notes.append(text)
+        self._say(text)
+        return text
+
+
+def _diverged(measured: MeasuredState) -> str:
+    """Why the measured state means the flight is lost ('' if it is not); as run_scenario."""
+    values = np.concatenate([measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, measured.body_rate_frd_rad_s])
+    if not np.all(np.isfinite(values)):
+        return "the measured state is no longer finite"
+    phi, theta = measured.euler_rad[0], measured.euler_rad[1]
+    if math.cos(phi) * math.cos(theta) <= 0.0:
+        return f"tilt past 90 degrees (roll {math.degrees(phi):.0f}, pitch {math.degrees(theta):.0f} deg)"
+    if float(np.max(np.abs(measured.pos_ned_m))) > MAX_POSITION_M:
+        return "position beyond 10 km"
+    return ""

@@ -1,0 +1,279 @@
+"""The offboard process's MAVLink link: the only module of ``offboard`` with sockets.
+
+The transport is pymavlink's, so every connection string a pymavlink user knows works as it
+is (``udpin:0.0.0.0:14540``, ``udpout:127.0.0.1:14580``, ``tcp:HOST:PORT``, a serial device).
+On top of it this module does what a flight needs of a link and pymavlink leaves to its user:
+
+- MAVLink 2 packing with our own identity (``--sysid``/``--compid``) and sequence numbers;
+- parsing that never raises on bad bytes (counted), one datagram at a time on UDP;
+- **duplicate suppression**: a packet whose source, sequence number and bytes equal one of the
+  latest received is dropped (a lockstep plant resends its last telemetry as a keepalive while
+  nobody answers; those copies are not news);
+- **loss counting** from the sequence numbers of each source (``LinkStats.lost``);
+- a **tlog** of every packet sent and received, in the order the flight handled them, stamped
+  by an injected clock (wall time, or simulation time in lockstep so that two lockstep runs
+  write the same bytes). pymavlink's ``mavutil.mavlink_connection(path)`` and ``mavlogdump.py``
+  read it.
+
+A received message is logged when ``recv`` hands it to the caller, not when it arrives, so the
+log interleaves what we sent and what we received in the order the flight acted on them.
+"""
+
+from __future__ import annotations
+
+import select
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl_plant.link import LinkError, TlogWriter
+
+__all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
+
+#: Connection-string prefixes accepted (pymavlink's); anything else must be a serial device.
+SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
+#: A packet counts as a duplicate only if its sequence number is this close behind the latest.
+DUPLICATE_WINDOW = 64
+ONBOARD_SYSID = 245  # MAVSDK's default system id for an API client
+ONBOARD_COMPID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+
+
+def wall_clock_us() -> int:
+    """Microseconds since the Unix epoch (the tlog's usual timestamp)."""
+    return int(time.time() * 1e6)
+
+
+@dataclass
+class LinkStats:
+    """Packet counters of one link (what the summary reports as sent/received/lost)."""
+
+    sent: int = 0
+    received: int = 0
+    lost: int = 0  # sequence-number gaps of the sources we heard
+    duplicates: int = 0
+    bad: int = 0  # bytes that did not parse as MAVLink (CRC errors, truncation, junk)
+    sent_by_type: dict[str, int] = field(default_factory=dict)
+    received_by_type: dict[str, int] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "sent": self.sent,
+            "received": self.received,
+            "lost": self.lost,
+            "duplicates": self.duplicates,
+            "bad": self.bad,
+            "sent_by_type": dict(sorted(self.sent_by_type.items())),
+            "received_by_type": dict(sorted(self.received_by_type.items())),
+        }
+
+
+@dataclass
+class _Source:
+    last_seq: int
+    recent: dict[int, bytes]
+
+
+class MavLink:
+    """One MAVLink connection with a tlog, duplicate suppression and loss counting.
+
+    Parameters
+    ----------
+    connect : str
+        A pymavlink connection string.
+    sysid, compid : int
+        Our identity (MAVSDK's 245 and MAV_COMP_ID_ONBOARD_COMPUTER by default).
+    tlog_path : path or None
+        Where to record every packet sent and received.
+    log_time_us : callable
+        The tlog timestamp of a packet logged now, microseconds since the Unix epoch.
+
+    Raises
+    ------
+    LinkError
+        The connection cannot be opened (bad string, address in use, no such device).
+    """
+
+    def __init__(
+        self,
+        connect: str,
+        *,
+        sysid: int = ONBOARD_SYSID,
+        compid: int = ONBOARD_COMPID,
+        tlog_path: str | Path | None = None,
+        log_time_us: Callable[[], int] = wall_clock_us,
+    ) -> None:
+        self.connect = connect
+        if not connect.startswith(SCHEMES) and not (connect.startswith("/") or connect.upper().startswith("COM")):
+            raise LinkError(f"--connect {connect!r}: expected a pymavlink connection string such as "
+                            "udpin:0.0.0.0:14540, udpout:127.0.0.1:14580, tcp:127.0.0.1:5760 or a serial device")
+        try:
+            self.conn = mavutil.mavlink_connection(connect, source_system=sysid, source_component=compid, dialect="common")
+        except (OSError, ValueError) as exc:
+            reason = getattr(exc, "strerror", None) or str(exc)
+            raise LinkError(f"--connect {connect}: cannot open the link: {reason}") from None
+        except Exception as exc:  # noqa: BLE001 - serial and other transports raise their own kinds
+            raise LinkError(f"--connect {connect}: cannot open the link: {exc}") from None
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)
+        self._packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self._queue: deque[mavlink.MAVLink_message] = deque()
+        self._sources: dict[tuple[int, int], _Source] = {}
+        self.stats = LinkStats()
+        self.log_time_us = log_time_us
+        self._tlog: TlogWriter | None = None
+        if tlog_path is not None:
+            try:
+                self._tlog = TlogWriter(tlog_path)
+            except LinkError:
+                self.conn.close()
+                raise
+        port = getattr(self.conn, "port", None)
+        self._fileno = port.fileno() if port is not None and hasattr(port, "fileno") else getattr(self.conn, "fd", None)
+
+    # -- identity ----------------------------------------------------------------------------------
+
+    @property
+    def sysid(self) -> int:
+        return int(self._packer.srcSystem)
+
+    @property
+    def compid(self) -> int:
+        return int(self._packer.srcComponent)
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        port = getattr(self.conn, "port", None)
+        try:
+            return port.getsockname() if port is not None else None  # type: ignore[no-any-return]
+        except OSError:
+            return None
+
+    # -- sending -----------------------------------------------------------------------------------
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Pack with our identity and next sequence number, log, send."""
+        packet = msg.pack(self._packer)
+        self._packer.seq = (self._packer.seq + 1) & 0xFF
+        if self._tlog is not None:
+            self._tlog.write(self.log_time_us(), packet)
+        self.conn.write(packet)
+        self.stats.sent += 1
+        kind = msg.get_type()
+        self.stats.sent_by_type[kind] = self.stats.sent_by_type.get(kind, 0) + 1
+
+    # -- receiving ---------------------------------------------------------------------------------
+
+    def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None:
+        """The next new message (logged now), or None when none came within ``timeout_s``."""
+        if not self._queue:
+            self._fill(timeout_s)
+        if not self._queue:
+            return None
+        msg = self._queue.popleft()
+        if self._tlog is not None:
+            self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+        return msg
+
+    def pending(self) -> bool:
+        """Whether a message is already waiting (without blocking)."""
+        if not self._queue:
+            self._fill(0.0)
+        return bool(self._queue)
+
+    def _fill(self, timeout_s: float) -> None:
+        deadline = time.monotonic() + max(timeout_s, 0.0)
+        while not self._queue:
+            data = self._read()
+            if data:
+                self._parse(data)
+                continue
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            self._wait(remaining)
+
+    def _read(self) -> bytes:
+        try:
+            data = self.conn.recv()
+        except OSError:
+            return b""
+        if not data:
+            return b""
+        return bytes(data) if not isinstance(data, bytes) else data
+
+    def _wait(self, timeout_s: float) -> None:
+        if self._fileno is None:
+            time.sleep(min(timeout_s, 0.001))
+            return
+        try:
+            select.select([self._fileno], [], [], timeout_s)
+        except (InterruptedError, ValueError, OSError):
+            time.sleep(min(timeout_s, 0.001))
+
+    def _parse(self, data: bytes) -> None:
+        parser = self._parser
+        try:
+            messages = parser.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - bad bytes must never stop a flight
+            messages = []
+            self.stats.bad += 1
+        if self._datagrams:  # MAVLink over UDP never splits a packet: start afresh
+            parser.buf = bytearray()
+            parser.buf_index = 0
+            parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+        for msg in messages:
+            if msg.get_type() == "BAD_DATA":
+                self.stats.bad += 1
+                continue
+            if self._is_duplicate(msg):
+                self.stats.duplicates += 1
+                continue
+            self.stats.received += 1
+            kind = msg.get_type()
+            self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
+            self._queue.append(msg)
+
+    def _is_duplicate(self, msg: mavlink.MAVLink_message) -> bool:
+        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost."""
+        key = (msg.get_srcSystem(), msg.get_srcComponent())
+        seq = msg.get_seq()
+        packet = bytes(msg.get_msgbuf())
+        src = self._sources.get(key)
+        if src is None:
+            self._sources[key] = _Source(seq, {seq: packet})
+            return False
+        behind = (src.last_seq - seq) & 0xFF
+        if behind < DUPLICATE_WINDOW and src.recent.get(seq) == packet:
+            return True
+        src.recent[seq] = packet
+        if 0 < behind < 128:  # late (reordered) or from a second sequence: nothing lost, baseline kept
+            return False
+        self.stats.lost += (seq - src.last_seq - 1) & 0xFF  # a forward jump: packets lost on the way
+        src.last_seq = seq
+        return False
+
+    # -- the end -----------------------------------------------------------------------------------
+
+    def flush(self) -> None:
+        if self._tlog is not None:
+            self._tlog.flush()
+
+    def close(self) -> None:
+        """Close the connection and the tlog (which is then complete)."""
+        try:
+            self.conn.close()
+        finally:
+            if self._tlog is not None:
+                self._tlog.close()
+
+    def __enter__(self) -> MavLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
