@@ -133,6 +133,8 @@ class Endpoint:
             raise LinkError(f"{name} link: bad bind address {bind[0]}:{bind[1]}: {exc}") from None
         self.sock.setblocking(False)
         self.packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        # lockstep keepalives are packed apart, so they do not shift the logged sequence numbers
+        self.keepalive_packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.remembered: dict[str, list[bytes]] = {}
@@ -144,10 +146,10 @@ class Endpoint:
     def close(self) -> None:
         self.sock.close()
 
-    def pack(self, messages: list[mavlink.MAVLink_message]) -> list[bytes]:
+    def pack(self, messages: list[mavlink.MAVLink_message], packer: mavlink.MAVLink | None = None) -> list[bytes]:
         """Serialise messages with this link's sequence numbers."""
         out = []
-        packer = self.packer
+        packer = self.packer if packer is None else packer
         for msg in messages:
             out.append(msg.pack(packer))
             packer.seq = (packer.seq + 1) & 0xFF
@@ -286,6 +288,11 @@ class Link:
             for datagrams in endpoint.remembered.values():
                 for d in datagrams:
                     endpoint.send_datagram(d)
+
+    def send_keepalive(self, index: int, messages: list[mavlink.MAVLink_message]) -> None:
+        """Send messages outside the logged stream (own sequence numbers, not in the tlog)."""
+        endpoint = self.endpoints[index]
+        endpoint.send_packets(endpoint.pack(messages, endpoint.keepalive_packer))
 
     def flush(self) -> None:
         if self.tlog is not None:

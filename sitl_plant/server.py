@@ -98,8 +98,9 @@ class StreamSchedule:
         self.interval_us = dict(self.defaults)
         self.next_us = {mid: 0 for mid in STREAMS}
 
-    def set_interval(self, message_id: int, interval_us: int) -> bool:
-        """SET_MESSAGE_INTERVAL: -1 off, 0 default, > 0 the interval; False for unknown streams."""
+    def set_interval(self, message_id: int, interval_us: int, now_us: int) -> bool:
+        """SET_MESSAGE_INTERVAL: -1 off, 0 default, > 0 the interval (the next one is due one
+        interval from now); False for unknown streams."""
         if message_id not in STREAMS:
             return False
         if interval_us == 0:
@@ -108,7 +109,7 @@ class StreamSchedule:
             self.interval_us[message_id] = -1
         else:
             self.interval_us[message_id] = interval_us
-        self.next_us[message_id] = 0
+        self.next_us[message_id] = now_us + max(self.interval_us[message_id], 0)
         return True
 
     def due(self, now_us: int) -> list[int]:
@@ -320,7 +321,7 @@ class Plant:
         if c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             if not (math.isfinite(p[0]) and math.isfinite(p[1])):
                 return Reply(mavlink.MAV_RESULT_DENIED)
-            ok = self.streams[index].set_interval(int(p[0]), int(p[1]))
+            ok = self.streams[index].set_interval(int(p[0]), int(p[1]), self.time_us)
             return Reply(mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED)
         if c == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             if not math.isfinite(p[0]) or int(p[0]) not in STREAMS:
@@ -338,7 +339,7 @@ class Plant:
 
     def _on_set_message_interval(self, index: int, msg: mavlink.MAVLink_message) -> None:
         # the deprecated message form of MAV_CMD_SET_MESSAGE_INTERVAL: no ACK (it has none)
-        self.streams[index].set_interval(int(msg.message_id), int(msg.interval_us))
+        self.streams[index].set_interval(int(msg.message_id), int(msg.interval_us), self.time_us)
 
     def _on_set_mode(self, index: int, msg: mavlink.MAVLink_message) -> None:
         reply = self.autopilot.set_mode(codec.decode_set_mode(msg), self.time_s)
@@ -541,22 +542,20 @@ class _Driver:
                 box.clear()
 
     def send_telemetry(self, *, lockstep: bool = False) -> None:
-        """Replies first, then the due streams (in lockstep kept for the keepalive: the
-        heartbeat and the rest separately, so a resend repeats exactly the latest of each)."""
+        """Replies first, then the due streams (in lockstep the streams are also kept for the
+        keepalive, which repeats them byte for byte)."""
         self.flush_outbox()
         plant = self.plant
         for i in range(len(self.link.endpoints)):
             force = LOCKSTEP_STREAMS if (lockstep and i == API) else ()
             msgs = plant.telemetry(i, force=force)
-            if not lockstep:
-                self.link.send(i, msgs)
-                continue
-            beat = [m for m in msgs if m.get_type() == "HEARTBEAT"]
-            rest = [m for m in msgs if m.get_type() != "HEARTBEAT"]
-            if beat:
-                self.link.send(i, beat, remember="heartbeat")
-            if rest:
-                self.link.send(i, rest, remember="telemetry")
+            self.link.send(i, msgs, remember="telemetry" if lockstep else None)
+
+    def keepalive(self) -> None:
+        """Lockstep, nobody answering: the latest telemetry again and a heartbeat of now."""
+        self.link.resend_remembered()
+        for i in range(len(self.link.endpoints)):
+            self.link.send_keepalive(i, [codec.heartbeat(self.plant.autopilot.status())])
 
     def housekeeping(self) -> None:
         now = self.clock()
@@ -626,7 +625,8 @@ def run_lockstep(
     """Advance one period each time the setpoint echoing the latest telemetry's stamp arrives.
 
     Other messages are handled at once, without advancing. While nobody answers, the last
-    telemetry and heartbeat are resent every ``keepalive_s`` of wall time (not logged).
+    telemetry and a current heartbeat are sent every ``keepalive_s`` of wall time (not logged;
+    answers to older telemetry are dropped unlogged, so a client may answer every repeat).
     """
     d = _Driver(plant, link, clock, status)
     stats = RunStats()
@@ -654,7 +654,7 @@ def run_lockstep(
                 else:
                     d.flush_outbox()
         elif clock() - last_send >= keepalive_s:
-            link.resend_remembered()
+            d.keepalive()
             last_send = clock()
         d.housekeeping()
     stats.wall_s = clock() - wall0
