@@ -193,6 +193,19 @@ def test_limits_bound_thrust_and_tilt():
     assert 0.1 < abs(up.pitch_ref_rad) <= math.radians(30) + 1e-12
 
 
+def test_bounded_tilt_keeps_altitude_first():
+    """With a tilt bound, u solves the vertical row of eq. 27: u cos(x9ez) cos(x7ez) = m (dx6 + g To)/To."""
+    params = PARAMS.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(20)))
+    x = (0.0,) * 4 + (5.0,) + (0.0,) * 7
+    ref = TrackingReference(4.0, 3.0, 5.0, 0.0)  # far sideways, same height
+    out, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 5.0, 0), ref)
+    vertical_force = out.thrust_n * math.cos(out.pitch_ref_rad) * math.cos(out.roll_ref_rad)
+    _, _, dx6 = increments(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 5.0, 0), ref)
+    assert vertical_force == pytest.approx(params.mass_kg * (dx6 + 9.81 * 0.05) / 0.05)
+    unbounded, _ = law_step(PARAMS, LawMemory.from_state(x), x, TrackingReference(0, 0, 5.0, 0), ref)
+    assert out.thrust_n < unbounded.thrust_n  # eq. 39 would have asked for far more
+
+
 def test_yaw_difference_is_wrapped():
     """A reference 2 pi away from the measured yaw is the same heading: no spin."""
     x = (0.0,) * 10 + (0.1, 0.0)

@@ -178,9 +178,16 @@ def law_step(
         x7ez = ops.minimum(ops.maximum(x7ez, -limits.tilt_max_rad), limits.tilt_max_rad)
         x9ez = ops.minimum(ops.maximum(x9ez, -limits.tilt_max_rad), limits.tilt_max_rad)
 
-    # eq. 39 with the angles just computed
     s9, c9 = ops.sin(x9ez), ops.cos(x9ez)
-    thrust = params.mass_kg / to * (-s9 * dx_fwd + c9 * ops.sin(x7ez) * dx_right + c9 * ops.cos(x7ez) * vertical)
+    if limits.tilt_max_rad is None:
+        # eq. 39 with the angles just computed
+        thrust = params.mass_kg / to * (-s9 * dx_fwd + c9 * ops.sin(x7ez) * dx_right + c9 * ops.cos(x7ez) * vertical)
+    else:
+        # Bounded tilt: eq. 27 is no longer exactly solvable and eq. 39's least-squares u would
+        # trade height for the horizontal demand it cannot meet (climbing metres at a switch).
+        # Solve the vertical row instead (altitude first, as PX4 does); with unclamped angles it
+        # equals eq. 39 (Appendix A, eq. A.8).
+        thrust = params.mass_kg / to * vertical / (c9 * ops.cos(x7ez))
     if limits.thrust_min_n is not None:
         thrust = ops.maximum(thrust, limits.thrust_min_n)
     if limits.thrust_max_n is not None:
