@@ -4,7 +4,7 @@ A scenario is one TOML file (the paper's three simulations are ``missions/paper-
 
     [scenario]
     name = "paper-sim1"
-    mission = "paper-helix.toml"    # a mission file, relative to this file
+    mission = "paper-helix.toml"    # a mission file (relative to this file, or bundled), or a [scenario.mission] table
     model = "paper"                 # paper | rigid-body
     drive = "inner-loop"            # inner-loop | held-torque
     physics_dt_s = 0.001
@@ -42,18 +42,14 @@ def _table_or_file(top: Fields, key: str, base_dir: Path, from_table, from_file)
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read a scenario file; every error names the file and field."""
-    from offboard.missions import load_mission
+    from offboard.missions import resolve_mission
 
     path = Path(path)
     source = path.name
     top = Fields(read_toml(path), source)
     base_dir = path.resolve().parent
     s = top.sub("scenario")
-    mission_value = s.string("mission")
-    mission_path = (base_dir / mission_value).resolve()
-    if not mission_path.is_file():
-        raise s.error("mission", f"no such mission file {mission_value!r} (relative to {base_dir})")
-    mission = load_mission(mission_path)
+    mission = resolve_mission(s.raw("mission"), f"{source}: scenario", base_dir)
     vehicle = _table_or_file(top, "vehicle", base_dir, vehicle_from_table, load_vehicle)
     controller = _table_or_file(top, "controller", base_dir, controller_from_table, load_controller)
     duration = s.raw("duration_s", None)

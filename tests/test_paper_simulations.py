@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from offboard.cli import main
-from offboard.errors import ParameterFileError
+from offboard.errors import UserError
 from offboard.inprocess import run_scenario
 from offboard.metrics import summarize
 from offboard.record import FlightStatus
@@ -171,7 +171,7 @@ def test_simulate_command_exit_code_says_it_diverged(tmp_path, capsys):
     "edit, message",
     [
         (('model = "paper"', 'model = "blimp"'), "scenario.model: expected one of paper, rigid-body, got 'blimp'"),
-        (('mission = "paper-helix.toml"', 'mission = "nowhere.toml"'), "scenario.mission: no such mission file 'nowhere.toml'"),
+        (('mission = "paper-helix.toml"', 'mission = "nowhere.toml"'), "scenario: mission: no mission file 'nowhere.toml'"),
         (("physics_dt_s = 0.001", "physics_dt_s = 0.003"), "integer multiple"),
         (('sensors = "clean"', 'sensors = "sonar"'), "scenario.sensors"),
         (("kx5 = 0.9", "kx5 = 1.5"), "controller.gains.kx5: must lie in (0, 1), got 1.5"),
@@ -185,7 +185,7 @@ def test_bad_scenario_files_give_one_line(tmp_path, capsys, edit, message):
     text = text.replace(old, new, 1).replace('"../sitl_plant/', f'"{MISSIONS.parent}/sitl_plant/')
     path = tmp_path / "bad.toml"
     path.write_text(text.replace('mission = "paper-helix.toml"', f'mission = "{MISSIONS / "paper-helix.toml"}"'))
-    with pytest.raises(ParameterFileError) as info:
+    with pytest.raises(UserError) as info:
         load_scenario(path)
     assert message in str(info.value) and str(info.value).startswith("bad.toml: ")
     assert main(["simulate", str(path), "--no-plots", "--run-dir", str(tmp_path)]) == 2
