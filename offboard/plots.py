@@ -45,8 +45,10 @@ LAYOUT = None  # "constrained" looks a little tidier but doubles the drawing tim
 
 
 def _new_figure(rows: int, title: str, what: str) -> tuple[Figure, list]:
-    fig = Figure(figsize=(8.0, 1.9 * rows + 0.8), dpi=DPI, layout=LAYOUT)
+    height_in = 1.9 * rows + 0.8
+    fig = Figure(figsize=(8.0, height_in), dpi=DPI, layout=LAYOUT)
     FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=0.11, right=0.97, top=1.0 - 0.55 / height_in, bottom=0.5 / height_in, hspace=0.18)
     axes = list(fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0])
     fig.suptitle(f"{title} - {what}" if title else what)
     axes[-1].set_xlabel("t [s]")
@@ -218,3 +220,33 @@ def write_figures(record: FlightRecord, run_dir: Path, title: str = "") -> list[
     for name in FIGURE_NAMES:
         paths.append(save_figure(FIGURES[name](record, title), run_dir / f"{name}.png"))
     return paths
+
+
+#: One panel of a comparison: y label, then the two series (shape (n,) or (n, k)) and the
+#: names of their k components.
+ComparisonPanel = tuple[str, np.ndarray, np.ndarray, tuple[str, ...]]
+
+
+def comparison_figure(
+    t_s: np.ndarray, panels: list[ComparisonPanel], title: str = "", labels: tuple[str, str] = ("logged", "re-run")
+) -> Figure:
+    """Two runs side by side, one panel per quantity: the first solid, the second dashed.
+
+    Used by ``offboard replay --rerun`` to show what a changed controller would have commanded
+    beside what was flown.
+    """
+    fig, axes = _new_figure(len(panels), title, f"{labels[0]} (solid) vs {labels[1]} (dashed)")
+    style = {"marker": "o", "markersize": 3} if len(t_s) == 1 else {}
+    colors = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
+    for ax, (ylabel, first, second, names) in zip(axes, panels):
+        a = np.asarray(first, dtype=float).reshape(len(t_s), -1)
+        b = np.asarray(second, dtype=float).reshape(len(t_s), -1)
+        for i in range(a.shape[1]):
+            name = names[i] if i < len(names) else ylabel
+            color = colors[i % len(colors)]
+            ax.plot(t_s, a[:, i], color=color, linewidth=1.3, label=f"{name} {labels[0]}", **style)
+            ax.plot(t_s, b[:, i], color=color, linewidth=1.0, linestyle="--", label=f"{name} {labels[1]}", **style)
+        if a.shape[1] > 1:
+            ax.legend(loc="upper right", fontsize=7, ncol=a.shape[1])
+        _finish(ax, ylabel)
+    return fig

@@ -1,0 +1,297 @@
+"""`offboard replay LOG.tlog`: report, re-run or re-stream a flight from its MAVLink log.
+
+- **Report** (default): the paper's figures, the aligned series (CSV), the tracking table per
+  phase and the log's own figures (message rates and gaps, packet loss per source, mode
+  changes, failsafes) in a run folder. Any tlog with ATTITUDE and LOCAL_POSITION_NED works.
+- **Re-run** (``--rerun``): the controller fed the recorded telemetry sample by sample; its
+  outputs against the logged setpoints (equal to float32 with the flight's controller; a
+  figure and a table beside them with ``--controller FILE``).
+- **Stream** (``--to udpout:HOST:PORT``): the vehicle's messages re-sent in their original
+  timing (``--speed N``: N times faster), for a ground station to watch again.
+
+Exit code: 0; 1 when ``--rerun`` with the flight's own controller does not reproduce the log;
+2 for a bad argument or a file that is not a tlog (one line). See docs/replay.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+from offboard.errors import UserError
+
+#: pymavlink connection strings ``--to`` accepts (network outputs only).
+STREAM_SCHEMES = ("udpout:", "udpbcast:", "udpin:", "tcp:", "tcpin:")
+
+
+class ReplayArgumentError(UserError, ValueError):
+    """An option's value is well-formed for argparse but unusable (``--speed 0``, a bad URL)."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "replay",
+        help="report, re-run or re-stream a flight from its MAVLink log (.tlog)",
+        description="Read a MAVLink telemetry log (ours or any system's with ATTITUDE and LOCAL_POSITION_NED) and "
+        "write the paper's figures, the aligned series, the tracking table and the log's message statistics, "
+        "mode changes and failsafes into a run folder; or re-run the controller on it; or stream it again.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("log", type=Path, help="the flight's .tlog (offboard fly's RUN_DIR/flight.tlog, sitl-plant --log, a GCS's)")
+    parser.add_argument("--mission", type=Path, default=None, metavar="FILE",
+                        help="mission flown: references and phases (default: the one named in summary.json beside the log)")
+    parser.add_argument("--run-dir", type=Path, default=None, metavar="DIR",
+                        help="folder for figures, CSV and summary (default: runs/replay-<log>-<time>)")
+    parser.add_argument("--sysid", type=int, default=None, metavar="N",
+                        help="the vehicle's system id (default: the autopilot reporting ATTITUDE and LOCAL_POSITION_NED)")
+    rerun = parser.add_argument_group("re-run")
+    rerun.add_argument("--rerun", action="store_true", help="feed the telemetry to the controller and compare with the logged setpoints")
+    rerun.add_argument("--controller", type=Path, default=None, metavar="FILE",
+                       help="re-run this controller instead of the flight's (as offboard fly --controller FILE flies it)")
+    rerun.add_argument("--model", choices=("rigid-body", "paper"), default=None,
+                       help="what the vehicle was (offboard fly --model; default: summary.json's, else rigid-body)")
+    rerun.add_argument("--thrust-max-n", type=float, default=None, metavar="N",
+                       help="thrust at normalised 1 when the log holds no SIM_THR_MAX (a real PX4)")
+    stream = parser.add_argument_group("stream")
+    stream.add_argument("--to", default=None, metavar="URL",
+                        help="re-send the vehicle's messages to this pymavlink address (e.g. udpout:127.0.0.1:14550) and exit")
+    stream.add_argument("--speed", type=float, default=1.0, metavar="N", help="stream N times faster than flown")
+    stream.add_argument("--all-systems", action="store_true", help="stream every system's messages, not only the vehicle's")
+    out = parser.add_argument_group("output")
+    out.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    out.add_argument("--json", action="store_true", help="print the summary as one JSON object instead of tables")
+    out.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(func=run)
+
+
+class _Progress:
+    """A progress bar on stderr, only on a terminal and not with --quiet/--json."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+        self._shown = -1
+
+    def __call__(self, fraction: float) -> None:
+        if not self.enabled:
+            return
+        percent = int(100 * fraction)
+        if percent == self._shown:
+            return
+        self._shown = percent
+        bar = "#" * (percent // 4) + "." * (25 - percent // 4)
+        sys.stderr.write(f"\r{self.label} [{bar}] {percent:3d} %")
+        sys.stderr.flush()
+
+    def end(self) -> None:
+        if self.enabled and self._shown >= 0:
+            sys.stderr.write("\r\x1b[K")
+            sys.stderr.flush()
+
+
+def _check(args: argparse.Namespace) -> None:
+    if not (math.isfinite(args.speed) and args.speed > 0):
+        raise ReplayArgumentError(f"--speed: must be > 0, got {args.speed}")
+    if args.to is not None and not args.to.startswith(STREAM_SCHEMES):
+        raise ReplayArgumentError(f"--to: expected a pymavlink network address ({', '.join(s + 'HOST:PORT' for s in STREAM_SCHEMES[:1])}, "
+                                  f"{', '.join(STREAM_SCHEMES[1:])}), got {args.to!r}")
+    if args.sysid is not None and not 1 <= args.sysid <= 255:
+        raise ReplayArgumentError(f"--sysid: must be 1..255, got {args.sysid}")
+    if args.thrust_max_n is not None and not (math.isfinite(args.thrust_max_n) and args.thrust_max_n > 0):
+        raise ReplayArgumentError(f"--thrust-max-n: must be > 0, got {args.thrust_max_n}")
+    if args.controller is not None and not args.rerun:
+        raise ReplayArgumentError("--controller: only with --rerun")
+
+
+def _warn(text: str) -> None:
+    print(f"offboard replay: warning: {text}", file=sys.stderr)
+
+
+def _flight_summary(log: Path) -> dict | None:
+    """``offboard fly``'s summary.json beside the log, if it describes this log."""
+    path = log.parent / "summary.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or Path(str(data.get("log", ""))).name != log.name:
+        return None
+    return data
+
+
+def _mission(args: argparse.Namespace, summary: dict | None):
+    """The mission's trajectory and a note saying where it came from (None, '' without one)."""
+    from offboard.missions import MISSIONS_DIR, load_mission
+
+    if args.mission is not None:
+        return load_mission(args.mission).trajectory, str(args.mission)
+    name = (summary or {}).get("mission_source")
+    if isinstance(name, str) and name:
+        for folder in (args.log.parent, Path.cwd(), MISSIONS_DIR):
+            candidate = folder / name
+            if candidate.is_file():
+                return load_mission(candidate).trajectory, f"{candidate} (named in summary.json)"
+        _warn(f"summary.json names the mission {name!r}, not found beside the log, here or in {MISSIONS_DIR}; pass --mission FILE")
+    return None, ""
+
+
+def run(args: argparse.Namespace) -> int:
+    from offboard.replay import TlogReader, scan_log
+
+    _check(args)
+    quiet = args.quiet or args.json
+    if args.to is not None:
+        return _stream(args, quiet)
+
+    progress = _Progress(f"reading {args.log.name}", not quiet)
+    reader = TlogReader(args.log, progress)
+    try:
+        scan = scan_log(reader)
+    finally:
+        progress.end()
+    if reader.damages:
+        _warn(reader.describe_damage())
+    return _report(args, reader, scan)
+
+
+def _report(args: argparse.Namespace, reader, scan) -> int:
+    from offboard import replay
+    from offboard.metrics import format_table, summarize
+
+    summary_json = _flight_summary(args.log)
+    trajectory, mission_note = _mission(args, summary_json)
+    vehicle = args.sysid if args.sysid is not None else scan.vehicle_sysid()
+    params_log = scan.params.get(vehicle, {}) if vehicle is not None else {}
+    thrust_max = args.thrust_max_n if args.thrust_max_n is not None else params_log.get("SIM_THR_MAX", math.nan)
+    scaling = replay.Scaling(thrust_max, params_log.get("SIM_TQ_RP_MAX", math.nan), params_log.get("SIM_TQ_Y_MAX", math.nan))
+    recorded_to = ((summary_json or {}).get("controller") or {}).get("sample_time_s")
+    record = replay.build_record(scan, sysid=args.sysid, trajectory=trajectory, scaling=scaling, source=str(args.log),
+                                 sample_time_s=recorded_to)  # fmt: skip
+    log_report = replay.log_report(reader, scan, float(record.meta["start_log_time_s"]))  # type: ignore[arg-type]
+
+    exit_code = 0
+    rerun_text, rerun_payload, rerun_result = "", None, None
+    if args.rerun:
+        rerun_result, rerun_text, rerun_payload, reproduces = _rerun(args, scan, record, trajectory, summary_json, thrust_max)
+        if reproduces:
+            # the flight's own controller, reproduced exactly: its law outputs fill the columns the
+            # messages do not carry (u before normalisation, eq. 16 torques, tau_tilde)
+            record.columns.update({k: rerun_result.record[k] for k in ("ref_euler_rad", "thrust_n", "torques_nm", "tau_tilde")})
+            record.meta["commands_from_rerun"] = True
+        elif args.controller is None:
+            exit_code = 1
+
+    summary = summarize(record)
+    run_dir = args.run_dir or Path("runs") / f"replay-{args.log.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ReplayArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    record.write_csv(run_dir / "series.csv")
+    figures = []
+    title = args.log.name
+    if not args.no_plots and len(record):
+        from offboard.plots import comparison_figure, save_figure, write_figures
+
+        figures = write_figures(record, run_dir, title=title)
+        if rerun_result is not None and len(rerun_result.t_s):
+            panels = replay.rerun_panels(rerun_result, thrust_max)
+            label = "re-run" if args.controller is None else f"re-run {args.controller.name}"
+            figures.append(save_figure(comparison_figure(rerun_result.t_s, panels, title, ("logged", label)), run_dir / "rerun.png"))
+    if rerun_result is not None:
+        rerun_result.record.write_csv(run_dir / "rerun.csv")
+
+    head = (f"{args.log}: vehicle {record.meta['vehicle_sysid']}, {len(record)} samples, commands {record.meta['commands']}, "
+            f"references {record.meta['references']}" + (f" ({mission_note})" if mission_note else ""))
+    table = format_table(summary) if len(record) else "no samples to tabulate"
+    text = "\n\n".join(part for part in (head, table, rerun_text, replay.format_log_report(log_report)) if part)
+    (run_dir / "summary.txt").write_text(text + "\n")
+    meta = {k: v for k, v in record.meta.items() if k not in ("setpoint_rows", "time_boot_ms")}
+    payload = {
+        "log": str(args.log),
+        "run_dir": str(run_dir),
+        "mission": mission_note or None,
+        **meta,
+        "samples": len(record),
+        **summary.to_dict(),
+        "log_report": log_report.to_dict(),
+        "rerun": rerun_payload,
+        "figures": [str(p) for p in figures],
+    }
+    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True, default=str) + "\n")
+    if args.json:
+        print(json.dumps(payload, allow_nan=True, default=str))
+    else:
+        print(text)
+        print(f"\nrun folder: {run_dir}" + (f" ({len(figures)} figures)" if figures else ""))
+    return exit_code
+
+
+def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dict | None, thrust_max: float):
+    from offboard import codec, replay
+
+    if trajectory is None:
+        raise ReplayArgumentError("--rerun needs the mission that was flown: --mission FILE")
+    if not math.isfinite(thrust_max):
+        raise ReplayArgumentError("--rerun: the log holds no SIM_THR_MAX (the vehicle's thrust scaling); pass --thrust-max-n N")
+    vehicle = int(record.meta["vehicle_sysid"])
+    params_log = scan.params.get(vehicle, {})
+    try:
+        scaling = codec.Scaling(thrust_max, params_log.get("SIM_TQ_RP_MAX"), params_log.get("SIM_TQ_Y_MAX"))
+    except ValueError as exc:
+        raise ReplayArgumentError(f"--rerun: the vehicle's scaling in the log is unusable: {exc}") from None
+    model = args.model or (summary_json or {}).get("model") or "rigid-body"
+    if model not in codec.MODELS:
+        model = "rigid-body"
+    params, origin = replay.flight_controller(params_log, scaling, model=model, controller_file=args.controller,
+                                              summary=None if args.controller is not None else summary_json)  # fmt: skip
+    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model)
+    label = f"controller: {origin}; model {model}"
+    text = replay.format_rerun(result, label)
+    payload = {"controller": origin, "model": model, **result.to_dict()}
+    return result, text, payload, args.controller is None and result.exact
+
+
+def _stream(args: argparse.Namespace, quiet: bool) -> int:
+    from pymavlink import mavutil
+
+    from offboard.replay import TlogReader, scan_log, stream_log
+
+    systems: set[int] | None = None
+    if not args.all_systems:
+        if args.sysid is not None:
+            systems = {args.sysid}
+        else:
+            scan = scan_log(TlogReader(args.log))
+            vehicle = scan.vehicle_sysid()
+            if vehicle is None:
+                heard = sorted({s for (s, _c) in scan.seq})
+                if not heard:
+                    raise ReplayArgumentError(f"{args.log}: no messages to stream")
+                vehicle = heard[0]
+                _warn(f"no system reports ATTITUDE and LOCAL_POSITION_NED; streaming system {vehicle} (or use --all-systems)")
+            systems = {vehicle}
+    try:
+        conn = mavutil.mavlink_connection(args.to, source_system=255)
+    except (OSError, ValueError) as exc:
+        raise ReplayArgumentError(f"--to {args.to}: cannot open it: {exc}") from None
+    progress = _Progress(f"streaming {args.log.name} to {args.to}", not quiet)
+    reader = TlogReader(args.log, progress)
+    started = time.monotonic()
+    try:
+        sent = stream_log(iter(reader), conn.write, speed=args.speed, systems=systems)
+    finally:
+        progress.end()
+        conn.close()
+    if reader.damages:
+        _warn(reader.describe_damage())
+    who = "all systems" if systems is None else f"system {', '.join(str(s) for s in sorted(systems))}"
+    if not quiet:
+        print(f"sent {sent} messages of {who} to {args.to} in {time.monotonic() - started:.2f} s (speed x{args.speed:g})")
+    elif args.json:
+        print(json.dumps({"sent": sent, "systems": None if systems is None else sorted(systems), "to": args.to, "speed": args.speed}))
+    return 0
