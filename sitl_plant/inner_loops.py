@@ -163,15 +163,15 @@ def bodyz_to_attitude(body_z: Vec3, yaw_rad: float) -> Quat:
 
 
 def _state_reader(model: Model) -> Callable[[np.ndarray], tuple[Quat, Vec3, tuple[float, float, float]]]:
-    """A function x -> (quaternion wxyz, body rates FRD, Euler angles) for this model."""
+    """A function x -> (quaternion wxyz, body rates FRD, Euler angles) for this model (the
+    rigid body's Euler angles are not computed: its loops use the quaternion)."""
     if _is_rigid_body(model):
         from sitl_plant.dynamics.rigid_body import QUAT, RATES
-        from sitl_plant.dynamics.rotations import euler_from_quat
 
         def read_rigid(x: np.ndarray) -> tuple[Quat, Vec3, tuple[float, float, float]]:
+            # the quaternion loop needs no Euler angles: skip them on this hot path
             q = _qnormalize(tuple(x[QUAT].tolist()))  # type: ignore[arg-type]
-            e = euler_from_quat(np.asarray(q))
-            return q, tuple(x[RATES].tolist()), (float(e[0]), float(e[1]), float(e[2]))  # type: ignore[return-value]
+            return q, tuple(x[RATES].tolist()), (0.0, 0.0, 0.0)  # type: ignore[return-value]
 
         return read_rigid
     form = model_euler_form(model)
@@ -362,7 +362,7 @@ class Px4Loop:
             out[i] = min(max(u, -1.0), 1.0)
         return (out[0], out[1], out[2])
 
-    def position_attitude(self, x: np.ndarray, yaw_now: float) -> tuple[Quat, float]:
+    def position_attitude(self, x: np.ndarray) -> tuple[Quat, float]:
         """PX4 PositionControl (P on position, PID on velocity, thrust vector): attitude, thrust N."""
         task = self._pos_task
         assert task is not None
@@ -415,7 +415,7 @@ class Px4Loop:
         q, rates, eta = self._read(x)
         if self._mode == "position":
             if self._pos_count % self._pos_every == 0:
-                self._q_sp, self._thrust_n = self.position_attitude(x, eta[2])
+                self._q_sp, self._thrust_n = self.position_attitude(x)
                 self._yaw_ff = 0.0
             self._pos_count += 1
             rates_sp = self.rates_for_attitude(q, eta, self._q_sp, 0.0)
