@@ -119,3 +119,12 @@ def test_physical_change_rebuilds_vehicle_and_maxima(table, vehicle):
 def test_long_names_rejected():
     with pytest.raises(ValueError, match="16"):
         ParamTable([ParamSpec("A_NAME_LONGER_THAN_16", 1.0)])
+
+
+def test_every_parameter_is_documented(table):
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "plant.md").read_text()
+    rows = {line.split("|")[1].strip().strip("`") for line in doc.splitlines() if line.startswith("| `")}
+    missing = [name for name in table if name not in rows]
+    assert missing == []
