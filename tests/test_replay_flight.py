@@ -1,0 +1,232 @@
+"""Replay of real flights: `sitl-plant --lockstep` and `offboard fly --lockstep` as two processes.
+
+One short mission is flown per output (attitude, actuator); every test reads the logs the two
+processes left: the re-run reproduces the logged setpoints exactly, changed gains change them,
+the report's numbers are the flight's own, pymavlink's mavlogdump.py reads both logs.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from offboard.cli import main
+from offboard.controller import PAPER_CONTROLLER_FILE
+from offboard.replay import TlogReader, build_record, scan_log
+
+pytestmark = pytest.mark.e2e
+
+BIN = Path(sys.executable).parent
+MISSION = """
+[mission]
+name = "replay-test"
+frame = "ned"
+angle_unit = "rad"
+start = [0, 0, 0]
+start_yaw = 0
+
+[[mission.segment]]
+type = "hold"
+name = "climb"
+position = [0, 0, -1]
+yaw = 0
+until_s = 2.5
+
+[[mission.segment]]
+type = "line"
+name = "line"
+to = [0.8, 0.6, -1.2]
+speed_m_s = 0.5
+
+[[mission.segment]]
+type = "hold"
+name = "hold"
+position = [0.8, 0.6, -1.2]
+yaw = 0.4
+until_s = 6
+"""
+
+
+@dataclass
+class Flown:
+    run_dir: Path
+    mission: Path
+    flight_log: Path  # offboard fly's
+    plant_log: Path  # sitl-plant's
+    summary: dict
+    output: str
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def fly(folder: Path, output: str) -> Flown:
+    folder.mkdir(parents=True, exist_ok=True)
+    mission = folder / "replay-test.toml"
+    mission.write_text(MISSION)
+    run_dir = folder / "run"
+    port = free_udp_port()
+    plant = subprocess.Popen(
+        [str(BIN / "sitl-plant"), "--lockstep", "--model", "rigid-body", "--api-bind", "127.0.0.1:0",
+         "--api-remote", f"127.0.0.1:{port}", "--gcs-bind", "none", "--log", str(folder / "plant.tlog"),
+         "--quiet", "--duration", "120"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        done = subprocess.run(
+            [str(BIN / "offboard"), "fly", str(mission), "--connect", f"udpin:127.0.0.1:{port}", "--lockstep",
+             "--output", output, "--run-dir", str(run_dir), "--quiet", "--no-plots"],
+            capture_output=True, text=True, timeout=120, cwd=folder,
+        )  # fmt: skip
+    finally:
+        plant.send_signal(signal.SIGINT)
+        try:
+            plant.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            plant.kill()
+            plant.wait()
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = json.loads((run_dir / "summary.json").read_text())
+    return Flown(run_dir, mission, run_dir / "flight.tlog", folder / "plant.tlog", summary, output)
+
+
+@pytest.fixture(scope="module", params=["attitude", "actuator"])
+def flown(request, tmp_path_factory) -> Flown:
+    return fly(tmp_path_factory.mktemp(f"flight-{request.param}"), request.param)
+
+
+def replay_json(capsys, *argv: str) -> tuple[int, dict]:
+    code = main(["replay", *argv, "--json", "--no-plots"])
+    captured = capsys.readouterr()
+    assert captured.out, captured.err
+    return code, json.loads(captured.out)
+
+
+def changed_gains(folder: Path) -> Path:
+    text = PAPER_CONTROLLER_FILE.read_text()
+    assert "kx1 = 0.78" in text
+    path = folder / "changed.toml"
+    path.write_text(text.replace("kx1 = 0.78", "kx1 = 0.6").replace("kx3 = 0.77", "kx3 = 0.6"))
+    return path
+
+
+def test_rerun_with_the_flights_controller_reproduces_the_log_exactly(flown, tmp_path, capsys):
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
+    rerun = payload["rerun"]
+    assert code == 0
+    assert rerun["output"] == flown.output and rerun["controller"].startswith("the flight's")
+    assert rerun["samples"] == payload["samples"] == len(_series(flown)) > 100
+    assert rerun["exact"] and rerun["mismatched_samples"] == 0 and rerun["missing_samples"] == 0
+    assert set(rerun["max_difference"].values()) == {0.0}
+
+
+def test_rerun_of_the_plants_log_also_reproduces_it(flown, tmp_path, capsys):
+    code, payload = replay_json(capsys, str(flown.plant_log), "--rerun", "--mission", str(flown.mission),
+                                "--model", "rigid-body", "--run-dir", str(tmp_path / "r"))  # fmt: skip
+    assert code == 0 and payload["rerun"]["exact"], payload["rerun"]
+    assert payload["samples"] == len(_series(flown))
+
+
+def test_rerun_with_changed_gains_shows_the_difference(flown, tmp_path, capsys):
+    new = changed_gains(tmp_path)
+    run_dir = tmp_path / "r"
+    code = main(["replay", str(flown.flight_log), "--rerun", "--controller", str(new), "--mission", str(flown.mission), "--run-dir", str(run_dir), "--quiet"])
+    text = capsys.readouterr().out
+    assert code == 0
+    payload = json.loads((run_dir / "summary.json").read_text())["rerun"]
+    assert not payload["exact"] and payload["mismatched_samples"] > 10
+    assert max(payload["max_difference"].values()) > 1e-3
+    assert payload["first_mismatch"]["t_s"] > 0.0  # the first samples (a hold at the start point) agree
+    assert "samples differ" in text and "changed.toml" in text
+    assert (run_dir / "rerun.png").stat().st_size > 20_000
+    rows = list(csv.DictReader((run_dir / "rerun.csv").open()))
+    assert len(rows) == payload["samples"]
+
+
+def _series(flown: Flown) -> list[dict]:
+    return list(csv.DictReader((flown.run_dir / "series.csv").open()))
+
+
+def test_replayed_record_is_the_flights_record(flown):
+    """Sample for sample: the same time_boot_ms, state, references as offboard fly recorded."""
+    from offboard.missions import load_mission
+
+    series = _series(flown)
+    scan = scan_log(TlogReader(flown.flight_log))
+    record = build_record(scan, trajectory=load_mission(flown.mission).trajectory)
+    assert_allclose(record.meta["time_boot_ms"], [float(r["time_boot_ms"]) for r in series])
+    assert_allclose(record["t_s"], [float(r["t_s"]) for r in series], rtol=0, atol=0)
+    for name in ("pos_ned_m", "vel_ned_m_s", "euler_rad", "ref_pos_ned_m"):
+        expected = np.array([[float(r[f"{name}_{i}"]) for i in range(3)] for r in series])
+        assert_allclose(record[name], expected, rtol=0, atol=0)
+
+
+def test_report_matches_the_flights_own_summary(flown, tmp_path, capsys):
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
+    assert code == 0
+    ours, theirs = payload, flown.summary
+    assert [p["name"] for p in ours["phases"]] == [p["name"] for p in theirs["phases"]]
+    for a, b in zip(ours["phases"], theirs["phases"]):
+        assert a["samples"] == b["samples"]
+        for axis in ("north", "east", "down", "3d"):
+            for stat in ("rms_m", "max_m", "mean_m"):
+                assert a["axes"][axis][stat] == pytest.approx(b["axes"][axis][stat], rel=1e-12, abs=1e-15)
+    for key in ("peak_thrust_n", "min_thrust_n", "peak_tilt_deg", "duration_s"):
+        assert ours[key] == pytest.approx(theirs[key], rel=1e-12), key
+    assert_allclose(ours["peak_torques_nm"], theirs["peak_torques_nm"], rtol=1e-12)
+
+
+def test_report_without_rerun_takes_commands_from_the_messages(flown, tmp_path, capsys):
+    code, payload = replay_json(capsys, str(flown.flight_log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
+    assert code == 0 and payload["commands"] == flown.output
+    # the thrust sent is u / SIM_THR_MAX in float32: the flight's peak u to float32 precision
+    assert payload["peak_thrust_n"] == pytest.approx(flown.summary["peak_thrust_n"], rel=1e-6)
+    events = payload["log_report"]["events"]
+    modes = [e["text"] for e in events if e["kind"] == "mode"]
+    assert "Offboard" in modes and modes[-1] == "Land"
+    sources = {(s["system"], s["component"]): s for s in payload["log_report"]["sources"]}
+    assert sources[(1, 1)]["role"] == "vehicle" and sources[(245, 191)]["role"] == "onboard controller"
+    assert sources[(1, 1)]["lost"] == 0  # loopback, lockstep: nothing lost
+    sent = {r["message"]: r["count"] for r in payload["log_report"]["rates"] if r["system"] == 245}
+    assert sent == {k: v for k, v in flown.summary["messages"]["sent_by_type"].items()}
+
+
+def test_mavlogdump_reads_both_logs(flown):
+    for log in (flown.flight_log, flown.plant_log):
+        done = subprocess.run(
+            [sys.executable, str(BIN / "mavlogdump.py"), "--types", "ATTITUDE,LOCAL_POSITION_NED,SET_ATTITUDE_TARGET,"
+             "SET_ACTUATOR_CONTROL_TARGET", str(log)],
+            capture_output=True, text=True, timeout=120, env={**os.environ, "MAVLINK20": "1"},
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        lines = done.stdout.splitlines()
+        scan = scan_log(TlogReader(log))
+        setpoint = "SET_ATTITUDE_TARGET" if flown.output == "attitude" else "SET_ACTUATOR_CONTROL_TARGET"
+        for kind, rows in (("ATTITUDE", scan.attitude[1]), ("LOCAL_POSITION_NED", scan.local_position[1])):
+            assert sum(f" {kind} {{" in line for line in lines) == len(rows) > 100
+        target = scan.set_attitude if flown.output == "attitude" else scan.set_actuator
+        assert sum(f" {setpoint} {{" in line for line in lines) == len(target[1]) > 100
+
+
+def test_figures_of_a_replayed_flight(flown, tmp_path, capsys):
+    run_dir = tmp_path / "figs"
+    code = main(["replay", str(flown.flight_log), "--run-dir", str(run_dir), "--quiet"])
+    capsys.readouterr()
+    assert code == 0
+    for name in ("path3d", "position", "attitude", "errors", "actions"):
+        data = (run_dir / f"{name}.png").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
