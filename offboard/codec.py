@@ -10,9 +10,18 @@ COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse
 Frames and units are MAVLink's: NED metres, FRD body rates in rad/s, the quaternion (w, x, y, z)
 rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboard.md):
 
-- ``attitude``: q = ZYX quaternion of (x7ez, x9ez, x11d(n+1)); body rates
-  ``omega = W_eta(eta(n)) @ (x8ref, x10ref, x12ref)`` (eq. 3) with the controller's W_eta form at
-  the measured attitude of sample n; thrust ``u / SIM_THR_MAX`` clipped to [0, 1]; type_mask 0.
+- ``attitude``, thrust ``u / SIM_THR_MAX`` clipped to [0, 1] in both cases:
+
+  - paper model: q = ZYX quaternion of (x7ez, x9ez, x11d(n+1)); body rates
+    ``omega = W_eta(eta(n)) @ (x8ref, x10ref, x12ref)`` (eq. 3) with the controller's W_eta form at
+    the measured attitude of sample n; type_mask 0. The plant's ``paper`` inner loop inverts
+    exactly that map at the same attitude, so the flight reproduces the in-process run.
+  - rigid body (PX4): q = the attitude with the law's thrust axis and the heading x11d(n+1)
+    (``setpoint_attitude``); PX4 flies q and reads ``body_yaw_rate`` as the yaw-rate
+    feed-forward (``yaw_sp_move_rate``, a world-frame rate), so that field carries x12ref and the
+    roll and pitch rates, which PX4 ignores beside an attitude, are marked ignored (type_mask 3).
+    Sending the body-frame r there instead feeds roll and pitch motion into the yaw loop: on the
+    paper helix that turns the yaw step at 12 s into a lasting +-35 deg limit cycle.
 - ``actuator``: group 0, controls = (tau_roll / SIM_TQ_RP_MAX, tau_pitch / SIM_TQ_RP_MAX,
   tau_yaw / SIM_TQ_Y_MAX) clipped to [-1, 1] and ``u / SIM_THR_MAX`` clipped to [0, 1], where the
   torque is the body torque ``solve(W_eta^T, tau_gen)`` for a rigid body (virtual work:
@@ -162,13 +171,23 @@ class Scaling:
                 raise ValueError(f"{name} must be > 0, got {value}")
 
 
+#: SET_ATTITUDE_TARGET type_mask of the rigid-body attitude output: roll and pitch rates ignored.
+RIGID_BODY_TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+                        | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE)  # fmt: skip
+
+
 @dataclass(frozen=True)
 class AttitudeSetpoint:
-    """SET_ATTITUDE_TARGET fields: q (w, x, y, z) body FRD to NED, FRD body rates, thrust 0..1."""
+    """SET_ATTITUDE_TARGET fields: q (w, x, y, z) body FRD to NED, rates (rad/s), thrust 0..1.
+
+    ``type_mask`` marks ignored fields (MAVLink's ATTITUDE_TARGET_TYPEMASK bits); an ignored
+    rate travels as 0.
+    """
 
     q_wxyz: tuple[float, float, float, float]
     body_rates_frd_rad_s: tuple[float, float, float]
     thrust_norm: float
+    type_mask: int = 0
 
 
 @dataclass(frozen=True)
@@ -183,7 +202,42 @@ def thrust_norm(thrust_n: float, scaling: Scaling) -> float:
     return min(max(thrust_n / scaling.thrust_max_n, 0.0), 1.0)
 
 
-def attitude_setpoint(out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling) -> AttitudeSetpoint:
+def tilt_about_heading(roll_rad: float, pitch_rad: float, heading_from_rad: float, heading_to_rad: float) -> tuple[float, float]:
+    """(roll, pitch) that give, at heading ``heading_to``, the thrust axis that (roll, pitch) give
+    at heading ``heading_from`` (ZYX angles, rigid body: the thrust axis is body z).
+
+    The body z axis of ``Rz(h) Ry(pitch) Rx(roll)`` is ``Rz(h) (cos r sin p, -sin r, cos r cos p)``;
+    the angles are solved for the same axis under ``Rz(heading_to)``. Identity when the headings
+    are equal.
+    """
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    d = heading_from_rad - heading_to_rad
+    cd, sd = math.cos(d), math.sin(d)
+    vx0, vy0, vz = cr * sp, -sr, cr * cp  # body z at heading 0
+    vx, vy = cd * vx0 - sd * vy0, sd * vx0 + cd * vy0  # ... turned by heading_from - heading_to
+    return math.atan2(-vy, math.hypot(vx, vz)), math.atan2(vx, vz)
+
+
+def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: float, law_heading_rad: float, model: str) -> np.ndarray:
+    """The setpoint quaternion (w, x, y, z) for the law's angle references.
+
+    The law computes x7ez and x9ez about a heading: the measured yaw with the yaw-aware option, 0
+    without (eq. 18 ignores yaw). On a rigid body, whose thrust turns with yaw, the setpoint keeps
+    that thrust axis and asks for the heading ``yaw_ref`` (PX4 tracks the thrust axis first and the
+    heading after), so a large yaw step does not swing the thrust round with the reference. On the
+    paper's model the thrust direction depends on (phi, theta) only (eq. 18): the plain ZYX
+    quaternion of (x7ez, x9ez, yaw_ref).
+    """
+    roll, pitch = roll_ref_rad, pitch_ref_rad
+    if model == "rigid-body":
+        roll, pitch = tilt_about_heading(roll_ref_rad, pitch_ref_rad, law_heading_rad, yaw_ref_rad)
+    return quat_from_euler(roll, pitch, yaw_ref_rad)
+
+
+def attitude_setpoint(
+    out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling, *, model: str = "paper", yaw_aware: bool = False
+) -> AttitudeSetpoint:
     """The ``attitude`` output of one sample (module docstring).
 
     Parameters
@@ -195,12 +249,21 @@ def attitude_setpoint(out: ControlOutput, euler_rad: np.ndarray, euler_rate_form
     euler_rate_form : str
         The controller's W_eta form.
     scaling : Scaling
+    model : str
+        ``rigid-body`` or ``paper`` (``setpoint_attitude``).
+    yaw_aware : bool
+        Whether the law computed its angles about the measured heading (else about 0).
     """
     law = out.law
-    q = quat_from_euler(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad)
+    heading = float(euler_rad[2]) if yaw_aware else 0.0
+    q = setpoint_attitude(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad, heading, model)
+    q_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    if model == "rigid-body":  # PX4: attitude + yaw-rate feed-forward (module docstring)
+        return AttitudeSetpoint(q_wxyz, (0.0, 0.0, float(law.euler_rate_ref_rad_s[2])),
+                                thrust_norm(law.thrust_n, scaling), RIGID_BODY_TYPE_MASK)  # fmt: skip
     rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
     return AttitudeSetpoint(
-        q_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+        q_wxyz=q_wxyz,
         body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
         thrust_norm=thrust_norm(law.thrust_n, scaling),
     )
@@ -246,9 +309,9 @@ def hold_setpoint(euler_rad: np.ndarray, thrust: float) -> AttitudeSetpoint:
 
 
 def set_attitude_target(time_boot_ms: int, sp: AttitudeSetpoint, target_system: int, target_component: int) -> MAVLinkMessage:
-    """SET_ATTITUDE_TARGET with type_mask 0: attitude, body rates and thrust all used."""
+    """SET_ATTITUDE_TARGET (``sp.type_mask``; 0 for the paper model: everything used)."""
     return mavlink.MAVLink_set_attitude_target_message(
-        time_boot_ms & 0xFFFFFFFF, target_system, target_component, 0,
+        time_boot_ms & 0xFFFFFFFF, target_system, target_component, sp.type_mask,
         list(sp.q_wxyz), sp.body_rates_frd_rad_s[0], sp.body_rates_frd_rad_s[1], sp.body_rates_frd_rad_s[2],
         sp.thrust_norm,
     )  # fmt: skip

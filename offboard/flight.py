@@ -53,6 +53,10 @@ LOCKSTEP_EPOCH_S = 1_577_836_800
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
 DEFAULT_TILT_MAX_DEG = 35.0
+#: Default lower bound of u on a rigid body, as a fraction of SIM_THR_MAX: PX4's MPC_THR_MIN.
+#: With rotors, zero thrust means zero torque authority; at the paper's descent step the law asks
+#: for u < 0 and a vehicle at u = 0 tumbles (docs/offboard.md). The paper's model has no rotors: 0.
+RIGID_BODY_THRUST_MIN_FRACTION = 0.12
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 
@@ -153,6 +157,9 @@ class ControllerChoice:
         paper's model.
     tilt_max_deg : float or None
         Explicit tilt limit on x7ez, x9ez (>= 90: none); None: the file's, else 35 degrees.
+    thrust_min_fraction : float or None
+        Explicit lower bound of u as a fraction of SIM_THR_MAX; None: the file's, else 0.12 on a
+        rigid body (PX4's MPC_THR_MIN) and 0 on the paper's model.
     sample_time_s : float or None
         Explicit To; None: the file's.
     """
@@ -162,6 +169,7 @@ class ControllerChoice:
     mass_from_vehicle: bool = False
     yaw_aware: bool | None = None
     tilt_max_deg: float | None = None
+    thrust_min_fraction: float | None = None
     sample_time_s: float | None = None
 
 
@@ -205,7 +213,8 @@ def resolve_controller(
     then the vehicle (without a controller file the controller believes the vehicle's SIM_*
     values: Simulation 1), then the paper's values. Thrust is always bounded to what the vehicle
     can do, ``[max(file's min, 0), min(file's max, SIM_THR_MAX)]``, so that the law and the
-    vehicle agree on u; the tilt limit defaults to 35 degrees.
+    vehicle agree on u; without a file's minimum, a rigid body keeps 12 % of SIM_THR_MAX (PX4's
+    MPC_THR_MIN: torque authority) and the paper's model 0; the tilt limit defaults to 35 degrees.
 
     Returns
     -------
@@ -236,7 +245,12 @@ def resolve_controller(
     elif not choice.from_file:
         changes["yaw_aware"] = model == "rigid-body"
     limits = base.limits
-    thrust_min = 0.0 if limits.thrust_min_n is None else max(limits.thrust_min_n, 0.0)
+    if choice.thrust_min_fraction is not None:
+        thrust_min = choice.thrust_min_fraction * scaling.thrust_max_n
+    elif limits.thrust_min_n is not None:
+        thrust_min = max(limits.thrust_min_n, 0.0)
+    else:
+        thrust_min = (RIGID_BODY_THRUST_MIN_FRACTION if model == "rigid-body" else 0.0) * scaling.thrust_max_n
     thrust_max = scaling.thrust_max_n if limits.thrust_max_n is None else min(limits.thrust_max_n, scaling.thrust_max_n)
     if choice.tilt_max_deg is not None:
         tilt = None if choice.tilt_max_deg >= 90.0 else math.radians(choice.tilt_max_deg)
@@ -854,30 +868,33 @@ class Flight:
             if step != int(round(self.to * 1000)) and self._samples_sent > 1:
                 raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
                                        f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
-        self._prev_sample_ms = t_ms
-        self._answered_ms = t_ms
         if self._next_heartbeat_ms <= t_ms:
             self._send_heartbeat()
-        self._sample(self.clock())
-        self._tick += 1
+        if self._sample(self.clock()):  # unanswered (nothing to send yet): the plant still waits for it
+            self._prev_sample_ms = t_ms
+            self._answered_ms = t_ms
+            self._tick += 1
 
-    def _sample(self, now: float) -> None:
+    def _sample(self, now: float) -> bool:
+        """Run the current setpoint source on the freshest telemetry; whether a setpoint went out."""
         source = self._source
         if source is None or self._att is None or self._lpn is None or self._outage_since is not None:
-            return
+            return False
         if self.config.lockstep:
             # the plant waits for this answer: new telemetry is due within the timeout from now
             self._last_telemetry_wall = now
         elif self._watch_telemetry and self._last_telemetry_wall is not None and now - self._last_telemetry_wall > self.config.telemetry_timeout_s:
-            return  # stale: _check_telemetry declares the outage
+            return False  # stale: _check_telemetry declares the outage
         try:
             measured = codec.measured_state(self._att, self._lpn)
         except codec.BadTelemetry:
-            return
+            return False
         msg = source(measured)
-        if msg is not None:
-            self.link.send(msg)
-            self._samples_sent += 1
+        if msg is None:
+            return False
+        self.link.send(msg)
+        self._samples_sent += 1
+        return True
 
     def _setpoint_message(self, sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint, t_ms: int) -> mavlink.MAVLink_message:
         assert self.target is not None
@@ -946,7 +963,8 @@ class Flight:
             sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint = codec.actuator_setpoint(
                 out, measured.euler_rad, self.config.model, params.euler_rate_form, self.scaling)
         else:
-            sp = codec.attitude_setpoint(out, measured.euler_rad, params.euler_rate_form, self.scaling)
+            sp = codec.attitude_setpoint(out, measured.euler_rad, params.euler_rate_form, self.scaling,
+                                         model=self.config.model, yaw_aware=params.yaw_aware)
         return self._setpoint_message(sp, measured.time_boot_ms)
 
     def _say_start(self, measured: MeasuredState) -> None:

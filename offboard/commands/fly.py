@@ -71,6 +71,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
     ctl.add_argument("--tilt-max-deg", type=float, default=None, metavar="DEG",
                      help="limit on x7ez and x9ez (90: none; default: the file's, else 35)")
+    ctl.add_argument("--thrust-min", type=float, default=None, metavar="FRACTION",
+                     help="lower bound of u as a fraction of SIM_THR_MAX (default: the file's, else 0.12 "
+                     "on a rigid body (PX4's MPC_THR_MIN, keeps torque authority), 0 on the paper's model)")
     ctl.add_argument("--sample-time", type=float, default=None, metavar="S", help="To (default: the file's, 0.05)")
     ctl.add_argument("--thrust-max-n", type=float, default=None, metavar="N",
                      help="thrust at normalised 1, for a vehicle that does not publish SIM_THR_MAX (real PX4)")
@@ -93,6 +96,8 @@ def _check(args: argparse.Namespace) -> None:
         positive(name, getattr(args, name.replace("-", "_")))
     if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
+    if args.thrust_min is not None and not (math.isfinite(args.thrust_min) and 0 <= args.thrust_min < 1):
+        raise FlyArgumentError(f"--thrust-min: must be a fraction in [0, 1), got {args.thrust_min}")
     if args.tilt_max_deg is not None and not (math.isfinite(args.tilt_max_deg) and args.tilt_max_deg > 0):
         raise FlyArgumentError(f"--tilt-max-deg: must be > 0 (90 or more: no limit), got {args.tilt_max_deg}")
     for name in ("sysid", "compid", "target_system"):
@@ -175,6 +180,7 @@ def run(args: argparse.Namespace) -> int:
         mass_from_vehicle=args.mass_from_vehicle,
         yaw_aware=args.yaw_aware,
         tilt_max_deg=args.tilt_max_deg,
+        thrust_min_fraction=args.thrust_min,
         sample_time_s=args.sample_time,
     )
     config = FlightConfig(
