@@ -133,7 +133,8 @@ class Endpoint:
             raise LinkError(f"{name} link: bad bind address {bind[0]}:{bind[1]}: {exc}") from None
         self.sock.setblocking(False)
         self.packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-        # lockstep keepalives are packed apart, so they do not shift the logged sequence numbers
+        # lockstep keepalives are packed apart (always seq 0), so they do not shift the logged
+        # sequence numbers
         self.keepalive_packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
@@ -290,9 +291,14 @@ class Link:
                     endpoint.send_datagram(d)
 
     def send_keepalive(self, index: int, messages: list[mavlink.MAVLink_message]) -> None:
-        """Send messages outside the logged stream (own sequence numbers, not in the tlog)."""
+        """Send messages outside the logged stream: not in the tlog, and always sequence number 0,
+        so the same content gives the same bytes however many keepalives the wall clock fired
+        (a client that logs them logs the same bytes every run)."""
         endpoint = self.endpoints[index]
-        endpoint.send_packets(endpoint.pack(messages, endpoint.keepalive_packer))
+        endpoint.keepalive_packer.seq = 0
+        packets = endpoint.pack(messages, endpoint.keepalive_packer)
+        endpoint.keepalive_packer.seq = 0
+        endpoint.send_packets(packets)
 
     def flush(self) -> None:
         if self.tlog is not None:
