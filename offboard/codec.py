@@ -12,10 +12,13 @@ rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboar
 
 - ``attitude``, thrust ``u / SIM_THR_MAX`` clipped to [0, 1] in both cases:
 
-  - paper model: q = ZYX quaternion of (x7ez, x9ez, x11d(n+1)); body rates
-    ``omega = W_eta(eta(n)) @ (x8ref, x10ref, x12ref)`` (eq. 3) with the controller's W_eta form at
-    the measured attitude of sample n; type_mask 0. The plant's ``paper`` inner loop inverts
-    exactly that map at the same attitude, so the flight reproduces the in-process run.
+  - paper model: body rates ``omega = W_eta(eta(n)) @ (x8ref, x10ref, x12ref)`` (eq. 3) with the
+    controller's W_eta form at the measured attitude of sample n, marked as a rate setpoint
+    (type_mask 128: attitude ignored; q still carries the ZYX quaternion of (x7ez, x9ez,
+    x11d(n+1)) for the log). ``sitl-plant --inner-loop paper`` turns the rates of a rate setpoint
+    into tau_tilde by inverting exactly that map at the same attitude (an attitude setpoint would
+    get its rates from the PX4 attitude P there, docs/plant.md), so the flight reproduces the
+    in-process run; ``--inner-loop px4`` flies the same rates with PX4's rate controller.
   - rigid body (PX4): q = the attitude with the law's thrust axis and the heading x11d(n+1)
     (``setpoint_attitude``); PX4 flies q and reads ``body_yaw_rate`` as the yaw-rate
     feed-forward (``yaw_sp_move_rate``, a world-frame rate), so that field carries x12ref and the
@@ -174,6 +177,8 @@ class Scaling:
 #: SET_ATTITUDE_TARGET type_mask of the rigid-body attitude output: roll and pitch rates ignored.
 RIGID_BODY_TYPE_MASK = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
                         | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE)  # fmt: skip
+#: ... and of the paper model's: a rate setpoint (attitude ignored), flown by the paper inner loop.
+PAPER_TYPE_MASK = mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
 
 
 @dataclass(frozen=True)
@@ -266,6 +271,7 @@ def attitude_setpoint(
         q_wxyz=q_wxyz,
         body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
         thrust_norm=thrust_norm(law.thrust_n, scaling),
+        type_mask=PAPER_TYPE_MASK,
     )
 
 
@@ -309,7 +315,7 @@ def hold_setpoint(euler_rad: np.ndarray, thrust: float) -> AttitudeSetpoint:
 
 
 def set_attitude_target(time_boot_ms: int, sp: AttitudeSetpoint, target_system: int, target_component: int) -> MAVLinkMessage:
-    """SET_ATTITUDE_TARGET (``sp.type_mask``; 0 for the paper model: everything used)."""
+    """SET_ATTITUDE_TARGET with ``sp.type_mask`` (ignored fields travel as they are, PX4 skips them)."""
     return mavlink.MAVLink_set_attitude_target_message(
         time_boot_ms & 0xFFFFFFFF, target_system, target_component, sp.type_mask,
         list(sp.q_wxyz), sp.body_rates_frd_rad_s[0], sp.body_rates_frd_rad_s[1], sp.body_rates_frd_rad_s[2],

@@ -12,6 +12,7 @@ or no vehicle at all.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import signal
@@ -248,8 +249,10 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "vehicle": None if result.vehicle is None else {"system": result.vehicle[0], "component": result.vehicle[1]},
         "vehicle_params": result.vehicle_params,
         "controller": None if c is None else {
-            "sample_time_s": c.sample_time_s, "mass_kg": c.mass_kg, "inertia_kg_m2": list(c.inertia_kg_m2),
-            "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
+            "sample_time_s": c.sample_time_s, "mass_kg": c.mass_kg, "arm_length_m": c.arm_length_m,
+            "inertia_kg_m2": list(c.inertia_kg_m2), "gravity_m_s2": c.gravity_m_s2,
+            "drag_to_thrust_m": c.drag_to_thrust_m, "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
+            "gains": dataclasses.asdict(c.gains),
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
         },  # fmt: skip
