@@ -235,6 +235,9 @@ def _summary(plant: Plant, link: Link, stats: object) -> None:
     wall = getattr(stats, "wall_s", 0.0)
     periods = getattr(stats, "periods", 0)
     rate = f", {periods / wall:.0f} periods/s" if wall > 0 else ""
+    overruns = getattr(stats, "overruns", 0)
+    if overruns:
+        rate += f", fell behind real time {overruns} times"
     print(
         f"sitl-plant: stopped at t={plant.time_s:.2f} s after {wall:.1f} s{rate}; "
         f"api in {api.packets_in} out {api.packets_out}; bad packets {bad}, refused setpoints {c.refused_setpoints}, "

@@ -587,8 +587,9 @@ def run_realtime(
     stats = RunStats()
     tick_steps = plant.tick_steps
     tick_us = tick_steps * plant.dt_us
-    wall0, sim0 = clock(), plant.time_us
+    start = clock()
     d.send_telemetry()
+    wall0, sim0 = clock(), plant.time_us
     while not stop():
         if max_sim_s is not None and plant.time_s >= max_sim_s:
             break
@@ -607,7 +608,7 @@ def run_realtime(
                 _dispatch(d, link.receive())
                 d.flush_outbox()
         d.housekeeping()
-    stats.wall_s = clock() - wall0
+    stats.wall_s = clock() - start
     stats.sim_s = plant.time_s
     return stats
 
