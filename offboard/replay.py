@@ -420,8 +420,8 @@ class LogScan:
     streams: dict[tuple[int, int, str], StreamStats] = field(default_factory=dict)
     seq: dict[tuple[int, int], SeqCounter] = field(default_factory=dict)
     heartbeat_kind: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)  # (type, autopilot)
-    attitude: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, roll, pitch, yaw, p, q, r, t_s)
-    local_position: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, x, y, z, vx, vy, vz, t_s)
+    attitude: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, roll, pitch, yaw, p, q, r, t_s, n)
+    local_position: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, x, y, z, vx, vy, vz, t_s, n)
     attitude_targets: dict[int, list[tuple]] = field(default_factory=dict)  # vehicle -> (tb_ms, q0..q3, thrust, t_s)
     position_targets: dict[int, list[tuple]] = field(default_factory=dict)  # vehicle -> (tb_ms, x, y, z, yaw, t_s)
     set_attitude: dict[int, list[tuple]] = field(default_factory=dict)  # target -> (tb_ms, mask, q0..q3, p, q, r, thrust, src, t_s, n)
@@ -495,12 +495,12 @@ class LogScan:
 
     def _attitude(self, t_s: float, src: tuple[int, int], msg) -> None:
         self.attitude.setdefault(src[0], []).append(
-            (int(msg.time_boot_ms), msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed, t_s)
+            (int(msg.time_boot_ms), msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed, t_s, self.messages)
         )
 
     def _local_position(self, t_s: float, src: tuple[int, int], msg) -> None:
         self.local_position.setdefault(src[0], []).append(
-            (int(msg.time_boot_ms), msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, t_s)
+            (int(msg.time_boot_ms), msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, t_s, self.messages)
         )
 
     def _attitude_target(self, t_s: float, src: tuple[int, int], msg) -> None:
@@ -742,8 +742,9 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
     if start >= count:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), sample_time_s or math.nan
     if sample_time_s is None:
-        steps = np.diff(setpoints.time_boot_ms[start:])
-        sample_time_s = float(np.median(steps)) / 1000.0 if len(steps) else math.nan
+        # the mean command period (whole milliseconds): exact in lockstep, robust to real-time jitter
+        span = setpoints.time_s[-1] - setpoints.time_s[start]
+        sample_time_s = round(1000.0 * span / (count - start - 1)) / 1000.0 if count - start > 1 else math.nan
         if not sample_time_s > 0:
             sample_time_s = 0.05
     n = np.rint((setpoints.time_s[start:] - setpoints.time_s[start]) / sample_time_s).astype(np.int64)
@@ -796,8 +797,6 @@ def build_record(
         who = "any system" if sysid is None else f"system {sysid}"
         raise LogFormatError(f"{source or 'the log'}: no ATTITUDE and LOCAL_POSITION_NED from {who}; nothing to replay")
     scaling = Scaling.from_params(scan.params.get(vehicle, {})) if scaling is None else scaling
-    att = np.array(_unique_by_time(scan.attitude[vehicle]), dtype=float)
-    pos = np.array(_unique_by_time(scan.local_position[vehicle]), dtype=float)
     setpoints = setpoints_for(scan, vehicle)
     commanded = setpoints.kind in ("attitude", "actuator")
     duration = trajectory.duration_s if trajectory is not None else None
@@ -808,6 +807,7 @@ def build_record(
         log_time = setpoints.time_s[rows]
     else:
         rows = np.zeros(0, dtype=np.int64)
+        pos = np.array(_unique_by_time(scan.local_position[vehicle]), dtype=float)
         grid = pos[:, 0].astype(np.int64)
         t_s = (grid - grid[0]) / 1000.0
         log_time = pos[:, 7]
@@ -815,7 +815,7 @@ def build_record(
             keep = t_s <= duration + 1e-9
             grid, t_s, log_time = grid[keep], t_s[keep], log_time[keep]
         to = sample_time_s if sample_time_s is not None else math.nan
-    i_att, i_pos = _latest(att[:, 0], grid), _latest(pos[:, 0], grid)
+    i_att, i_pos, att, pos = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows] if commanded else None)
     keep = (i_att >= 0) & (i_pos >= 0)
     grid, t_s, log_time, i_att, i_pos = grid[keep], t_s[keep], log_time[keep], i_att[keep], i_pos[keep]
     if commanded:
@@ -1159,11 +1159,32 @@ class RerunResult:
         }
 
 
-def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The ATTITUDE and LOCAL_POSITION_NED rows (``LogScan`` layout) behind each sample."""
-    att = np.array(_unique_by_time(scan.attitude[vehicle]), dtype=float)
-    pos = np.array(_unique_by_time(scan.local_position[vehicle]), dtype=float)
-    return att[_latest(att[:, 0], time_boot_ms)], pos[_latest(pos[:, 0], time_boot_ms)]
+def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the ATTITUDE and LOCAL_POSITION_NED behind each sample (-1: none yet), and
+    the two tables (``LogScan`` row layout) they index.
+
+    With ``before`` (the message numbers of the commands) a sample's telemetry is the latest
+    finite ATTITUDE and LOCAL_POSITION_NED logged before its command: what the controller had
+    handled when it sampled (``offboard fly`` logs a message as it handles it), exact in real
+    time too; this is used when those ATTITUDEs carry the ``time_boot_ms`` the commands echo
+    (the controller's own log). Otherwise, the latest at or before ``time_boot_ms``.
+    """
+    def table(rows: list[tuple], dedupe: bool) -> np.ndarray:
+        arr = np.array(_unique_by_time(rows) if dedupe else rows, dtype=float).reshape(-1, 9)
+        return arr[np.all(np.isfinite(arr[:, 1:7]), axis=1)]
+
+    if before is not None:
+        att = table(scan.attitude[vehicle], False)
+        pos = table(scan.local_position[vehicle], False)
+        i_att = np.searchsorted(att[:, 8], before, side="left") - 1
+        echoed = (i_att >= 0) & (att[np.maximum(i_att, 0), 0] == time_boot_ms)
+        if len(echoed) and np.mean(echoed) >= 0.99:
+            return i_att, np.searchsorted(pos[:, 8], before, side="left") - 1, att, pos  # type: ignore[return-value]
+        # not the controller's own log (a plant's, in real time: telemetry newer than what the
+        # command answered is logged before it): the command's echo of time_boot_ms decides
+    att = table(scan.attitude[vehicle], True)
+    pos = table(scan.local_position[vehicle], True)
+    return _latest(att[:, 0], time_boot_ms), _latest(pos[:, 0], time_boot_ms), att, pos  # type: ignore[return-value]
 
 
 class _Msg:
@@ -1215,7 +1236,8 @@ def rerun_controller(
     setpoints = setpoints_for(scan, vehicle)
     rows = np.asarray(record.meta["setpoint_rows"], dtype=np.int64)
     grid = np.asarray(record.meta["time_boot_ms"], dtype=np.int64)
-    att, pos = _telemetry_rows(scan, vehicle, grid)
+    i_att, i_pos, att_table, pos_table = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows])
+    att, pos = att_table[i_att], pos_table[i_pos]
     to = params.sample_time_s  # type: ignore[attr-defined]
     controller = RosalesController(params)  # type: ignore[arg-type]
     form = params.euler_rate_form  # type: ignore[attr-defined]
