@@ -165,16 +165,30 @@ def mix_rotor_forces(thrust_n: float, torque_nm: np.ndarray, params: VehiclePara
     return np.array(_mix(float(thrust_n), *_as_list(torque_nm), params))
 
 
-def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: VehicleParams) -> list[float]:
+def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: VehicleParams) -> tuple[float, ...]:
     """``mix_rotor_forces`` on Python floats."""
-    k = params.thrust_coeff_n_s2
-    f_min = k * params.rotor_speed_min_rad_s**2
-    f_max = k * params.rotor_speed_max_rad_s**2
+    return mix_forces(
+        thrust_n, tau_x, tau_y, tau_z, params.thrust_coeff_n_s2, params.rotor_speed_min_rad_s,
+        params.rotor_speed_max_rad_s, params.arm_length_m, params.drag_to_thrust_m,
+    )  # fmt: skip
+
+
+def mix_forces(
+    thrust_n: float, tau_x: float, tau_y: float, tau_z: float,
+    k: float, w_min: float, w_max: float, arm: float, drag: float,
+) -> tuple[float, float, float, float]:  # fmt: skip
+    """The mixer of ``mix_rotor_forces`` on plain floats (no objects: ``dynamics.batch`` compiles it).
+
+    ``k`` is the thrust coefficient (N s^2), ``w_min``/``w_max`` the rotor speed limits (rad/s),
+    ``arm`` l (m), ``drag`` c (m). Returns f1..f4, N.
+    """
+    f_min = k * w_min**2
+    f_max = k * w_max**2
     span = f_max - f_min
     base_req = min(max(0.25 * thrust_n, f_min), f_max)
-    roll = 0.5 * tau_x / params.arm_length_m  # f3 - f1 = 2 roll
-    pitch = 0.5 * tau_y / params.arm_length_m  # f2 - f4 = 2 pitch
-    yaw_req = 0.25 * tau_z / params.drag_to_thrust_m  # (f2 + f4) - (f1 + f3) = 4 yaw
+    roll = 0.5 * tau_x / arm  # f3 - f1 = 2 roll
+    pitch = 0.5 * tau_y / arm  # f2 - f4 = 2 pitch
+    yaw_req = 0.25 * tau_z / drag  # (f2 + f4) - (f1 + f3) = 4 yaw
     yaw_lo, yaw_hi = min(0.0, yaw_req), max(0.0, yaw_req)
     room = base_req - f_min
     # 1. the largest s in [0, 1] with a feasible (b <= base_req, y in [yaw_lo, yaw_hi]);
@@ -182,17 +196,27 @@ def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: Vehi
     ar, ap = abs(roll), abs(pitch)
     total = ar + ap
     s = 1.0
-    for coef, rhs in (
-        (2.0 * max(ar, ap), span),
-        (total, span),
-        (0.5 * total + ar, room + 0.5 * span),
-        (0.5 * total + ap, room + 0.5 * span),
-        (total, 2.0 * room),
-        (ap, room + yaw_hi),
-        (ar, room - yaw_lo),
-    ):
-        if coef * s > rhs:
-            s = rhs / coef
+    coef, rhs = 2.0 * max(ar, ap), span
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = total, span
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = 0.5 * total + ar, room + 0.5 * span
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = 0.5 * total + ap, room + 0.5 * span
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = total, 2.0 * room
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = ap, room + yaw_hi
+    if coef * s > rhs:
+        s = rhs / coef
+    coef, rhs = ar, room - yaw_lo
+    if coef * s > rhs:
+        s = rhs / coef
     roll, pitch, ar, ap = s * roll, s * pitch, s * ar, s * ap
     half = 0.5 * (span - ar - ap)
     y_lo = max(-half, ap - room, yaw_lo)
@@ -205,8 +229,13 @@ def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: Vehi
     y_min = max(y_lo, base - top_a, f_min + ap - base)
     y_max = min(y_hi, top_b - base, base - f_min - ar)
     y = min(max(yaw_req, y_min), y_max)
-    forces = (base - y - roll, base + y + pitch, base - y + roll, base + y - pitch)
-    return [min(max(f, f_min), f_max) for f in forces]  # clip: rounding only
+    # clip: rounding only
+    return (
+        min(max(base - y - roll, f_min), f_max),
+        min(max(base + y + pitch, f_min), f_max),
+        min(max(base - y + roll, f_min), f_max),
+        min(max(base + y - pitch, f_min), f_max),
+    )
 
 
 def rotor_speeds_for(thrust_n: float, torque_frd_nm: np.ndarray, params: VehicleParams) -> np.ndarray:

@@ -1,0 +1,641 @@
+"""Fast stepping of rigid-body quadrotors: many vehicles at once, or one vehicle's whole sample.
+
+``rigid_body.derivative`` and ``integrate.rk4_step`` are the reference: clear, pure, and slow
+(one RK4 step of one vehicle costs some hundred microseconds of interpreted Python). This
+module runs the **same equations** (the very same ``rigid_body._rates`` and
+``rigid_body.mix_forces`` functions, compiled) in two shapes:
+
+- **many vehicles** (``step_many``, ``derivative_many``): an ``(N, 17)`` state array stepped by
+  RK4 with rotor-speed commands and wind held over the step, then the quaternions
+  renormalised, exactly as ``VehicleSim`` steps one. Compiled with numba and spread over the
+  cores when numba is installed; otherwise vectorised numpy over the batch (the batched path
+  of ``rigid_body.derivative``).
+- **one vehicle, one control sample** (``FastRigidBodySim``): the drop-in for ``VehicleSim``
+  with a ``RigidBodyModel``. For the two actuations a controller hands on each sample
+  (``HeldActuation``; ``EulerAccelActuation``: the paper's tau~ with eq. 16 at every physics
+  step) the whole sample (inner loop, mixer, RK4, renormalisation, ground contact) is one
+  compiled call. Any other actuation (a baseline's attitude loop, say) is called in Python at
+  every physics step, as ``VehicleSim`` does, and only the mixer and RK4 are compiled.
+
+Results equal the reference to rounding (``tests/test_batch.py``: 1e-12). Wind is sampled
+once per physics step at the step's start time, as ``VehicleSim`` does; every wind model of
+``dynamics.wind`` depends on time only, so a sample's wind is drawn before the sample runs.
+
+Set the environment variable ``SITL_PLANT_NO_NUMBA=1`` (or uninstall numba) to run the same
+kernels as plain Python: identical results, for checking, at interpreted speed.
+
+Parameter vector (``param_vector``): ``(m, g, l, c, Ixx, Iyy, Izz, Dx, Dy, Dz, k, w_min,
+w_max, tau_motor)``, SI units, as in ``VehicleParams``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import replace
+
+import numpy as np
+
+from sitl_plant.dynamics import rigid_body
+from sitl_plant.dynamics.rigid_body import QUAT, STATE_SIZE, RigidBodyModel
+from sitl_plant.simulation import EulerAccelActuation, HeldActuation
+from sitl_plant.state import VehicleState
+from sitl_plant.vehicle import VehicleParams
+
+__all__ = [
+    "NUMBA",
+    "param_vector",
+    "derivative_many",
+    "step_many",
+    "FastRigidBodySim",
+]
+
+
+def _numba_jit():  # noqa: ANN202
+    if os.environ.get("SITL_PLANT_NO_NUMBA", "") not in ("", "0"):
+        return None
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba
+
+
+_numba = _numba_jit()
+#: Whether the kernels are compiled (numba installed and not switched off).
+NUMBA = _numba is not None
+
+
+def _jit(fn):  # noqa: ANN001, ANN202
+    return _numba.njit(cache=True)(fn) if NUMBA else fn
+
+
+def _pjit(fn):  # noqa: ANN001, ANN202
+    return _numba.njit(cache=True, parallel=True, fastmath=True)(fn) if NUMBA else fn
+
+
+def _vjit(fn):  # noqa: ANN001, ANN202
+    return _numba.njit(cache=True, fastmath=True, inline="always")(fn) if NUMBA else fn
+
+
+_prange = _numba.prange if NUMBA else range
+
+# the same functions as the reference, compiled (and, for the batch, inlined and vectorised)
+_rates = _jit(rigid_body._rates)
+_rates_v = _vjit(rigid_body._rates)
+_mix_forces = _jit(rigid_body.mix_forces)
+
+_M, _G, _L, _C, _IXX, _IYY, _IZZ, _DX, _DY, _DZ, _K, _WMIN, _WMAX, _TAU = range(14)
+
+
+def param_vector(params: VehicleParams) -> np.ndarray:
+    """The vehicle's parameters as the flat float vector the kernels take (module docstring)."""
+    return np.array(
+        [
+            params.mass_kg, params.gravity_m_s2, params.arm_length_m, params.drag_to_thrust_m,
+            *params.inertia_kg_m2, *params.linear_drag_n_s_m, params.thrust_coeff_n_s2,
+            params.rotor_speed_min_rad_s, params.rotor_speed_max_rad_s, params.motor_time_constant_s,
+        ],  # fmt: skip
+        dtype=float,
+    )
+
+
+# --- one vehicle: derivative, RK4, renormalisation ------------------------------------------
+
+
+@_jit
+def _derivative_into(x, cmd, wind, p, out):  # noqa: ANN001, ANN202
+    """``rigid_body.derivative`` of one vehicle into ``out`` (``cmd`` is clipped here)."""
+    lo, hi, tau = p[_WMIN], p[_WMAX], p[_TAU]
+    c0 = lo if cmd[0] < lo else hi if cmd[0] > hi else cmd[0]
+    c1 = lo if cmd[1] < lo else hi if cmd[1] > hi else cmd[1]
+    c2 = lo if cmd[2] < lo else hi if cmd[2] > hi else cmd[2]
+    c3 = lo if cmd[3] < lo else hi if cmd[3] > hi else cmd[3]
+    if tau == 0.0:
+        w0, w1, w2, w3 = c0, c1, c2, c3
+    else:
+        w0, w1, w2, w3 = x[13], x[14], x[15], x[16]
+    k = p[_K]
+    an, ae, ad, qwd, qxd, qyd, qzd, pd, qd, rd = _rates(
+        x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11], x[12],
+        k * w0 * w0, k * w1 * w1, k * w2 * w2, k * w3 * w3, wind[0], wind[1], wind[2],
+        p[_M], p[_G], p[_L], p[_C], p[_IXX], p[_IYY], p[_IZZ], p[_DX], p[_DY], p[_DZ],
+    )  # fmt: skip
+    out[0], out[1], out[2] = x[3], x[4], x[5]
+    out[3], out[4], out[5] = an, ae, ad
+    out[6], out[7], out[8], out[9] = qwd, qxd, qyd, qzd
+    out[10], out[11], out[12] = pd, qd, rd
+    if tau == 0.0:
+        out[13] = out[14] = out[15] = out[16] = 0.0
+    else:
+        rate = 1.0 / tau
+        out[13], out[14] = (c0 - w0) * rate, (c1 - w1) * rate
+        out[15], out[16] = (c2 - w2) * rate, (c3 - w3) * rate
+
+
+@_jit
+def _rk4_into(x, cmd, wind, p, dt, out, k1, k2, k3, k4, tmp):  # noqa: ANN001, ANN202
+    """``integrate.rk4_step`` of the rigid body, then ``rigid_body.normalize``, into ``out``.
+
+    The arithmetic is in the reference's order (``x + 0.5 * dt * k`` is ``x + (0.5 dt) k``).
+    """
+    n = x.shape[0]
+    half = 0.5 * dt
+    _derivative_into(x, cmd, wind, p, k1)
+    for i in range(n):
+        tmp[i] = x[i] + half * k1[i]
+    _derivative_into(tmp, cmd, wind, p, k2)
+    for i in range(n):
+        tmp[i] = x[i] + half * k2[i]
+    _derivative_into(tmp, cmd, wind, p, k3)
+    for i in range(n):
+        tmp[i] = x[i] + dt * k3[i]
+    _derivative_into(tmp, cmd, wind, p, k4)
+    sixth = dt / 6.0
+    for i in range(n):
+        out[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    _normalize(out)
+
+
+@_jit
+def _normalize(x):  # noqa: ANN001, ANN202
+    inv = 1.0 / math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
+    x[6] *= inv
+    x[7] *= inv
+    x[8] *= inv
+    x[9] *= inv
+
+
+# --- many vehicles ------------------------------------------------------------------------------
+
+
+#: Vehicles per block in the batch kernel: each block's states, transposed to (17, BLOCK), stay in
+#: the core's L1 cache while it takes all its steps, and every loop over a block's vehicles is
+#: straight-line arithmetic that LLVM turns into SIMD instructions.
+BLOCK = 32
+
+
+@_vjit
+def _stage(src, dst, cmd, wind, p, n):  # noqa: ANN001, ANN202
+    """``rigid_body.derivative`` of the first ``n`` vehicles of a (17, BLOCK) block."""
+    k, lo, hi, tau = p[_K], p[_WMIN], p[_WMAX], p[_TAU]
+    moving = tau != 0.0
+    rate = 1.0 / tau if moving else 0.0
+    for j in range(n):
+        c0 = min(max(cmd[0, j], lo), hi)
+        c1 = min(max(cmd[1, j], lo), hi)
+        c2 = min(max(cmd[2, j], lo), hi)
+        c3 = min(max(cmd[3, j], lo), hi)
+        w0 = src[13, j] if moving else c0
+        w1 = src[14, j] if moving else c1
+        w2 = src[15, j] if moving else c2
+        w3 = src[16, j] if moving else c3
+        an, ae, ad, qwd, qxd, qyd, qzd, pd, qd, rd = _rates_v(
+            src[3, j], src[4, j], src[5, j], src[6, j], src[7, j], src[8, j], src[9, j], src[10, j], src[11, j],
+            src[12, j], k * w0 * w0, k * w1 * w1, k * w2 * w2, k * w3 * w3, wind[0, j], wind[1, j], wind[2, j],
+            p[_M], p[_G], p[_L], p[_C], p[_IXX], p[_IYY], p[_IZZ], p[_DX], p[_DY], p[_DZ],
+        )  # fmt: skip
+        dst[0, j] = src[3, j]
+        dst[1, j] = src[4, j]
+        dst[2, j] = src[5, j]
+        dst[3, j] = an
+        dst[4, j] = ae
+        dst[5, j] = ad
+        dst[6, j] = qwd
+        dst[7, j] = qxd
+        dst[8, j] = qyd
+        dst[9, j] = qzd
+        dst[10, j] = pd
+        dst[11, j] = qd
+        dst[12, j] = rd
+        dst[13, j] = (c0 - w0) * rate
+        dst[14, j] = (c1 - w1) * rate
+        dst[15, j] = (c2 - w2) * rate
+        dst[16, j] = (c3 - w3) * rate
+
+
+@_pjit
+def _derivative_many_kernel(x, cmd, wind, p, out):  # noqa: ANN001, ANN202
+    n_all = x.shape[0]
+    for block in _prange((n_all + BLOCK - 1) // BLOCK):
+        a = block * BLOCK
+        n = min(n_all, a + BLOCK) - a
+        xb = np.empty((STATE_SIZE, BLOCK))
+        cb = np.empty((4, BLOCK))
+        wb = np.empty((3, BLOCK))
+        db = np.empty((STATE_SIZE, BLOCK))
+        xb[:, :n] = x[a : a + n].T
+        cb[:, :n] = cmd[a : a + n].T
+        wb[:, :n] = wind[a : a + n].T
+        _stage(xb, db, cb, wb, p, n)
+        out[a : a + n] = db[:, :n].T
+
+
+@_pjit
+def _step_many_kernel(x, cmd, wind, p, dt, n_steps):  # noqa: ANN001, ANN202
+    n_all = x.shape[0]
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    for block in _prange((n_all + BLOCK - 1) // BLOCK):
+        a = block * BLOCK
+        n = min(n_all, a + BLOCK) - a
+        xb = np.empty((STATE_SIZE, BLOCK))
+        cb = np.empty((4, BLOCK))
+        wb = np.empty((3, BLOCK))
+        k1 = np.empty((STATE_SIZE, BLOCK))
+        k2 = np.empty((STATE_SIZE, BLOCK))
+        k3 = np.empty((STATE_SIZE, BLOCK))
+        k4 = np.empty((STATE_SIZE, BLOCK))
+        t = np.empty((STATE_SIZE, BLOCK))
+        xb[:, :n] = x[a : a + n].T
+        cb[:, :n] = cmd[a : a + n].T
+        wb[:, :n] = wind[a : a + n].T
+        for _ in range(n_steps):  # RK4, then the quaternion renormalised (rigid_body.normalize)
+            _stage(xb, k1, cb, wb, p, n)
+            for i in range(STATE_SIZE):
+                for j in range(n):
+                    t[i, j] = xb[i, j] + half * k1[i, j]
+            _stage(t, k2, cb, wb, p, n)
+            for i in range(STATE_SIZE):
+                for j in range(n):
+                    t[i, j] = xb[i, j] + half * k2[i, j]
+            _stage(t, k3, cb, wb, p, n)
+            for i in range(STATE_SIZE):
+                for j in range(n):
+                    t[i, j] = xb[i, j] + dt * k3[i, j]
+            _stage(t, k4, cb, wb, p, n)
+            for i in range(STATE_SIZE):
+                for j in range(n):
+                    xb[i, j] = xb[i, j] + sixth * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+            for j in range(n):
+                inv = 1.0 / math.sqrt(xb[6, j] ** 2 + xb[7, j] ** 2 + xb[8, j] ** 2 + xb[9, j] ** 2)
+                xb[6, j] *= inv
+                xb[7, j] *= inv
+                xb[8, j] *= inv
+                xb[9, j] *= inv
+        x[a : a + n] = xb[:, :n].T
+
+
+def _batch_inputs(x: np.ndarray, values: np.ndarray, width: int) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(values, dtype=float), (x.shape[0], width)))
+
+
+def derivative_many(
+    x: np.ndarray, rotor_speed_cmd_rad_s: np.ndarray, wind_ned_m_s: np.ndarray, params: VehicleParams
+) -> np.ndarray:
+    """``rigid_body.derivative`` of N vehicles at once.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, 17)
+    rotor_speed_cmd_rad_s : array_like, shape (4,) or (N, 4)
+    wind_ned_m_s : array_like, shape (3,) or (N, 3)
+    params : VehicleParams
+        One vehicle type for the whole batch.
+
+    Returns
+    -------
+    ndarray, shape (N, 17)
+    """
+    xs = np.ascontiguousarray(x, dtype=float)
+    if not NUMBA:
+        return rigid_body.derivative(xs, rotor_speed_cmd_rad_s, wind_ned_m_s, params)
+    out = np.empty_like(xs)
+    _derivative_many_kernel(xs, _batch_inputs(xs, rotor_speed_cmd_rad_s, 4), _batch_inputs(xs, wind_ned_m_s, 3),
+                            param_vector(params), out)  # fmt: skip
+    return out
+
+
+def step_many(
+    x: np.ndarray,
+    rotor_speed_cmd_rad_s: np.ndarray,
+    wind_ned_m_s: np.ndarray,
+    params: VehicleParams,
+    dt_s: float,
+    n_steps: int = 1,
+) -> np.ndarray:
+    """Advance N vehicles ``n_steps`` RK4 steps in place, inputs held, quaternions renormalised.
+
+    Each step equals ``normalize(rk4_step(lambda x: derivative(x, cmd, wind, params), x, dt))``
+    for each vehicle. No ground contact (vehicles in free flight).
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, 17), float64, C-contiguous
+        States; overwritten with the result (and returned).
+    rotor_speed_cmd_rad_s : array_like, shape (4,) or (N, 4)
+    wind_ned_m_s : array_like, shape (3,) or (N, 3)
+    params : VehicleParams
+    dt_s : float
+        Physics step, s.
+    n_steps : int
+        Steps to take with the same inputs.
+    """
+    if x.dtype != np.float64 or not x.flags.c_contiguous or x.ndim != 2 or x.shape[1] != STATE_SIZE:
+        raise ValueError("x must be a C-contiguous float64 array of shape (N, 17)")
+    if NUMBA:
+        _step_many_kernel(x, _batch_inputs(x, rotor_speed_cmd_rad_s, 4), _batch_inputs(x, wind_ned_m_s, 3),
+                          param_vector(params), float(dt_s), int(n_steps))  # fmt: skip
+        return x
+    cmd = _batch_inputs(x, rotor_speed_cmd_rad_s, 4)
+    wind = _batch_inputs(x, wind_ned_m_s, 3)
+    half = 0.5 * dt_s
+    for _ in range(n_steps):  # vectorised over the batch: the same arithmetic, one numpy op per line
+        k1 = rigid_body.derivative(x, cmd, wind, params)
+        k2 = rigid_body.derivative(x + half * k1, cmd, wind, params)
+        k3 = rigid_body.derivative(x + half * k2, cmd, wind, params)
+        k4 = rigid_body.derivative(x + dt_s * k3, cmd, wind, params)
+        x += (dt_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        q = x[:, QUAT]
+        x[:, QUAT] = q * (1.0 / np.sqrt(np.sum(q * q, axis=1)))[:, None]
+    return x
+
+
+# --- one vehicle, one control sample: the inner loops ------------------------------------------
+
+
+@_jit
+def _euler_from_quat(w, x, y, z):  # noqa: ANN001, ANN202
+    """``rotations.euler_from_quat``."""
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+@_jit
+def _real_torques(e0, e1, e2, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign):  # noqa: ANN001, ANN202
+    """``euler_lagrange.real_torques`` (eq. 16) on floats: ``C eta_dot + J tau~``.
+
+    ``index`` is the W_eta angle (0: phi, zyx; 2: psi, castillo/printed), ``sign`` its sign.
+    """
+    theta = e1
+    a = e0 if index == 0 else e2
+    a_dot = d0 if index == 0 else d2
+    st, ct = math.sin(theta), math.cos(theta)
+    sa, ca = math.sin(a), math.cos(a)
+    theta_dot, psi_dot = d1, d2
+    # rows w_r of W, their derivatives, and g[r][k] (see euler_lagrange._rows)
+    w00, w01, w02 = 1.0, 0.0, -st
+    w10, w11, w12 = 0.0, ca, ct * sa
+    w20, w21, w22 = 0.0, sign * sa, ct * ca
+    v00, v01, v02 = 0.0, 0.0, -ct * theta_dot
+    v10, v11, v12 = 0.0, -sa * a_dot, -st * sa * theta_dot + ct * ca * a_dot
+    v20, v21, v22 = 0.0, sign * ca * a_dot, -st * ca * theta_dot - ct * sa * a_dot
+    g00, g01, g02 = 0.0, -ct * psi_dot, 0.0
+    g10, g11, g12 = 0.0, -st * sa * psi_dot, 0.0
+    g20, g21, g22 = 0.0, -st * ca * psi_dot, 0.0
+    extra1 = -sa * theta_dot + ct * ca * psi_dot
+    extra2 = sign * ca * theta_dot - ct * sa * psi_dot
+    if index == 0:
+        g10 += extra1
+        g20 += extra2
+    else:
+        g12 += extra1
+        g22 += extra2
+    c0 = c1 = c2 = 0.0
+    # r = 0, 1, 2 in the reference's order of accumulation
+    om = w00 * d0 + w01 * d1 + w02 * d2
+    wd = v00 * d0 + v01 * d1 + v02 * d2
+    c0 += i0 * (v00 * om + w00 * wd - om * g00)
+    c1 += i0 * (v01 * om + w01 * wd - om * g01)
+    c2 += i0 * (v02 * om + w02 * wd - om * g02)
+    om = w10 * d0 + w11 * d1 + w12 * d2
+    wd = v10 * d0 + v11 * d1 + v12 * d2
+    c0 += i1 * (v10 * om + w10 * wd - om * g10)
+    c1 += i1 * (v11 * om + w11 * wd - om * g11)
+    c2 += i1 * (v12 * om + w12 * wd - om * g12)
+    om = w20 * d0 + w21 * d1 + w22 * d2
+    wd = v20 * d0 + v21 * d1 + v22 * d2
+    c0 += i2 * (v20 * om + w20 * wd - om * g20)
+    c1 += i2 * (v21 * om + w21 * wd - om * g21)
+    c2 += i2 * (v22 * om + w22 * wd - om * g22)
+    s = i0 * (w00 * t0 + w01 * t1 + w02 * t2)
+    c0 += s * w00
+    c1 += s * w01
+    c2 += s * w02
+    s = i1 * (w10 * t0 + w11 * t1 + w12 * t2)
+    c0 += s * w10
+    c1 += s * w11
+    c2 += s * w12
+    s = i2 * (w20 * t0 + w21 * t1 + w22 * t2)
+    c0 += s * w20
+    c1 += s * w21
+    c2 += s * w22
+    return c0, c1, c2
+
+
+@_jit
+def _euler_accel_command(x, thrust, tau_tilde, believed, index, sign, p, cmd):  # noqa: ANN001, ANN202
+    """EulerAccelActuation + RigidBodyModel.rotor_speed_command at state ``x``, into ``cmd``."""
+    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    roll, pitch, yaw = _euler_from_quat(qw / n, qx / n, qy / n, qz / n)
+    # rigid_body.euler_rates_from_body_rates
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp, tp = math.cos(pitch), math.tan(pitch)
+    pr, qr, rr = x[10], x[11], x[12]
+    vertical = qr * sr + rr * cr
+    t0, t1, t2 = _real_torques(
+        roll, pitch, yaw, pr + vertical * tp, qr * cr - rr * sr, vertical / cp,
+        tau_tilde[0], tau_tilde[1], tau_tilde[2], believed[0], believed[1], believed[2], index, sign,
+    )  # fmt: skip
+    # rigid_body.body_torque_from_generalized
+    sp = math.sin(pitch)
+    vert = (t2 + sp * t0) / cp
+    _speeds_for(thrust, t0, cr * t1 + sr * vert, -sr * t1 + cr * vert, p, cmd)
+
+
+@_jit
+def _speeds_for(thrust, tx, ty, tz, p, cmd):  # noqa: ANN001, ANN202
+    """``rigid_body.rotor_speeds_for`` into ``cmd``."""
+    k = p[_K]
+    f0, f1, f2, f3 = _mix_forces(thrust, tx, ty, tz, k, p[_WMIN], p[_WMAX], p[_L], p[_C])
+    cmd[0] = math.sqrt(f0 / k)
+    cmd[1] = math.sqrt(f1 / k)
+    cmd[2] = math.sqrt(f2 / k)
+    cmd[3] = math.sqrt(f3 / k)
+
+
+@_jit
+def _ground(x):  # noqa: ANN001, ANN202
+    """``RigidBodyModel.ground_contact`` in place (after ``normalize``); True when resting."""
+    _normalize(x)
+    if x[2] < 0.0 or (x[2] == 0.0 and x[5] < 0.0):
+        return False
+    yaw = _euler_from_quat(x[6], x[7], x[8], x[9])[2]
+    x[2] = 0.0
+    x[3] = x[4] = x[5] = 0.0
+    # rotations.quat_from_euler(0, 0, yaw)
+    cr, sr = math.cos(0.0), math.sin(0.0)
+    cp, sp = math.cos(0.0), math.sin(0.0)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    x[6] = cr * cp * cy + sr * sp * sy
+    x[7] = sr * cp * cy - cr * sp * sy
+    x[8] = cr * sp * cy + sr * cp * sy
+    x[9] = cr * cp * sy - sr * sp * cy
+    x[10] = x[11] = x[12] = 0.0
+    return True
+
+
+@_jit
+def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, winds, ground, xdot, cmd):  # noqa: ANN001, ANN202
+    """``n_steps`` of ``VehicleSim.step``: actuation, RK4, normalise, ground. Returns on_ground.
+
+    ``mode`` 0: held thrust and body torque (mixed once); 1: the paper's tau~ (``torque``) with
+    eq. 16 at every step. ``winds`` (n_steps, 3). ``x`` and ``xdot`` are updated in place.
+    """
+    k1 = np.empty(STATE_SIZE)
+    k2 = np.empty(STATE_SIZE)
+    k3 = np.empty(STATE_SIZE)
+    k4 = np.empty(STATE_SIZE)
+    tmp = np.empty(STATE_SIZE)
+    nxt = np.empty(STATE_SIZE)
+    resting = False
+    if mode == 0:
+        _speeds_for(thrust, torque[0], torque[1], torque[2], p, cmd)
+    for step in range(n_steps):
+        if mode == 1:
+            _euler_accel_command(x, thrust, torque, believed, index, sign, p, cmd)
+        _rk4_into(x, cmd, winds[step], p, dt, nxt, k1, k2, k3, k4, tmp)
+        for i in range(STATE_SIZE):
+            xdot[i] = (nxt[i] - x[i]) / dt
+        if ground:
+            resting = _ground(nxt)
+            if resting:
+                for i in range(STATE_SIZE):
+                    xdot[i] = 0.0
+        for i in range(STATE_SIZE):
+            x[i] = nxt[i]
+    return resting
+
+
+@_jit
+def _advance_python_actuation_step(x, cmd, wind, p, dt, ground, xdot):  # noqa: ANN001, ANN202
+    """One physics step with rotor commands already mixed (the actuation ran in Python)."""
+    k1 = np.empty(STATE_SIZE)
+    k2 = np.empty(STATE_SIZE)
+    k3 = np.empty(STATE_SIZE)
+    k4 = np.empty(STATE_SIZE)
+    tmp = np.empty(STATE_SIZE)
+    nxt = np.empty(STATE_SIZE)
+    _rk4_into(x, cmd, wind, p, dt, nxt, k1, k2, k3, k4, tmp)
+    for i in range(STATE_SIZE):
+        xdot[i] = (nxt[i] - x[i]) / dt
+    resting = False
+    if ground:
+        resting = _ground(nxt)
+        if resting:
+            for i in range(STATE_SIZE):
+                xdot[i] = 0.0
+    for i in range(STATE_SIZE):
+        x[i] = nxt[i]
+    return resting
+
+
+@_jit
+def _mix_speeds(thrust, tx, ty, tz, p, cmd):  # noqa: ANN001, ANN202
+    _speeds_for(thrust, tx, ty, tz, p, cmd)
+
+
+_EULER_FORMS = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
+
+
+class FastRigidBodySim:
+    """``VehicleSim`` with a ``RigidBodyModel``, stepped by the compiled kernels.
+
+    Same constructor, attributes (``model``, ``x``, ``time_s``, ``steps``, ``on_ground``,
+    ``actuation``) and methods (``step``, ``truth``, ``truth_position_ned``) as
+    ``VehicleSim``, and the same results to rounding (``tests/test_batch.py``).
+
+    ``HeldActuation`` and ``EulerAccelActuation`` run a whole ``step(n)`` in one compiled
+    call; any other actuation is called in Python once per physics step.
+    """
+
+    def __init__(
+        self,
+        model: RigidBodyModel,
+        *,
+        physics_dt_s: float = 1e-3,
+        wind=None,  # noqa: ANN001 - a dynamics.wind.WindField
+        ground: bool = True,
+        initial_pos_ned_m: np.ndarray | None = None,
+        initial_yaw_rad: float = 0.0,
+    ) -> None:
+        if not isinstance(model, RigidBodyModel):
+            raise TypeError("FastRigidBodySim steps a RigidBodyModel")
+        if physics_dt_s <= 0:
+            raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
+        self.model = model
+        self.physics_dt_s = physics_dt_s
+        self.wind = wind
+        self.ground = ground
+        self.time_s = 0.0
+        self.steps = 0
+        pos = np.zeros(3) if initial_pos_ned_m is None else np.asarray(initial_pos_ned_m, dtype=float)
+        self.x = np.ascontiguousarray(model.initial_state(pos, initial_yaw_rad), dtype=float)
+        self.on_ground = ground and bool(pos[2] >= 0.0)
+        from sitl_plant.simulation import IDLE
+
+        self.actuation = IDLE
+        self._p = param_vector(model.params)
+        self._cmd = np.zeros(4)
+        self._xdot = np.zeros(STATE_SIZE)
+        self._wind_now = np.zeros(3)
+        if not self.on_ground:
+            self._xdot = model.derivative(self.x, 0.0, np.zeros(3), self._wind_now)
+        self._no_wind: np.ndarray = np.zeros((0, 3))
+        self._zeros3 = np.zeros(3)
+
+    def _winds(self, n_steps: int) -> np.ndarray:
+        if self.wind is None:
+            if self._no_wind.shape[0] < n_steps:
+                self._no_wind = np.zeros((n_steps, 3))
+            return self._no_wind
+        out = np.empty((n_steps, 3))
+        pos = self.x[0:3]
+        for i in range(n_steps):
+            out[i] = self.wind.velocity_ned((self.steps + i) * self.physics_dt_s, pos)
+        self._wind_now = out[n_steps - 1].copy()
+        return out
+
+    def step(self, n_steps: int = 1) -> None:
+        """Advance ``n_steps`` physics steps with the current actuation."""
+        act = self.actuation
+        dt = self.physics_dt_s
+        winds = self._winds(n_steps)
+        if isinstance(act, (HeldActuation, EulerAccelActuation)):
+            if isinstance(act, HeldActuation):
+                mode, thrust, torque = 0, float(act.thrust_n), np.asarray(act.torque_nm, dtype=float)
+                believed, (index, sign) = self._zeros3, (0, -1.0)
+            else:
+                mode, thrust, torque = 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float)
+                believed = np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float)
+                index, sign = _EULER_FORMS[act.form]
+            self.on_ground = bool(
+                _advance(self.x, n_steps, dt, mode, thrust, torque, believed, index, sign, self._p, winds,
+                         self.ground, self._xdot, self._cmd)  # fmt: skip
+            )
+        else:
+            for i in range(n_steps):
+                thrust, torque = act(self.model, self.x)
+                _mix_speeds(float(thrust), float(torque[0]), float(torque[1]), float(torque[2]), self._p, self._cmd)
+                self.on_ground = bool(
+                    _advance_python_actuation_step(self.x, self._cmd, winds[i], self._p, dt, self.ground, self._xdot)
+                )
+                self.steps += 1
+                self.time_s = self.steps * dt
+            return
+        self.steps += n_steps
+        self.time_s = self.steps * dt
+
+    def truth_position_ned(self) -> np.ndarray:
+        return self.x[0:3].copy()
+
+    def truth(self) -> VehicleState:
+        """The true state now; acceleration is the mean over the last physics step."""
+        self.model._cmd = self._cmd  # the rotor speeds it reports with an instant motor model
+        state = self.model.vehicle_state(self.x, self.time_s, self._xdot)
+        if self.on_ground != state.on_ground:
+            state = replace(state, on_ground=self.on_ground)
+        return state

@@ -1,0 +1,123 @@
+"""The fast steppers of ``sitl_plant.dynamics.batch`` against the reference equations.
+
+Every kernel must give what ``rigid_body.derivative`` / ``integrate.rk4_step`` /
+``VehicleSim`` give for the same inputs (to 1e-12), whether numba compiles it or not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sitl_plant.dynamics import batch, rigid_body
+from sitl_plant.dynamics.integrate import rk4_step
+from sitl_plant.dynamics.rigid_body import RigidBodyModel
+from sitl_plant.dynamics.wind import wind_from_spec
+from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
+from sitl_plant.vehicle import VehicleParams
+
+DRAGGY = VehicleParams(linear_drag_n_s_m=(0.12, 0.12, 0.25))
+INSTANT = VehicleParams(motor_time_constant_s=0.0, rotor_speed_min_rad_s=50.0)
+
+
+def random_states(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, 17))
+    x[:, 6:10] /= np.linalg.norm(x[:, 6:10], axis=1, keepdims=True)
+    x[:, 13:17] = 250.0 + 200.0 * rng.random((n, 4))
+    cmd = rng.uniform(-50.0, 800.0, size=(n, 4))  # some outside the speed limits: clipped
+    wind = rng.normal(scale=3.0, size=(n, 3))
+    return x, cmd, wind
+
+
+@pytest.mark.parametrize("params", [DRAGGY, INSTANT], ids=["motor-lag-drag", "instant-motors"])
+@pytest.mark.parametrize("n", [1, 5, 33, 200])  # below, at and across the kernel's block size
+def test_derivative_many_equals_reference(params: VehicleParams, n: int) -> None:
+    x, cmd, wind = random_states(n)
+    got = batch.derivative_many(x, cmd, wind, params)
+    want = np.array([rigid_body.derivative(x[i], cmd[i], wind[i], params) for i in range(n)])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("params", [DRAGGY, INSTANT], ids=["motor-lag-drag", "instant-motors"])
+def test_step_many_equals_rk4_step(params: VehicleParams) -> None:
+    x, cmd, wind = random_states(70, seed=3)
+    got = batch.step_many(x.copy(), cmd, wind, params, 1e-3, n_steps=3)
+    want = x.copy()
+    for i in range(len(x)):
+        for _ in range(3):
+            f = lambda s, i=i: rigid_body.derivative(s, cmd[i], wind[i], params)  # noqa: E731
+            want[i] = rigid_body.normalize(rk4_step(f, want[i], 1e-3))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(got[:, 6:10], axis=1), 1.0, atol=1e-14)
+
+
+def test_step_many_broadcasts_shared_inputs() -> None:
+    x, _, _ = random_states(10, seed=5)
+    cmd, wind = np.full(4, 360.0), np.array([1.0, -2.0, 0.5])
+    got = batch.step_many(x.copy(), cmd, wind, DRAGGY, 2e-3)
+    want = batch.step_many(x.copy(), np.tile(cmd, (10, 1)), np.tile(wind, (10, 1)), DRAGGY, 2e-3)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_step_many_refuses_a_wrong_layout() -> None:
+    x, cmd, wind = random_states(4)
+    with pytest.raises(ValueError, match="C-contiguous float64"):
+        batch.step_many(np.asfortranarray(x), cmd, wind, DRAGGY, 1e-3)
+    with pytest.raises(ValueError):
+        batch.step_many(x[:, :12].copy(), cmd, wind, DRAGGY, 1e-3)
+
+
+def test_param_vector_order() -> None:
+    p = batch.param_vector(DRAGGY)
+    assert p.shape == (14,)
+    assert p[0] == DRAGGY.mass_kg and p[10] == DRAGGY.thrust_coeff_n_s2 and p[13] == DRAGGY.motor_time_constant_s
+    np.testing.assert_array_equal(p[4:7], DRAGGY.inertia_kg_m2)
+    np.testing.assert_array_equal(p[7:10], DRAGGY.linear_drag_n_s_m)
+
+
+class TiltingActuation:
+    """A Python actuation (not one the kernels know): torque from the state, as an attitude loop."""
+
+    def __call__(self, model: RigidBodyModel, x: np.ndarray) -> tuple[float, np.ndarray]:
+        return 5.5, np.array([0.02 - 0.05 * x[10], -0.01 - 0.05 * x[11], 0.001 - 0.02 * x[12]])
+
+
+def _fly(sim: VehicleSim | batch.FastRigidBodySim, actuations: list) -> list[np.ndarray]:
+    states = []
+    for act in actuations:
+        sim.actuation = act
+        sim.step(50)
+        truth = sim.truth()
+        states.append(np.concatenate([sim.x, truth.acc_ned_m_s2, [sim.time_s, float(truth.on_ground)]]))
+    return states
+
+
+@pytest.mark.parametrize("wind", ["none", "dryden:5+gust:t=0.3,amp=4,dur=0.4"])
+def test_fast_sim_flies_as_vehicle_sim(wind: str) -> None:
+    """Take-off from the ground, each actuation kind, wind: the same flight to rounding."""
+    believed = np.diag([2.7e-3, 4.8e-3, 8.9e-3])
+    actuations = [
+        HeldActuation(0.0, np.zeros(3)),  # resting on the ground
+        HeldActuation(8.0, np.array([0.001, -0.002, 0.0005])),  # lift-off
+        HeldActuation(8.0, np.array([0.0, 0.0, 0.0])),
+        EulerAccelActuation(5.2, np.array([0.8, -0.5, 0.3]), believed, "zyx"),
+        EulerAccelActuation(4.6, np.array([-1.0, 0.4, -0.2]), believed, "castillo"),
+        TiltingActuation(),
+        EulerAccelActuation(19.0, np.array([30.0, 0.0, 0.0]), believed, "zyx"),  # saturates the mixer
+    ]
+    runs = []
+    for cls in (VehicleSim, batch.FastRigidBodySim):
+        sim = cls(RigidBodyModel(DRAGGY), wind=None if wind == "none" else wind_from_spec(wind, 7))
+        runs.append(_fly(sim, actuations))
+    reference, fast = runs
+    assert reference[0][-1] == 1.0 and reference[2][-1] == 0.0 and reference[-1][2] < -0.1  # rested, flew
+    for want, got in zip(reference, fast):
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+
+
+def test_fast_sim_refuses_other_models() -> None:
+    from sitl_plant.simulation import PaperModel
+
+    with pytest.raises(TypeError):
+        batch.FastRigidBodySim(PaperModel(DRAGGY))  # type: ignore[arg-type]
