@@ -244,6 +244,10 @@ def _summary(plant: Plant, link: Link, stats: object) -> None:
         f"foreign {c.foreign}, unhandled {c.unhandled}",
         file=sys.stderr,
     )
+    if c.breakdowns:
+        print(f"sitl-plant: the simulation broke down {c.breakdowns} times (state not finite)", file=sys.stderr)
+    if c.internal_errors:
+        print(f"sitl-plant: {c.internal_errors} messages raised an error (last: {c.last_error}); please report it", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -155,13 +155,13 @@ def local_position_ned(t_ms: int, st: VehicleState) -> MAVLinkMessage:
 def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessage:
     lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
     v = st.vel_ned_m_s
-    hdg = int(round(math.degrees(st.euler_rad[2]) * 100.0)) % 36000
+    hdg = _clip32(math.degrees(st.euler_rad[2]) * 100.0) % 36000
     return mavlink.MAVLink_global_position_int_message(
         t_ms,
-        int(round(lat * 1e7)),
-        int(round(lon * 1e7)),
-        int(round(alt * 1000.0)),
-        int(round(-float(st.pos_ned_m[2]) * 1000.0)),
+        _clip32(lat * 1e7),
+        _clip32(lon * 1e7),
+        _clip32(alt * 1000.0),
+        _clip32(-float(st.pos_ned_m[2]) * 1000.0),
         _clip16(v[0] * 100.0),
         _clip16(v[1] * 100.0),
         _clip16(v[2] * 100.0),
@@ -203,7 +203,7 @@ def extended_sys_state(status: Status) -> MAVLinkMessage:
 def home_position(t_us: int, home: Home, home_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MAVLinkMessage:
     lat, lon, alt = ned_to_geodetic(np.asarray(home_ned_m), home)
     return mavlink.MAVLink_home_position_message(
-        int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000.0)),
+        _clip32(lat * 1e7), _clip32(lon * 1e7), _clip32(alt * 1000.0),
         home_ned_m[0], home_ned_m[1], home_ned_m[2], (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, t_us,
     )  # fmt: skip
 
@@ -224,7 +224,8 @@ def attitude_target(t_ms: int, q_wxyz: tuple[float, float, float, float], rates:
 def servo_output_raw(t_us: int, motor_speeds_rad_s: np.ndarray, max_speed_rad_s: float, armed: bool) -> MAVLinkMessage:
     """Motor outputs as PWM: 1000 us (stopped) to 2000 us (top speed), 900 us disarmed."""
     if armed:
-        pwm = [int(round(1000.0 + 1000.0 * min(max(float(w) / max_speed_rad_s, 0.0), 1.0))) for w in motor_speeds_rad_s[:4]]
+        pwm = [int(round(1000.0 + 1000.0 * min(max(float(w) / max_speed_rad_s, 0.0), 1.0))) if math.isfinite(w) else 1000
+               for w in motor_speeds_rad_s[:4]]
     else:
         pwm = [900] * 4
     return mavlink.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0)
@@ -294,7 +295,11 @@ def message_interval(message_id: int, interval_us: int) -> MAVLinkMessage:
 
 
 def _clip16(value: float) -> int:
-    return int(max(-32768, min(32767, round(value))))
+    return int(max(-32768, min(32767, round(value)))) if math.isfinite(value) else 0
+
+
+def _clip32(value: float) -> int:
+    return int(max(-(2**31), min(2**31 - 1, round(value)))) if math.isfinite(value) else 0
 
 
 # --- incoming ---------------------------------------------------------------------------------

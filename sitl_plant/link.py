@@ -99,6 +99,7 @@ class LinkCounters:
     bad_packets: int = 0
     unknown_messages: int = 0
     send_errors: int = 0
+    encode_errors: int = 0
     by_type_in: dict[str, int] = field(default_factory=dict)
 
 
@@ -152,7 +153,11 @@ class Endpoint:
         out = []
         packer = self.packer if packer is None else packer
         for msg in messages:
-            out.append(msg.pack(packer))
+            try:
+                out.append(msg.pack(packer))
+            except (struct.error, OverflowError, ValueError, TypeError):
+                self.counters.encode_errors += 1  # a value out of its field's range: not sent
+                continue
             packer.seq = (packer.seq + 1) & 0xFF
         return out
 

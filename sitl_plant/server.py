@@ -45,6 +45,7 @@ TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers
 LOCKSTEP_EPOCH_S = 1_577_836_800  # 2020-01-01T00:00:00Z: tlog and SYSTEM_TIME origin in lockstep
 API, GCS = 0, 1
+MAX_DISTANCE_M = 1e7  # beyond this from home the simulation is taken as broken down
 MODELS = ("rigid-body", "paper")
 
 
@@ -153,6 +154,9 @@ class Counters:
     foreign: int = 0
     unhandled: int = 0
     stale_answers: int = 0
+    breakdowns: int = 0
+    internal_errors: int = 0
+    last_error: str = ""
     refusals: dict[str, int] = field(default_factory=dict)
 
 
@@ -206,6 +210,7 @@ class Plant:
         self._truth = self.sim.truth()
         self._measured: VehicleState | None = None
         self._rigid = not isinstance(model, PaperModel)
+        self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]
         self.autopilot.observe(self._truth)
 
     # -- time ------------------------------------------------------------------------------------
@@ -229,8 +234,29 @@ class Plant:
     # -- advancing -------------------------------------------------------------------------------
 
     def advance(self, n_steps: int) -> None:
-        """Step the physics, then let the autopilot react (failsafe, landing, disarm)."""
-        self.sim.step(n_steps)
+        """Step the physics, then let the autopilot react (failsafe, landing, disarm).
+
+        A simulation that breaks down (non-finite state, a singular model, beyond 10 km) is a
+        crash, not a crash of the program: the state goes back to the last good one, the motors
+        stop (forced disarm) and a STATUSTEXT says so; time goes on.
+        """
+        sim = self.sim
+        steps_before, x_before = sim.steps, sim.x.copy()
+        try:
+            with np.errstate(all="ignore"):
+                sim.step(n_steps)
+            broken = not (np.all(np.isfinite(sim.x)) and np.max(np.abs(self.model_position(sim.x))) < MAX_DISTANCE_M)
+        except (ArithmeticError, np.linalg.LinAlgError, ValueError):
+            broken = True
+        if broken:
+            sim.x = x_before
+            sim.steps = steps_before + n_steps
+            sim.time_s = sim.steps * sim.physics_dt_s
+            self.counters.breakdowns += 1
+            if self.autopilot.armed or self.counters.breakdowns == 1:
+                self._announce(StatusText(mavlink.MAV_SEVERITY_EMERGENCY, "Simulation broke down (state not finite): motors stopped"))
+            self.autopilot.disarm(self.time_s, forced=True)
+            self.autopilot.failures.add("motor")
         self._truth = self.sim.truth()
         self._measured = None
         ap = self.autopilot
@@ -238,6 +264,10 @@ class Plant:
         for text in ap.update(self.time_s):
             self._announce(text)
         self._apply_task()
+
+    def model_position(self, x: np.ndarray) -> np.ndarray:
+        """Position entries of the model's state (either model keeps them first or interleaved)."""
+        return x[self._position_index]
 
     def _apply_task(self) -> None:
         self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)  # type: ignore[assignment]
@@ -272,7 +302,11 @@ class Plant:
         if not codec.addressed_to(msg, self.config.sysid, self.config.compid):
             self.counters.foreign += 1
             return
-        handler(self, index, msg)
+        try:
+            handler(self, index, msg)
+        except Exception as exc:  # noqa: BLE001 - one bad message must never stop the vehicle
+            self.counters.internal_errors += 1
+            self.counters.last_error = f"{kind}: {type(exc).__name__}: {exc}"
 
     def _refuse(self, reason: str) -> None:
         self.counters.refused_setpoints += 1

@@ -161,3 +161,41 @@ def test_stream_schedule_intervals():
     assert sum(att in s.due(t) for t in range(1_000_000, 2_000_001, 4000)) == 10
     assert s.set_interval(att, -1, 0) and att not in s.due(5_000_000)
     assert not s.set_interval(12345, 1000, 0)
+
+
+def test_a_broken_down_simulation_stops_the_motors_not_the_program():
+    import math
+
+    import numpy as np
+
+    plant = make_plant(lockstep=True)
+    plant.autopilot.arm(0.0, forced=True)
+    plant.sim.x[4] = 10.0  # 10 m up
+    before = plant.sim.x.copy()
+    model = plant.sim.model
+
+    def overflowing(x, thrust, torque, wind):  # a dynamics that blows up, as a tilt past 90 deg would
+        return np.full_like(x, math.inf)
+
+    model.derivative = overflowing  # type: ignore[method-assign]
+    t0 = plant.time_ms
+    plant.advance(plant.tick_steps)
+    assert plant.time_ms == t0 + 50
+    np.testing.assert_array_equal(plant.sim.x, before)
+    assert plant.counters.breakdowns >= 1 and not plant.autopilot.armed
+    texts = [m.text for m in plant.outbox[API] if m.get_type() == "STATUSTEXT"]
+    assert any("broke down" in t for t in texts)
+    assert all(m.pack(_SENDER) for m in plant.telemetry(API, force=(30, 32)))
+
+
+def test_a_message_that_raises_is_counted_not_fatal(monkeypatch):
+    from sitl_plant import server
+
+    plant = make_plant(lockstep=True)
+
+    def explode(self, index, msg):
+        raise RuntimeError("boom")
+
+    monkeypatch.setitem(server._HANDLERS, "PING", explode)
+    plant.handle(API, wire(mavlink.MAVLink_ping_message(1, 2, 0, 0)))
+    assert plant.counters.internal_errors == 1 and "boom" in plant.counters.last_error
