@@ -1284,6 +1284,8 @@ def rerun_controller(
 def format_rerun(result: RerunResult, label: str) -> str:
     """The comparison table: per field, logged and re-run ranges, largest and RMS difference."""
     d = result.difference
+    if not len(d):
+        return f"re-run ({label}): no mission samples in the log to compare"
     lines = [f"re-run ({label}): {len(result.t_s)} samples of {result.output} commands; "
              + ("outputs equal the log exactly (to float32)" if result.exact
                 else f"{result.mismatched_samples} samples differ")]

@@ -230,3 +230,45 @@ def test_figures_of_a_replayed_flight(flown, tmp_path, capsys):
     for name in ("path3d", "position", "attitude", "errors", "actions"):
         data = (run_dir / f"{name}.png").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+
+
+def test_a_truncated_flight_log_reruns_exactly_up_to_the_damage(flown, tmp_path, capsys):
+    data = flown.flight_log.read_bytes()
+    offsets = [m.offset for m in TlogReader(flown.flight_log)]
+    partial = offsets[len(offsets) // 2]
+    cut_at = partial + 13  # inside a record, mid-flight
+    log = tmp_path / "flight.tlog"
+    log.write_bytes(data[:cut_at])
+    code = main(["replay", str(log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"),
+                 "--json", "--no-plots"])  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    warning = captured.err.strip().splitlines()
+    assert len(warning) == 1 and "mid-packet" in warning[0]
+    assert f"byte {partial}" in warning[0]
+    payload = json.loads(captured.out)
+    assert 10 < payload["samples"] < len(_series(flown))
+    assert payload["rerun"]["exact"]
+
+
+def test_a_corrupted_setpoint_is_reported_missing_and_the_rest_is_read(flown, tmp_path, capsys):
+    records = list(TlogReader(flown.flight_log))
+    kind = "SET_ATTITUDE_TARGET" if flown.output == "attitude" else "SET_ACTUATOR_CONTROL_TARGET"
+    setpoints = [r for r in records if r.msg.get_type() == kind]
+    victim = setpoints[len(setpoints) // 2]
+    victim_ms = int(victim.msg.time_boot_ms if flown.output == "attitude" else victim.msg.time_usec // 1000)
+    data = bytearray(flown.flight_log.read_bytes())
+    data[victim.offset + 8 + 12] ^= 0xFF  # a payload byte: the checksum fails
+    log = tmp_path / "flight.tlog"
+    log.write_bytes(bytes(data))
+    code = main(["replay", str(log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"),
+                 "--json", "--no-plots"])  # fmt: skip
+    captured = capsys.readouterr()
+    warning = captured.err.strip().splitlines()[0]
+    assert f"damaged at byte {victim.offset}" in warning and "checksum" in warning
+    payload = json.loads(captured.out)
+    assert code == 1  # the flight's own controller no longer reproduces every sample ...
+    assert payload["samples"] == len(_series(flown)) - 1 and payload["rerun"]["missing_samples"] == 1
+    lost_t = next(float(r["t_s"]) for r in _series(flown) if int(float(r["time_boot_ms"])) == victim_ms)
+    first = payload["rerun"]["first_mismatch"]
+    assert first is not None and first["t_s"] > lost_t  # every sample before the lost one is exact
