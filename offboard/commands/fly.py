@@ -203,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
         raise FlyArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
     log_clock = LogClock(args.lockstep)
-    console = _Console(sys.stderr, args.quiet or args.json)
+    console = _Console(sys.stderr, args.quiet)
     meta = {"mission": mission.name, "mission_source": mission.source, "output": args.output, "model": args.model,
             "lockstep": args.lockstep, "connect": args.connect, "controller": str(controller_file)}  # fmt: skip
     started = time.monotonic()
