@@ -37,7 +37,9 @@ from pathlib import Path
 
 import numpy as np
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
 
+from offboard import codec
 from offboard.errors import LogFormatError
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
 from offboard.trajectory.base import Phase, Trajectory
@@ -51,20 +53,13 @@ ULOG_MAGIC = b"ULog"
 DATAFLASH_MAGIC = b"\xa3\x95"
 
 # MAVLink enum values used below (common.xml)
-MAV_AUTOPILOT_INVALID = 8
-MAV_TYPE_GCS = 6
-MAV_TYPE_ONBOARD_CONTROLLER = 18
-MAV_MODE_FLAG_SAFETY_ARMED = 128
-MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MAV_STATE_CRITICAL = 5
-MAV_STATE_EMERGENCY = 6
-MAV_SEVERITY_CRITICAL = 2
-MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
+MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
+MAV_TYPE_ONBOARD_CONTROLLER = mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+MAV_SEVERITY_CRITICAL = mavlink.MAV_SEVERITY_CRITICAL
+MAV_CMD_COMPONENT_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
 SEVERITY_NAMES = ("EMERGENCY", "ALERT", "CRITICAL", "ERROR", "WARNING", "NOTICE", "INFO", "DEBUG")
-# PX4's custom modes (px4_custom_mode.h): main mode << 16 | sub mode << 24
-PX4_MAIN_MODES = {1: "Manual", 2: "Altitude", 3: "Position", 4: "Auto", 5: "Acro", 6: "Offboard", 7: "Stabilized", 8: "Rattitude"}
-PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Return", 6: "Land", 8: "Follow", 9: "Precland"}
-PX4_MAIN_MODE_OFFBOARD = 6
+OFFBOARD_MODE_NAME = codec.px4_mode_name(codec.PX4_MAIN_MODE_OFFBOARD, 0)
 
 # POSITION_TARGET_LOCAL_NED type_mask bits: position x, y, z ignored; yaw ignored
 _POS_IGNORE = 0b111
@@ -107,11 +102,8 @@ class LoggedMessage:
 
 
 def px4_mode_name(custom_mode: int) -> str:
-    """PX4's name of a HEARTBEAT custom_mode (``main << 16 | sub << 24``)."""
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    if main == 4:
-        return PX4_AUTO_SUB_MODES.get(sub, f"Auto/{sub}")
-    return PX4_MAIN_MODES.get(main, f"mode {main}")
+    """PX4's name of a HEARTBEAT custom_mode (``main << 16 | sub << 24``), by ``offboard.codec``."""
+    return codec.px4_mode_name((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
 
 
 def _packet_length(data: bytes | memoryview, i: int) -> int | None:
@@ -430,7 +422,7 @@ class LogScan:
     acks: list[tuple] = field(default_factory=list)  # (n, t_s, src, target system, command, result)
     params: dict[int, dict[str, float]] = field(default_factory=dict)  # sysid -> name -> last value
     events: list[Event] = field(default_factory=list)
-    _status: dict[int, tuple[int, bool, int]] = field(default_factory=dict)  # sysid -> (custom_mode, armed, system_status)
+    _status: dict[int, codec.VehicleStatus] = field(default_factory=dict)  # sysid -> latest heartbeat
     _text_chunks: dict[tuple[int, int], list[str]] = field(default_factory=dict)
 
     def add(self, t_s: float, msg: object) -> None:
@@ -460,22 +452,21 @@ class LogScan:
 
     def _heartbeat(self, t_s: float, src: tuple[int, int], msg) -> None:
         self.heartbeat_kind.setdefault(src, (int(msg.type), int(msg.autopilot)))
-        if int(msg.autopilot) == MAV_AUTOPILOT_INVALID or int(msg.type) in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
+        if not codec.is_autopilot_heartbeat(msg):
             return
-        base = int(msg.base_mode)
-        custom = int(msg.custom_mode) if base & MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else -1
-        armed = bool(base & MAV_MODE_FLAG_SAFETY_ARMED)
-        state = int(msg.system_status)
+        status = codec.vehicle_status(msg)
         before = self._status.get(src[0])
-        self._status[src[0]] = (custom, armed, state)
-        if before is None or before[0] != custom:
-            name = px4_mode_name(custom) if custom >= 0 else f"base_mode {base}"
-            self.events.append(Event(t_s, "mode", name, src[0]))
-        if before is None and armed or before is not None and before[1] != armed:
-            self.events.append(Event(t_s, "armed" if armed else "disarmed", "armed" if armed else "disarmed", src[0]))
-        critical = state in (MAV_STATE_CRITICAL, MAV_STATE_EMERGENCY)
-        if critical and (before is None or before[2] not in (MAV_STATE_CRITICAL, MAV_STATE_EMERGENCY)):
-            label = "EMERGENCY" if state == MAV_STATE_EMERGENCY else "CRITICAL"
+        self._status[src[0]] = status
+        mode = status.mode_name if status.custom_mode_enabled else f"base_mode {int(msg.base_mode)}"
+        if before is None or (before.main_mode, before.sub_mode, before.custom_mode_enabled) != (
+            status.main_mode, status.sub_mode, status.custom_mode_enabled
+        ):
+            self.events.append(Event(t_s, "mode", mode, src[0]))
+        if before is None and status.armed or before is not None and before.armed != status.armed:
+            text = "armed" if status.armed else "disarmed"
+            self.events.append(Event(t_s, text, text, src[0]))
+        if status.critical and (before is None or not before.critical):
+            label = "EMERGENCY" if status.system_status == mavlink.MAV_STATE_EMERGENCY else "CRITICAL"
             self.events.append(Event(t_s, "failsafe", f"system status {label}", src[0]))
 
     def _statustext(self, t_s: float, src: tuple[int, int], msg) -> None:
@@ -536,11 +527,7 @@ class LogScan:
         self.acks.append((self.messages, t_s, src, target, int(msg.command), int(msg.result)))
 
     def _param_value(self, t_s: float, src: tuple[int, int], msg) -> None:
-        raw = msg.param_id
-        name = (raw.split("\x00", 1)[0] if isinstance(raw, str) else bytes(raw).split(b"\x00", 1)[0].decode("ascii", "replace"))[:16]
-        value = float(msg.param_value)
-        if int(msg.param_type) in (1, 2, 3, 4, 5, 6):  # MAV_PARAM_TYPE_(U)INT8/16/32: bytes in the float (PX4)
-            value = float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+        name, value = codec.param_value(msg)  # PX4 sends integers as their bytes in the float
         self.params.setdefault(src[0], {})[name] = value
 
     # -- questions about the whole log --
@@ -676,7 +663,7 @@ def _latest(times: np.ndarray, at: np.ndarray) -> np.ndarray:
 def offboard_start_s(scan: LogScan, sysid: int) -> float | None:
     """tlog time at which the vehicle first entered OFFBOARD, if it did."""
     for event in scan.events:
-        if event.system == sysid and event.kind == "mode" and event.text == PX4_MAIN_MODES[PX4_MAIN_MODE_OFFBOARD]:
+        if event.system == sysid and event.kind == "mode" and event.text == OFFBOARD_MODE_NAME:
             return event.time_s
     return None
 
@@ -759,7 +746,7 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
                 break
         keep = setpoints.index[start:] < stop_index
         left = [e.time_s for e in scan.events if e.system == vehicle and e.kind == "mode" and e.time_s > setpoints.time_s[start]
-                and e.text != PX4_MAIN_MODES[PX4_MAIN_MODE_OFFBOARD]]
+                and e.text != OFFBOARD_MODE_NAME]
         if left:
             keep &= setpoints.time_s[start:] < left[0]
     return rows[keep], n[keep], sample_time_s
@@ -1223,7 +1210,6 @@ def rerun_controller(
     model : str
         ``rigid-body`` or ``paper`` (the actuator output's torque mapping).
     """
-    from offboard import codec
     from offboard.controller import RosalesController
     from offboard.frames import tracking_reference
     from offboard.record import RecordBuilder
