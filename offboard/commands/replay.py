@@ -38,8 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="report, re-run or re-stream a flight from its MAVLink log (.tlog)",
         description="Read a MAVLink telemetry log (ours or any system's with ATTITUDE and LOCAL_POSITION_NED) and "
         "write the paper's figures, the aligned series, the tracking table and the log's message statistics, "
-        "mode changes and failsafes into a run folder; or re-run the controller on it; or stream it again.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        "mode changes and failsafes into a run folder; or re-run the controller on it; or stream it again. "
+        "See docs/replay.md.",
     )
     parser.add_argument("log", type=Path, help="the flight's .tlog (offboard fly's RUN_DIR/flight.tlog, sitl-plant --log, a GCS's)")
     parser.add_argument("--mission", type=Path, default=None, metavar="FILE",
@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream = parser.add_argument_group("stream")
     stream.add_argument("--to", default=None, metavar="URL",
                         help="re-send the vehicle's messages to this pymavlink address (e.g. udpout:127.0.0.1:14550) and exit")
-    stream.add_argument("--speed", type=float, default=1.0, metavar="N", help="stream N times faster than flown")
+    stream.add_argument("--speed", type=float, default=1.0, metavar="N", help="stream N times faster than flown (default: 1)")
     stream.add_argument("--all-systems", action="store_true", help="stream every system's messages, not only the vehicle's")
     out = parser.add_argument_group("output")
     out.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
