@@ -169,6 +169,28 @@ def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessa
     )
 
 
+def gps_raw_int(t_us: int, st: VehicleState, home: Home, healthy: bool = True) -> MAVLinkMessage:
+    """A 3D fix with 10 satellites (no fix when the GPS failure is injected)."""
+    lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
+    v = st.vel_ned_m_s
+    ground = math.hypot(float(v[0]), float(v[1]))
+    cog = _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000 if ground > 0.1 else 65535
+    fix = mavlink.GPS_FIX_TYPE_3D_FIX if healthy else mavlink.GPS_FIX_TYPE_NO_FIX
+    return mavlink.MAVLink_gps_raw_int_message(
+        t_us, fix, _clip32(lat * 1e7), _clip32(lon * 1e7), _clip32(alt * 1000.0), 70, 100,
+        min(_clip32(ground * 100.0), 65534), cog, 10 if healthy else 0,
+    )  # fmt: skip
+
+
+def vfr_hud(st: VehicleState, home: Home, throttle_norm: float) -> MAVLinkMessage:
+    """Speeds (m/s; airspeed = ground speed, the plant has no airspeed sensor), heading, throttle %."""
+    v = st.vel_ned_m_s
+    ground = math.hypot(float(v[0]), float(v[1]))
+    heading = _clip32(math.degrees(float(st.euler_rad[2]))) % 360
+    throttle = int(round(min(max(throttle_norm, 0.0), 1.0) * 100.0)) if math.isfinite(throttle_norm) else 0
+    return mavlink.MAVLink_vfr_hud_message(ground, ground, heading, throttle, home.alt_m - float(st.pos_ned_m[2]), -float(v[2]))
+
+
 def highres_imu(t_us: int, st: VehicleState, home: Home, gravity_m_s2: float = 9.81) -> MAVLinkMessage:
     """Body FRD specific force (accelerometer), rates (gyro), magnetic field, pressure."""
     r_t = rotation_matrix(st.quat_wxyz).T

@@ -72,6 +72,8 @@ STREAMS: dict[int, tuple[str, float, float]] = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: ("ATTITUDE_QUATERNION", 50.0, 10.0),
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: ("LOCAL_POSITION_NED", 30.0, 1.0),
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: ("GLOBAL_POSITION_INT", 50.0, 5.0),
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: ("GPS_RAW_INT", 10.0, 5.0),  # ONBOARD: as the GPS updates (10 Hz)
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: ("VFR_HUD", 10.0, 4.0),
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: ("SERVO_OUTPUT_RAW", 10.0, 1.0),
     mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: ("ATTITUDE_TARGET", 10.0, 2.0),
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: ("HIGHRES_IMU", 50.0, 0.0),
@@ -87,6 +89,8 @@ _STATE_STREAMS = {
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD,
 }
 
 
@@ -472,6 +476,10 @@ class Plant:
                 return codec.attitude_quaternion(t_ms, st)
             if mid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
                 return codec.global_position_int(t_ms, st, self.config.home)
+            if mid == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
+                return codec.gps_raw_int(t_us, st, self.config.home, "gps" not in self.autopilot.failures)
+            if mid == mavlink.MAVLINK_MSG_ID_VFR_HUD:
+                return codec.vfr_hud(st, self.config.home, self._attitude_target()[2])
             return codec.highres_imu(t_us, st, self.config.home, self.vehicle.gravity_m_s2)
         if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
             return codec.sys_status(self.autopilot.status(), bad_packets=self.counters.refused_setpoints)

@@ -245,3 +245,14 @@ def test_addressed_to():
     hb = wire(mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))
     assert codec.addressed_to(ours, 1, 1) and codec.addressed_to(broadcast, 1, 1) and codec.addressed_to(hb, 1, 1)
     assert not codec.addressed_to(other_sys, 1, 1) and not codec.addressed_to(other_comp, 1, 1)
+
+
+def test_gps_raw_and_vfr_hud():
+    st = vstate(pos=(0.0, 0.0, -20.0), vel=(3.0, 4.0, -1.0), euler=(0.0, 0.0, math.pi / 2))
+    gps = wire(codec.gps_raw_int(5000, st, Home()))
+    assert gps.fix_type == mavlink.GPS_FIX_TYPE_3D_FIX and gps.satellites_visible == 10
+    assert (gps.lat, gps.lon, gps.alt, gps.vel) == (473977420, 85455940, 508000, 500)
+    assert gps.cog == pytest.approx(math.degrees(math.atan2(4.0, 3.0)) * 100, abs=1)
+    assert wire(codec.gps_raw_int(5000, st, Home(), healthy=False)).fix_type == mavlink.GPS_FIX_TYPE_NO_FIX
+    hud = wire(codec.vfr_hud(st, Home(), 0.42))
+    assert (hud.groundspeed, hud.heading, hud.throttle, hud.alt, hud.climb) == (pytest.approx(5.0), 90, 42, pytest.approx(508.0), pytest.approx(1.0))
