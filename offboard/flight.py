@@ -57,6 +57,7 @@ DEFAULT_TILT_MAX_DEG = 35.0
 #: With rotors, zero thrust means zero torque authority; at the paper's descent step the law asks
 #: for u < 0 and a vehicle at u = 0 tumbles (docs/offboard.md). The paper's model has no rotors: 0.
 RIGID_BODY_THRUST_MIN_FRACTION = 0.12
+STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 
@@ -277,6 +278,7 @@ class LoopStats:
 
     samples: int = 0
     overruns: int = 0  # real time: samples skipped because we were late by a whole period
+    missed: int = 0  # real time: mission periods without a setpoint (telemetry stale)
     mission_wall_s: float = 0.0
     periods_s: list[float] = field(default_factory=list)
 
@@ -286,6 +288,7 @@ class LoopStats:
         return {
             "samples": self.samples,
             "overruns": self.overruns,
+            "missed": self.missed,
             "mission_wall_s": self.mission_wall_s,
             "rate_hz": self.samples / self.mission_wall_s if self.mission_wall_s > 0 else math.nan,
             "period_mean_s": float(np.mean(periods)) if len(periods) else math.nan,
@@ -422,6 +425,7 @@ class Flight:
         self._lpn: mavlink.MAVLink_message | None = None
         self._last_telemetry_wall: float | None = None
         self._statustexts: list[str] = []
+        self._statustext_count = 0
         self._pending: _Pending | None = None
         self._param_wanted: str | None = None
         self._timesync_ts1: int | None = None
@@ -629,6 +633,7 @@ class Flight:
         assert self.target is not None
         name = codec.mav_cmd_name(command)
         pending = _Pending(command, params, name)
+        texts_before = self._statustext_count
         self._pending = pending
         try:
             while pending.attempts < self.config.command_attempts:
@@ -643,7 +648,9 @@ class Flight:
         if pending.result is None:
             raise CommandRejected(name, -1, f"NO_ACK after {pending.attempts} attempts")
         if pending.result != mavlink.MAV_RESULT_ACCEPTED:
-            reason = self._statustexts[-1] if self._statustexts else ""
+            # PX4 says why in a STATUSTEXT that follows the ACK: give it a moment
+            self._pump(lambda: self._statustext_count > texts_before, STATUSTEXT_GRACE_S)
+            reason = self._statustexts[-1] if self._statustext_count > texts_before else ""
             exc = CommandRejected(name, pending.result, codec.mav_result_name(pending.result))
             if reason:
                 exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
@@ -729,7 +736,8 @@ class Flight:
                     self._next_tick_s += skipped * self.to
                     if self._mission_tick0 is not None:
                         self.loop.overruns += skipped
-                self._sample(now)
+                if not self._sample(now) and self._mission_tick0 is not None and not self._mission_done:
+                    self.loop.missed += 1  # no setpoint this period (telemetry stale)
                 self._tick += 1
                 self._next_tick_s += self.to
             wait = min(wait, self._next_tick_s - self.clock())
@@ -799,6 +807,7 @@ class Flight:
             text = text.rstrip("\x00").strip()
             if text:
                 self._statustexts = (self._statustexts + [text])[-20:]
+                self._statustext_count += 1
                 if int(msg.severity) <= mavlink.MAV_SEVERITY_WARNING:
                     self._say(f"vehicle: {text}")
 

@@ -275,7 +275,7 @@ def format_fly_lines(extra: dict) -> str:
         f"duplicates {m['duplicates']}, bad {m['bad']}",
         f"loop: {loop['samples']} samples in {loop['mission_wall_s']:.2f} s wall ({loop['rate_hz']:.1f} Hz), "
         f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
-        f"max {loop['jitter_max_ms']:.2f} ms, overruns {loop['overruns']}",
+        f"max {loop['jitter_max_ms']:.2f} ms, overruns {loop['overruns']}, missed {loop['missed']}",
     ]
     if extra["link_outages_s"]:
         lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
