@@ -26,7 +26,6 @@ it is *executed*, ``.bin`` is read as DataFlash, ``host:port`` opens a socket).
 
 from __future__ import annotations
 
-import inspect
 import math
 import re
 import struct
@@ -1232,10 +1231,6 @@ def rerun_controller(
     logged = setpoints.values[rows]
     logged = logged[:, 1:9] if output == "attitude" else logged[:, 0:4]
     rerun = np.full(logged.shape, np.nan, dtype=np.float32)
-    # offboard fly encodes the attitude for the vehicle model and the law's heading; the codec
-    # takes those as keywords (older codecs had neither)
-    accepted = inspect.signature(codec.attitude_setpoint).parameters
-    attitude_options = {k: v for k, v in (("model", model), ("yaw_aware", params.yaw_aware)) if k in accepted}  # type: ignore[attr-defined]
     for k in range(len(rows)):
         a, p = att[k], pos[k]
         measured = codec.measured_state(
@@ -1256,7 +1251,7 @@ def rerun_controller(
         if not out.is_finite():
             continue
         if output == "attitude":
-            sp = codec.attitude_setpoint(out, measured.euler_rad, form, scaling, **attitude_options)
+            sp = codec.attitude_setpoint(out, measured.euler_rad, form, scaling, model=model, yaw_aware=params.yaw_aware)  # type: ignore[attr-defined]
             values = (*sp.q_wxyz, *sp.body_rates_frd_rad_s, sp.thrust_norm)
         else:
             values = codec.actuator_setpoint(out, measured.euler_rad, model, form, scaling).controls

@@ -74,14 +74,15 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def fly(folder: Path, output: str) -> Flown:
+def fly(folder: Path, output: str, model: str = "rigid-body") -> Flown:
     folder.mkdir(parents=True, exist_ok=True)
     mission = folder / "replay-test.toml"
     mission.write_text(MISSION)
     run_dir = folder / "run"
     port = free_udp_port()
     plant = subprocess.Popen(
-        [str(BIN / "sitl-plant"), "--lockstep", "--model", "rigid-body", "--api-bind", "127.0.0.1:0",
+        [str(BIN / "sitl-plant"), "--lockstep", "--model", model, "--inner-loop", "paper" if model == "paper" else "px4",
+         "--api-bind", "127.0.0.1:0",
          "--api-remote", f"127.0.0.1:{port}", "--gcs-bind", "none", "--log", str(folder / "plant.tlog"),
          "--quiet", "--duration", "120"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -89,7 +90,7 @@ def fly(folder: Path, output: str) -> Flown:
     try:
         done = subprocess.run(
             [str(BIN / "offboard"), "fly", str(mission), "--connect", f"udpin:127.0.0.1:{port}", "--lockstep",
-             "--output", output, "--run-dir", str(run_dir), "--quiet", "--no-plots"],
+             "--output", output, "--model", model, "--run-dir", str(run_dir), "--quiet", "--no-plots"],
             capture_output=True, text=True, timeout=120, cwd=folder,
         )  # fmt: skip
     finally:
@@ -107,6 +108,12 @@ def fly(folder: Path, output: str) -> Flown:
 @pytest.fixture(scope="module", params=["attitude", "actuator"])
 def flown(request, tmp_path_factory) -> Flown:
     return fly(tmp_path_factory.mktemp(f"flight-{request.param}"), request.param)
+
+
+@pytest.fixture(scope="module")
+def flown_paper_model(tmp_path_factory) -> Flown:
+    """The paper's model with the plant's paper inner loop (the law's rates flown as eq. 16)."""
+    return fly(tmp_path_factory.mktemp("flight-paper"), "attitude", model="paper")
 
 
 def replay_json(capsys, *argv: str) -> tuple[int, dict]:
@@ -272,3 +279,14 @@ def test_a_corrupted_setpoint_is_reported_missing_and_the_rest_is_read(flown, tm
     lost_t = next(float(r["t_s"]) for r in _series(flown) if int(float(r["time_boot_ms"])) == victim_ms)
     first = payload["rerun"]["first_mismatch"]
     assert first is not None and first["t_s"] > lost_t  # every sample before the lost one is exact
+
+
+def test_paper_model_flight_reruns_exactly_and_reports_the_flights_numbers(flown_paper_model, tmp_path, capsys):
+    flown = flown_paper_model
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
+    assert code == 0
+    assert payload["rerun"]["exact"] and payload["rerun"]["model"] == "paper"
+    assert payload["samples"] == len(_series(flown))
+    for a, b in zip(payload["phases"], flown.summary["phases"]):
+        assert a["axes"]["3d"]["rms_m"] == pytest.approx(b["axes"]["3d"]["rms_m"], rel=1e-12)
+    assert payload["peak_thrust_n"] == pytest.approx(flown.summary["peak_thrust_n"], rel=1e-12)
