@@ -1,0 +1,1 @@
+"""Benchmarks: speed against the limit, tracking against peer controllers (``bench/run.py``)."""
