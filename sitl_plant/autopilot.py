@@ -182,7 +182,21 @@ class ActuatorSetpoint:
     controls: tuple[float, float, float, float]
 
 
-Setpoint = Union[AttitudeSetpoint, ActuatorSetpoint]
+@dataclass(frozen=True)
+class PositionSetpoint:
+    """SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_LOCAL_NED (validated by the codec).
+
+    Per axis a position (m, NED) and/or a velocity (m/s, NED; a feed-forward when the position is
+    given); None where ignored. ``yaw_rad`` None: keep the heading.
+    """
+
+    time_boot_ms: int
+    pos_ned_m: tuple[float | None, float | None, float | None]
+    vel_ned_m_s: tuple[float | None, float | None, float | None]
+    yaw_rad: float | None
+
+
+Setpoint = Union[AttitudeSetpoint, ActuatorSetpoint, PositionSetpoint]
 
 
 @dataclass(frozen=True)
@@ -229,12 +243,15 @@ class OffboardTask:
 @dataclass(frozen=True)
 class PositionTask:
     """Hold ``pos_ned_m`` and ``yaw_rad``; with ``descend_m_s`` the height is not held but the
-    vehicle descends at that speed (landing); ``max_climb_m_s`` limits the climb (takeoff)."""
+    vehicle descends at that speed (landing); ``max_climb_m_s`` limits the climb (takeoff).
+    ``vel_ned_m_s`` is a velocity feed-forward, or the velocity setpoint of an axis whose
+    position is None (offboard position/velocity setpoints)."""
 
-    pos_ned_m: tuple[float, float, float]
+    pos_ned_m: tuple[float | None, float | None, float | None]
     yaw_rad: float
     descend_m_s: float | None = None
     max_climb_m_s: float | None = None
+    vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 Task = Union[IdleTask, OffboardTask, PositionTask]
@@ -597,6 +614,7 @@ __all__ = [
     "Mode",
     "AttitudeSetpoint",
     "ActuatorSetpoint",
+    "PositionSetpoint",
     "Setpoint",
     "Command",
     "StatusText",

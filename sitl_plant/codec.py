@@ -26,6 +26,7 @@ from sitl_plant.autopilot import (
     AttitudeSetpoint,
     Command,
     Mode,
+    PositionSetpoint,
     Status,
 )
 from sitl_plant.dynamics.rotations import rotation_matrix
@@ -403,6 +404,47 @@ def decode_actuator_target(msg: MAVLinkMessage) -> ActuatorSetpoint:
         min(max(c[3], 0.0), 1.0),
     )
     return ActuatorSetpoint(int(msg.time_usec), controls)
+
+
+POSITION_IGNORE = (1, 2, 4)  # POSITION_TARGET_TYPEMASK_X/Y/Z_IGNORE
+VELOCITY_IGNORE = (8, 16, 32)  # VX/VY/VZ_IGNORE
+YAW_IGNORE = mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE  # 1024
+MAX_POSITION_M = 1e6
+MAX_SPEED_M_S = 100.0
+
+
+def decode_position_target(msg: MAVLinkMessage) -> PositionSetpoint:
+    """SET_POSITION_TARGET_LOCAL_NED: positions and velocities in MAV_FRAME_LOCAL_NED, yaw.
+
+    Accelerations and yaw rate are not flown (ignored). Each axis needs a position or a velocity.
+
+    Raises
+    ------
+    Refused
+        Another frame, an axis with neither, a used NaN/infinite or absurd value.
+    """
+    if int(msg.coordinate_frame) != mavlink.MAV_FRAME_LOCAL_NED:
+        raise Refused(f"position target frame {msg.coordinate_frame} not supported (only MAV_FRAME_LOCAL_NED)")
+    mask = int(msg.type_mask)
+    pos: list[float | None] = []
+    vel: list[float | None] = []
+    for i, (p, v) in enumerate(zip((msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz))):
+        p = None if mask & POSITION_IGNORE[i] else float(p)
+        v = None if mask & VELOCITY_IGNORE[i] else float(v)
+        if p is None and v is None:
+            raise Refused("position target: an axis has neither position nor velocity")
+        if p is not None and not (math.isfinite(p) and abs(p) < MAX_POSITION_M):
+            raise Refused(f"position target: position {p} not finite or beyond {MAX_POSITION_M:g} m")
+        if v is not None and not (math.isfinite(v) and abs(v) < MAX_SPEED_M_S):
+            raise Refused(f"position target: velocity {v} not finite or beyond {MAX_SPEED_M_S:g} m/s")
+        pos.append(p)
+        vel.append(v)
+    yaw = None
+    if not mask & YAW_IGNORE:
+        yaw = float(msg.yaw)
+        if not math.isfinite(yaw):
+            raise Refused("position target: yaw not finite")
+    return PositionSetpoint(int(msg.time_boot_ms), tuple(pos), tuple(vel), yaw)  # type: ignore[arg-type]
 
 
 def decode_command(msg: MAVLinkMessage) -> Command:

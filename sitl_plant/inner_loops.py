@@ -43,6 +43,7 @@ from sitl_plant.autopilot import (
     AttitudeSetpoint,
     IdleTask,
     OffboardTask,
+    PositionSetpoint,
     PositionTask,
     Task,
 )
@@ -370,8 +371,11 @@ class Px4Loop:
         st = self.model.vehicle_state(x, 0.0, np.zeros(self.model.state_size))
         pos, vel = st.pos_ned_m, st.vel_ned_m_s
         dt = POSITION_LOOP_DT_S
-        xy_p, z_p = p["MPC_XY_P"], p["MPC_Z_P"]
-        vsp = [xy_p * (task.pos_ned_m[0] - pos[0]), xy_p * (task.pos_ned_m[1] - pos[1]), z_p * (task.pos_ned_m[2] - pos[2])]
+        gains = (p["MPC_XY_P"], p["MPC_XY_P"], p["MPC_Z_P"])
+        vsp = [
+            task.vel_ned_m_s[i] + (0.0 if task.pos_ned_m[i] is None else gains[i] * (task.pos_ned_m[i] - pos[i]))  # type: ignore[operator]
+            for i in range(3)
+        ]
         vxy_max = p["MPC_XY_VEL_MAX"]
         vxy = math.hypot(vsp[0], vsp[1])
         if vxy > vxy_max:
@@ -533,7 +537,18 @@ class InnerLoops:
         if sp is self._setpoint:
             return self._current
         self._setpoint = sp
-        if isinstance(sp, ActuatorSetpoint):
+        if isinstance(sp, PositionSetpoint):
+            # PX4's position/velocity offboard: the position controller, whatever the inner loop
+            if sp.yaw_rad is None:
+                q, _, _ = self.px4._read(x)
+                w, qx, qy, qz = q
+                yaw = math.atan2(2.0 * (w * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            else:
+                yaw = sp.yaw_rad
+            vel = tuple(0.0 if v is None else v for v in sp.vel_ned_m_s)
+            self.px4.fly_position(PositionTask(sp.pos_ned_m, yaw, vel_ned_m_s=vel))  # type: ignore[arg-type]
+            self._current = self.px4
+        elif isinstance(sp, ActuatorSetpoint):
             self._current = actuator_actuation(sp, self.params)
         elif self.kind == "paper":
             try:

@@ -23,13 +23,14 @@ import numpy as np
 
 from sitl_plant import codec
 from sitl_plant.autopilot import (
-    ActuatorSetpoint,
     AttitudeSetpoint,
     Autopilot,
     Command,
     OffboardTask,
+    PositionSetpoint,
     PositionTask,
     Reply,
+    Setpoint,
     StatusText,
 )
 from sitl_plant.codec import Home, Refused, mavlink
@@ -281,7 +282,7 @@ class Plant:
     def lockstep_stamp_ms(self, msg: mavlink.MAVLink_message) -> float | None:
         """The telemetry time (ms) a setpoint answers, or None for other messages."""
         kind = msg.get_type()
-        if kind == "SET_ATTITUDE_TARGET":
+        if kind in ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_LOCAL_NED"):
             return int(msg.time_boot_ms)
         if kind == "SET_ACTUATOR_CONTROL_TARGET":
             return int(msg.time_usec) / 1000.0
@@ -333,7 +334,15 @@ class Plant:
             return
         self._on_setpoint(sp)
 
-    def _on_setpoint(self, sp: AttitudeSetpoint | ActuatorSetpoint) -> None:
+    def _on_position_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        try:
+            sp = codec.decode_position_target(msg)
+        except Refused as exc:
+            self._refuse(str(exc))
+            return
+        self._on_setpoint(sp)
+
+    def _on_setpoint(self, sp: Setpoint) -> None:
         if self.autopilot.on_setpoint(sp, self.time_s):
             self._apply_task()
 
@@ -516,7 +525,7 @@ class Plant:
             q = sp.q_wxyz if sp.q_wxyz is not None else tuple(float(v) for v in self._truth.quat_wxyz)
             rates = tuple(0.0 if r is None else r for r in sp.body_rates_frd_rad_s)
             return q, rates, min(max(sp.thrust_norm or 0.0, 0.0), 1.0)  # type: ignore[return-value]
-        if isinstance(task, PositionTask):
+        if isinstance(task, PositionTask) or (isinstance(task, OffboardTask) and isinstance(task.setpoint, PositionSetpoint)):
             px4 = self.loops.px4
             return px4._q_sp, (0.0, 0.0, 0.0), px4._thrust_n / thr_max
         return tuple(float(v) for v in self._truth.quat_wxyz), (0.0, 0.0, 0.0), 0.0  # type: ignore[return-value]
@@ -532,6 +541,7 @@ class Plant:
 _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "SET_ATTITUDE_TARGET": Plant._on_attitude_target,
     "SET_ACTUATOR_CONTROL_TARGET": Plant._on_actuator_target,
+    "SET_POSITION_TARGET_LOCAL_NED": Plant._on_position_target,
     "COMMAND_LONG": Plant._on_command,
     "COMMAND_INT": Plant._on_command,
     "SET_MODE": Plant._on_set_mode,

@@ -256,3 +256,31 @@ def test_gps_raw_and_vfr_hud():
     assert wire(codec.gps_raw_int(5000, st, Home(), healthy=False)).fix_type == mavlink.GPS_FIX_TYPE_NO_FIX
     hud = wire(codec.vfr_hud(st, Home(), 0.42))
     assert (hud.groundspeed, hud.heading, hud.throttle, hud.alt, hud.climb) == (pytest.approx(5.0), 90, 42, pytest.approx(508.0), pytest.approx(1.0))
+
+
+def position_target(mask, frame=mavlink.MAV_FRAME_LOCAL_NED, pos=(1.0, 2.0, -3.0), vel=(0.0, 0.0, 0.0), yaw=0.5):
+    return wire(mavlink.MAVLink_set_position_target_local_ned_message(70, 1, 1, frame, mask, *pos, *vel, 0, 0, 0, yaw, 0))
+
+
+def test_position_target_as_mavsdk_sends_them():
+    ignore_vel_acc_rate = 0b0000_1001_1111_1000  # set_position_ned: position and yaw
+    sp = codec.decode_position_target(position_target(ignore_vel_acc_rate))
+    assert sp.pos_ned_m == (1.0, 2.0, -3.0) and sp.vel_ned_m_s == (None, None, None) and sp.yaw_rad == pytest.approx(0.5)
+    ignore_pos_acc_yaw = 0b0000_1101_1100_0111  # set_velocity_ned without yaw
+    sp = codec.decode_position_target(position_target(ignore_pos_acc_yaw, vel=(0.5, 0.0, -0.2)))
+    assert sp.pos_ned_m == (None, None, None) and sp.vel_ned_m_s == pytest.approx((0.5, 0.0, -0.2)) and sp.yaw_rad is None
+
+
+@pytest.mark.parametrize(
+    ("mask", "kw", "match"),
+    [
+        (0b0000_1001_1111_1000, {"frame": mavlink.MAV_FRAME_BODY_NED}, "frame"),
+        (0b0000_1001_1111_1111, {}, "neither"),
+        (0b0000_1001_1111_1000, {"pos": (math.nan, 0.0, 0.0)}, "position"),
+        (0b0000_1101_1100_0111, {"vel": (500.0, 0.0, 0.0)}, "velocity"),
+        (0b0000_1001_1111_1000, {"yaw": math.inf}, "yaw"),
+    ],
+)
+def test_refused_position_targets(mask, kw, match):
+    with pytest.raises(Refused, match=match):
+        codec.decode_position_target(position_target(mask, **kw))

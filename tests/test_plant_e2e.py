@@ -270,6 +270,22 @@ def test_attitude_setpoints_hover_and_pitch(start, model):
     assert client.last["HEARTBEAT"].custom_mode == 6 << 16
 
 
+def test_position_setpoints_are_flown(start):
+    """MAVSDK's set_position_ned: SET_POSITION_TARGET_LOCAL_NED, position and yaw; in lockstep
+    its time_boot_ms echoes the telemetry too."""
+    client, _ = start("--lockstep")
+    mask = 0b0000_1001_1111_1000  # ignore velocity, acceleration, yaw rate
+
+    def goto(t_ms: int) -> None:
+        client.mav.set_position_target_local_ned_send(t_ms, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask, 1.0, 1.0, -2.0, 0, 0, 0, 0, 0, 0, 0.0, 0)
+
+    client.fly(200, goto)
+    assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
+    assert client.set_mode(6) == mavlink.MAV_RESULT_ACCEPTED
+    end = client.fly(8000, goto)
+    assert (end.x, end.y, end.z) == (pytest.approx(1.0, abs=0.1), pytest.approx(1.0, abs=0.1), pytest.approx(-2.0, abs=0.1))
+
+
 def test_actuator_setpoints_are_flown(start):
     client, _ = start("--lockstep", "--model", "paper")
 

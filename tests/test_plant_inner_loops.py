@@ -235,3 +235,24 @@ def test_paper_loop_reproduces_the_in_process_law():
     # float32 on the wire is the only difference
     np.testing.assert_allclose(positions, reference["pos_ned_m"][: len(positions)], atol=1e-5)
     assert np.linalg.norm(positions[-1] - positions[0]) > 1.0
+
+
+@pytest.mark.parametrize("model", ["rigid-body", "paper"])
+def test_offboard_position_and_velocity_setpoints(model):
+    plant = make_plant(model)
+    take_off_and_switch_to_offboard(plant)
+
+    def position(x=0.0, y=0.0, z=0.0, yaw=0.0, mask=0b0000_1001_1111_1000, vel=(0.0, 0.0, 0.0)):
+        msg = mavlink.MAVLink_set_position_target_local_ned_message(plant.time_ms, 1, 1, 1, mask, x, y, z, *vel, 0, 0, 0, yaw, 0)
+        plant.handle(API, wire(msg))
+
+    run(plant, 6.0, lambda: position(2.0, -1.0, -4.0, 0.5))
+    st = plant.sim.truth()
+    np.testing.assert_allclose(st.pos_ned_m, [2.0, -1.0, -4.0], atol=0.15)
+    assert st.euler_rad[2] == pytest.approx(0.5, abs=0.05)
+    # velocity only (MAVSDK set_velocity_ned), keeping the heading
+    start = st.pos_ned_m.copy()
+    run(plant, 3.0, lambda: position(mask=0b0000_1101_1100_0111, vel=(0.0, 1.0, 0.0)))
+    st = plant.sim.truth()
+    assert st.vel_ned_m_s[1] == pytest.approx(1.0, abs=0.15)
+    assert st.pos_ned_m[1] - start[1] > 2.0
