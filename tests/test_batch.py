@@ -52,6 +52,13 @@ def test_step_many_equals_rk4_step(params: VehicleParams) -> None:
     np.testing.assert_allclose(np.linalg.norm(got[:, 6:10], axis=1), 1.0, atol=1e-14)
 
 
+def test_numpy_path_equals_compiled_path() -> None:
+    x, cmd, wind = random_states(50, seed=9)
+    a = batch.step_many(x.copy(), cmd, wind, DRAGGY, 1e-3, n_steps=2)
+    b = batch.step_many_numpy(x.copy(), cmd, wind, DRAGGY, 1e-3, n_steps=2)
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
 def test_step_many_broadcasts_shared_inputs() -> None:
     x, _, _ = random_states(10, seed=5)
     cmd, wind = np.full(4, 360.0), np.array([1.0, -2.0, 0.5])

@@ -47,6 +47,7 @@ __all__ = [
     "param_vector",
     "derivative_many",
     "step_many",
+    "step_many_numpy",
     "FastRigidBodySim",
 ]
 
@@ -337,10 +338,23 @@ def step_many(
         _step_many_kernel(x, _batch_inputs(x, rotor_speed_cmd_rad_s, 4), _batch_inputs(x, wind_ned_m_s, 3),
                           param_vector(params), float(dt_s), int(n_steps))  # fmt: skip
         return x
+    return step_many_numpy(x, rotor_speed_cmd_rad_s, wind_ned_m_s, params, dt_s, n_steps)
+
+
+def step_many_numpy(
+    x: np.ndarray,
+    rotor_speed_cmd_rad_s: np.ndarray,
+    wind_ned_m_s: np.ndarray,
+    params: VehicleParams,
+    dt_s: float,
+    n_steps: int = 1,
+) -> np.ndarray:
+    """``step_many`` vectorised with numpy over the batch (no numba): one array operation per line
+    of ``rigid_body._rates``. What ``step_many`` falls back to, and its benchmark's baseline."""
     cmd = _batch_inputs(x, rotor_speed_cmd_rad_s, 4)
     wind = _batch_inputs(x, wind_ned_m_s, 3)
     half = 0.5 * dt_s
-    for _ in range(n_steps):  # vectorised over the batch: the same arithmetic, one numpy op per line
+    for _ in range(n_steps):
         k1 = rigid_body.derivative(x, cmd, wind, params)
         k2 = rigid_body.derivative(x + half * k1, cmd, wind, params)
         k3 = rigid_body.derivative(x + half * k2, cmd, wind, params)
