@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="telemetry older than this stops the setpoints (LINK_LOST)")
     link.add_argument("--reconnect-timeout", type=float, default=5.0, metavar="S",
                       help="give up when telemetry has not come back within this")
-    link.add_argument("--telemetry-rate", type=float, default=50.0, metavar="HZ",
+    link.add_argument("--telemetry-rate", type=float, default=100.0, metavar="HZ",
                       help="ask for ATTITUDE and LOCAL_POSITION_NED at this rate (0: keep the vehicle's)")
     link.add_argument("--land-timeout", type=float, default=60.0, metavar="S", help="wall-clock limit for the landing")
     ctl = parser.add_argument_group("controller")
