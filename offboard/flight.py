@@ -566,7 +566,7 @@ class Flight:
             for mid in (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
                 command, params = codec.message_interval_params(mid, cfg.telemetry_rate_hz)
                 try:
-                    self._command(command, params, required=False)
+                    self._command(command, params)
                 except CommandRejected as exc:
                     self._say(f"note: {exc} (keeping the vehicle's default rate)")
 
@@ -627,7 +627,7 @@ class Flight:
 
     # -- commands, parameters, time ----------------------------------------------------------------
 
-    def _command(self, command: int, params: tuple[float, ...], *, required: bool = True) -> None:
+    def _command(self, command: int, params: tuple[float, ...]) -> None:
         """Send a COMMAND_LONG and wait for its ACK, retrying (confirmation + 1) when none comes.
 
         Raises
