@@ -41,10 +41,11 @@ import numpy as np
 from offboard import codec
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
-from offboard.errors import CommandRejected, LinkTimeout, UserError
+from offboard.errors import CommandRejected, LinkTimeout, MissionFormatError, UserError
 from offboard.frames import tracking_reference
+from offboard.missions.geo import LocalProjection
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import Phase, Reference, Trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
 OUTPUTS = ("attitude", "actuator")
@@ -57,6 +58,7 @@ DEFAULT_TILT_MAX_DEG = 35.0
 #: With rotors, zero thrust means zero torque authority; at the paper's descent step the law asks
 #: for u < 0 and a vehicle at u = 0 tumbles (docs/offboard.md). The paper's model has no rotors: 0.
 RIGID_BODY_THRUST_MIN_FRACTION = 0.12
+MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
@@ -273,6 +275,37 @@ def resolve_controller(
     return params, notes
 
 
+@dataclass(frozen=True)
+class ShiftedTrajectory:
+    """A trajectory moved by a constant NED offset (a mission's origin in the vehicle's frame)."""
+
+    trajectory: Trajectory
+    offset_ned_m: tuple[float, float, float]
+
+    @property
+    def duration_s(self) -> float:
+        return self.trajectory.duration_s
+
+    def phases(self) -> list[Phase]:
+        return self.trajectory.phases()
+
+    def reference(self, t_s: float) -> Reference:
+        r = self.trajectory.reference(t_s)
+        return Reference(r.pos_ned_m + np.asarray(self.offset_ned_m), r.vel_ned_m_s, r.acc_ned_m_s2, r.yaw_rad, r.yaw_rate_rad_s)
+
+
+def mission_offset_ned(mission_home: tuple[float, float, float], vehicle_home: tuple[float, float, float],
+                       home_local_ned_m: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Where a mission's local origin lies in the vehicle's local NED frame.
+
+    The mission's origin is its home (lat, lon); the vehicle reports its home's (lat, lon) and
+    the home's local position. Heights in a waypoint file are relative to home, so vertically
+    the mission's origin is the vehicle's home (its local down), whatever the two AMSL altitudes.
+    """
+    north, east = LocalProjection(vehicle_home[0], vehicle_home[1]).north_east(mission_home[0], mission_home[1])
+    return (north + home_local_ned_m[0], east + home_local_ned_m[1], home_local_ned_m[2])
+
+
 # --- results -------------------------------------------------------------------------------------
 
 
@@ -319,6 +352,7 @@ class FlightResult:
     disarmed: bool
     notes: list[str]
     vehicle: tuple[int, int] | None
+    home_offset_ned_m: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -387,6 +421,9 @@ class Flight:
         Told the latest ``time_boot_ms`` seen, so lockstep logs are stamped by simulation time.
     progress, event : callables or None
         Live progress (each sample) and one-line events (connected, armed, landing ...).
+    mission_home : (lat deg, lon deg, alt m) or None
+        The geographic origin of the trajectory's NED frame (waypoint files): the flight asks
+        for the vehicle's HOME_POSITION and flies the mission where it is on the map.
     phases : list of Phase, optional
         Mission phases for the progress line (default: the trajectory's).
     """
@@ -405,8 +442,12 @@ class Flight:
         progress: Callable[[Progress], None] | None = None,
         event: Callable[[str], None] | None = None,
         meta: dict[str, object] | None = None,
+        mission_home: tuple[float, float, float] | None = None,
     ) -> None:
         self.link = link
+        self.mission_home = mission_home
+        self.home_offset_ned_m: tuple[float, float, float] | None = None
+        self._vehicle_home: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
         self.trajectory = trajectory
         self.choice = choice
         self.config = config or FlightConfig()
@@ -510,6 +551,7 @@ class Flight:
             record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
             vehicle_params=dict(self.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.timesync,
             landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.target,
+            home_offset_ned_m=self.home_offset_ned_m,
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -562,6 +604,8 @@ class Flight:
         self.controller = RosalesController(self.params)
         self._mission_samples = int(round(self.trajectory.duration_s / self.to))
         self._do_timesync()
+        if self.mission_home is not None:
+            self._align_mission()
         if cfg.telemetry_rate_hz is not None:
             for mid in (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
                 command, params = codec.message_interval_params(mid, cfg.telemetry_rate_hz)
@@ -688,6 +732,28 @@ class Flight:
         self._timesync_ts1 = None
         self._say("note: no TIMESYNC reply; continuing without")
 
+    def _align_mission(self) -> None:
+        """Move a geo-referenced mission into the vehicle's local frame (HOME_POSITION)."""
+        assert self.mission_home is not None
+        if self._vehicle_home is None:
+            try:
+                self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(mavlink.MAVLINK_MSG_ID_HOME_POSITION),))
+            except CommandRejected as exc:
+                self._say(f"note: {exc}")
+            self._pump(lambda: self._vehicle_home is not None, 1.0)
+        if self._vehicle_home is None:
+            self._say("note: no HOME_POSITION from the vehicle: the mission's home is taken as the vehicle's origin")
+            return
+        offset = mission_offset_ned(self.mission_home, *self._vehicle_home)
+        horizontal = math.hypot(offset[0], offset[1])
+        if horizontal > MAX_HOME_OFFSET_M:
+            raise MissionFormatError(f"the mission's home ({self.mission_home[0]:.6f}, {self.mission_home[1]:.6f}) is "
+                                     f"{horizontal / 1000:.1f} km from the vehicle's: not a mission for this vehicle")
+        self.home_offset_ned_m = offset
+        if max(abs(v) for v in offset) > 1e-3:
+            self.trajectory = ShiftedTrajectory(self.trajectory, offset)
+            self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
+
     def _now_ns(self) -> int:
         """Our TIMESYNC time: the latest telemetry stamp in lockstep (reproducible), else the clock."""
         if self.config.lockstep:
@@ -807,6 +873,9 @@ class Flight:
                 self._timesync_reply = (int(msg.tc1), self._now_ns())
         elif kind == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)
+        elif kind == "HOME_POSITION":
+            self._vehicle_home = ((msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0),
+                                  (float(msg.x), float(msg.y), float(msg.z)))  # fmt: skip
         elif kind == "STATUSTEXT":
             text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else str(msg.text)
             text = text.rstrip("\x00").strip()

@@ -336,3 +336,55 @@ def test_command_line_options_win():
     params, _ = resolve_controller(choice, "rigid-body", VEHICLE, SC)
     assert params.yaw_aware and params.limits.tilt_max_rad is None and params.limits.thrust_min_n == 0.0
     assert params.sample_time_s == 0.02
+
+
+# --- geo-referenced missions -----------------------------------------------------------------------
+
+
+def test_mission_offset_is_the_mission_home_in_the_vehicle_frame():
+    from offboard.flight import mission_offset_ned
+
+    home = (47.397742, 8.545594, 488.0)
+    north_of_it = (47.397742 + 10.0 / 111_195.0, 8.545594, 500.0)  # ~10 m north, another AMSL altitude
+    offset = mission_offset_ned(north_of_it, home, (1.0, -2.0, 0.5))
+    assert offset[0] == pytest.approx(11.0, abs=0.01) and offset[1] == pytest.approx(-2.0, abs=1e-6)
+    assert offset[2] == 0.5  # heights are relative to home
+
+
+def test_a_geo_referenced_mission_is_flown_where_it_is_on_the_map():
+    from sitl_plant.codec import Home
+
+    plant = make_plant()
+    plant.config.home = Home(47.397742, 8.545594, 488.0)
+    link = PlantLink(plant, FakeClock())
+    mission_home = (47.397742 - 3.0 / 111_195.0, 8.545594, 488.0)  # 3 m south of the vehicle's home
+    flight, _ = make_flight(link, mission_home=mission_home)
+    result = flight.run()
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    assert result.home_offset_ned_m[0] == pytest.approx(-3.0, abs=0.01)
+    refs = result.record["ref_pos_ned_m"]
+    assert refs[0][0] == pytest.approx(-3.0, abs=0.01) and refs[-1][2] == pytest.approx(-1.0)
+    assert any(m.get_type() == "HOME_POSITION" for m in link.received)
+
+
+def test_home_position_is_asked_for_when_not_streamed():
+    link = PlantLink(make_plant(), FakeClock())
+    # a vehicle that does not stream it: switched off, and the first one sent taken back
+    link.send(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                                   mavlink.MAVLINK_MSG_ID_HOME_POSITION, -1, 0, 0, 0, 0, 0))  # fmt: skip
+    link.queue = deque(m for m in link.queue if m.get_type() not in ("HOME_POSITION", "COMMAND_ACK"))
+    link.sent.clear()
+    flight, _ = make_flight(link, mission_home=(47.397742, 8.545594 + 2.0 / 75_300.0, 488.0))
+    result = flight.run()
+    requested = [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_REQUEST_MESSAGE]
+    assert requested and requested[0].param1 == mavlink.MAVLINK_MSG_ID_HOME_POSITION
+    assert result.home_offset_ned_m[1] == pytest.approx(2.0, abs=0.05)
+
+
+def test_a_mission_from_elsewhere_is_refused():
+    from offboard.errors import MissionFormatError
+
+    link = PlantLink(make_plant(), FakeClock())
+    flight, _ = make_flight(link, mission_home=(48.0, 9.0, 400.0))
+    with pytest.raises(MissionFormatError, match="km from the vehicle's"):
+        flight.run()

@@ -219,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
                 progress=console.progress,
                 event=console.event,
                 meta=meta,
+                mission_home=mission.home,
             )  # fmt: skip
             result = flight.run()
     finally:
@@ -259,6 +260,8 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "messages": link_stats,
         "loop": result.loop.to_dict(to),
         "link_outages_s": result.outages,
+        # where the mission's origin (its home) lies in the vehicle's local frame (waypoint files)
+        "mission_offset_ned_m": None if result.home_offset_ned_m is None else list(result.home_offset_ned_m),
         "timesync": result.timesync,
         "landed": result.landed,
         "disarmed": result.disarmed,
