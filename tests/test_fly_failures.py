@@ -55,20 +55,21 @@ def _cut(duration_s: float):
 
 
 def test_brief_outage_stops_setpoints_then_resumes(tmp_path):
-    """0.7 s without packets: longer than our telemetry timeout, shorter than COM_OF_LOSS_T (1 s)."""
+    """0.5 s without packets: longer than our telemetry timeout (0.2 s), well short of the
+    vehicle's COM_OF_LOSS_T (1 s)."""
     flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 4.0), lockstep=False, proxy=True,
-                fly_args=("--telemetry-timeout", "0.3"), during=_cut(0.7))
+                fly_args=("--telemetry-timeout", "0.2"), during=_cut(0.5))
     assert flown.returncode == 0, flown.stderr
     outages = flown.summary["link_outages_s"]
     print(f"\noutage {outages}, loop {flown.summary['loop']}")
-    assert len(outages) == 1 and 0.3 < outages[0] < 1.5
+    assert len(outages) == 1 and 0.2 < outages[0] < 1.0
     assert "setpoints stopped" in flown.stderr and "setpoints resumed" in flown.stderr
     assert flown.summary["landed"] and flown.summary["disarmed"]
     # no setpoint went out while the telemetry was stale: the gap shows in the answered stamps
     msgs = read_tlog(flown.tlog)
     sent = [m.time_boot_ms for m in msgs if m.get_type() == "SET_ATTITUDE_TARGET"]
     gaps = [b - a for a, b in zip(sent, sent[1:])]
-    assert max(gaps) >= 500
+    assert max(gaps) >= 300
     loop = flown.summary["loop"]
     assert loop["missed"] > 0 and loop["samples"] + loop["overruns"] + loop["missed"] == 81  # 4 s at 20 Hz
 
