@@ -7,7 +7,8 @@ Three ways a setpoint becomes thrust and torque (``InnerLoops.actuation_for``):
   paper model, whose W_eta is not a rigid body's kinematics away from psi = 0, the same P acts on
   the Euler-angle errors and ``omega_sp = W_eta eta_dot_sp``) and
   ``mc_rate_control`` (PID ``MC_*RATE_P/I/D`` with integrator limits ``MC_*_INT_LIM``), run at
-  every physics step. As in PX4 the rate PID's output is the **normalised torque** in [-1, 1];
+  most at ``IMU_GYRO_RATEMAX`` (every ``ceil(1 / (dt IMU_GYRO_RATEMAX))`` physics steps, the
+  torque held in between), as PX4 runs them on each gyro sample. As in PX4 the rate PID's output is the **normalised torque** in [-1, 1];
   the body FRD torque is ``u * SIM_TQ_RP_MAX`` (roll, pitch) and ``u * SIM_TQ_Y_MAX`` (yaw), and
   reaches the model as the generalised torque ``W_eta^T tau_body`` (virtual work:
   ``tau_body . omega = (W_eta^T tau_body) . eta_dot``) through ``model.torque_from_generalized``
@@ -216,7 +217,7 @@ class Px4Loop:
     model : Model
         The simulated vehicle (to read its attitude and to apply torques).
     physics_dt_s : float
-        The integration step, which is this loop's sample time.
+        The integration step; the loops run every ``ceil(1 / (physics_dt_s IMU_GYRO_RATEMAX))`` steps.
     """
 
     def __init__(self, params: ParamTable, model: Model, physics_dt_s: float) -> None:
@@ -224,7 +225,6 @@ class Px4Loop:
         self.dt = physics_dt_s
         self.landed = True
         self.bind(model)
-        self._pos_every = max(1, round(POSITION_LOOP_DT_S / physics_dt_s))
         self.reload()
         self.reset()
         self._mode = "idle"
@@ -259,6 +259,9 @@ class Px4Loop:
         self._rate_max = tuple(math.radians(p[n]) for n in ("MC_ROLLRATE_MAX", "MC_PITCHRATE_MAX", "MC_YAWRATE_MAX"))
         self._tq_max = (p["SIM_TQ_RP_MAX"], p["SIM_TQ_RP_MAX"], p["SIM_TQ_Y_MAX"])
         self._thr_max = p["SIM_THR_MAX"]
+        # the loops run every `_every` physics steps: at most IMU_GYRO_RATEMAX, as PX4's run on the gyro
+        self._every = max(1, math.ceil(1.0 / (self.dt * p["IMU_GYRO_RATEMAX"]) - 1e-9))
+        self._pos_every = max(1, round(POSITION_LOOP_DT_S / (self.dt * self._every)))  # in loop runs
         self._version = p.version
 
     def reset(self) -> None:
@@ -267,6 +270,7 @@ class Px4Loop:
         self._prev_rates: Vec3 | None = None
         self._vel_int = [0.0, 0.0, 0.0]
         self._pos_count = 0
+        self._step_count = 0
 
     # -- targets ---------------------------------------------------------------------------------
 
@@ -349,7 +353,7 @@ class Px4Loop:
         """PX4 RateControl::update: normalised torque in [-1, 1] from the rate error."""
         prev = self._prev_rates if self._prev_rates is not None else rates
         self._prev_rates = rates
-        dt = self.dt
+        dt = self.dt * self._every
         out = [0.0, 0.0, 0.0]
         for i in range(3):
             err = rates_sp[i] - rates[i]
@@ -416,6 +420,10 @@ class Px4Loop:
         return bodyz_to_attitude(body_z, task.yaw_rad), thrust_n
 
     def __call__(self, model: Model, x: np.ndarray) -> tuple[float, np.ndarray]:
+        count = self._step_count
+        self._step_count = count + 1
+        if count % self._every and self._mode != "idle":
+            return self.last_output  # held between gyro samples
         q, rates, eta = self._read(x)
         if self._mode == "position":
             if self._pos_count % self._pos_every == 0:

@@ -188,6 +188,7 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
         ParamSpec("MC_RR_INT_LIM", 0.3, min=0.0, max=1.0, description="roll rate integrator limit"),
         ParamSpec("MC_PR_INT_LIM", 0.3, min=0.0, max=1.0, description="pitch rate integrator limit"),
         ParamSpec("MC_YR_INT_LIM", 0.3, min=0.0, max=1.0, description="yaw rate integrator limit"),
+        ParamSpec("IMU_GYRO_RATEMAX", 400, INT, 100, 2000, unit="Hz", description="rate of the attitude and rate loops (at most)"),
         ParamSpec("MC_ROLLRATE_MAX", 220.0, min=0.0, max=1800.0, unit="deg/s"),
         ParamSpec("MC_PITCHRATE_MAX", 220.0, min=0.0, max=1800.0, unit="deg/s"),
         ParamSpec("MC_YAWRATE_MAX", 200.0, min=0.0, max=1800.0, unit="deg/s"),
