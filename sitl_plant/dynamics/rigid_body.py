@@ -458,18 +458,22 @@ class RigidBodyModel:
 
     def vehicle_state(self, x: np.ndarray, time_s: float, xdot: np.ndarray) -> VehicleState:
         """What the autopilot reports; acceleration is kinematic (``xdot``'s velocity part)."""
-        q = x[QUAT] / np.linalg.norm(x[QUAT])
-        eta, eta_dot = self.euler(x)
-        speeds = self._cmd.copy() if self.params.motor_time_constant_s == 0.0 else x[ROTORS].copy()
+        s = x.tolist()  # floats: the arithmetic below is on Python floats, not numpy scalars
+        qw, qx, qy, qz = s[6:10]
+        norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        q = np.array((qw / norm, qx / norm, qy / norm, qz / norm))
+        eta = euler_from_quat(q)
+        speeds = self._cmd.copy() if self.params.motor_time_constant_s == 0.0 else np.array(s[13:17])
+        vn, ve, vd = s[3:6]
         return VehicleState(
             time_s=time_s,
-            pos_ned_m=x[POS].copy(),
-            vel_ned_m_s=x[VEL].copy(),
+            pos_ned_m=np.array(s[0:3]),
+            vel_ned_m_s=np.array(s[3:6]),
             acc_ned_m_s2=np.array(xdot[VEL], dtype=float),
             euler_rad=eta,
-            euler_rate_rad_s=eta_dot,
-            body_rate_frd_rad_s=x[RATES].copy(),
+            euler_rate_rad_s=euler_rates_from_body_rates(eta, s[10:13]),
+            body_rate_frd_rad_s=np.array(s[10:13]),
             quat_wxyz=q,
             motor_speeds_rad_s=speeds,
-            on_ground=bool(x[2] >= 0.0 and not np.any(x[VEL])),
+            on_ground=bool(s[2] >= 0.0 and not (vn or ve or vd)),
         )
