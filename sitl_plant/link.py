@@ -162,8 +162,9 @@ class Endpoint:
         return out
 
     def send_packets(self, packets: list[bytes]) -> list[bytes]:
-        """Send packed packets batched into datagrams; returns the datagrams sent."""
-        if self.remote is None or not packets:
+        """Send packed packets batched into datagrams; returns the datagrams (built even while
+        nobody is known to send to, so a lockstep keepalive has them once someone talks)."""
+        if not packets:
             return []
         datagrams: list[bytes] = []
         chunk = bytearray()
@@ -174,9 +175,10 @@ class Endpoint:
             chunk += p
         if chunk:
             datagrams.append(bytes(chunk))
-        for d in datagrams:
-            self.send_datagram(d)
-        self.counters.packets_out += len(packets)
+        if self.remote is not None:
+            for d in datagrams:
+                self.send_datagram(d)
+            self.counters.packets_out += len(packets)
         return datagrams
 
     def send_datagram(self, data: bytes) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from sitl_plant import codec
 from sitl_plant.autopilot import (
+    ActuatorSetpoint,
     AttitudeSetpoint,
     Autopilot,
     Command,
@@ -525,6 +526,8 @@ class Plant:
             q = sp.q_wxyz if sp.q_wxyz is not None else tuple(float(v) for v in self._truth.quat_wxyz)
             rates = tuple(0.0 if r is None else r for r in sp.body_rates_frd_rad_s)
             return q, rates, min(max(sp.thrust_norm or 0.0, 0.0), 1.0)  # type: ignore[return-value]
+        if isinstance(task, OffboardTask) and isinstance(task.setpoint, ActuatorSetpoint):
+            return tuple(float(v) for v in self._truth.quat_wxyz), (0.0, 0.0, 0.0), task.setpoint.controls[3]  # type: ignore[return-value]
         if isinstance(task, PositionTask) or (isinstance(task, OffboardTask) and isinstance(task.setpoint, PositionSetpoint)):
             px4 = self.loops.px4
             return px4._q_sp, (0.0, 0.0, 0.0), px4._thrust_n / thr_max

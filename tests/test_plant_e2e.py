@@ -512,3 +512,28 @@ def test_help_shows_defaults():
     text = build_parser().format_help()
     for needle in ("--lockstep-period", "default: 0.05", "--inner-loop", "default: px4", "14580", "14540", "--instance"):
         assert needle in text
+
+
+def test_lockstep_plant_waiting_to_be_talked_to():
+    """``--api-remote none``: the plant sends nothing until a client talks, then the latest
+    telemetry reaches it through the keepalive and lockstep starts."""
+    client = Client()
+    plant = subprocess.Popen(
+        [sys.executable, "-m", "sitl_plant.cli", "--lockstep", "--gcs-bind", "none", "--api-remote", "none", "--api-bind", "127.0.0.1:0"],
+        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        port = None
+        for line in plant.stderr:  # type: ignore[union-attr]  # the banner names the bound port
+            if "api link: UDP 127.0.0.1:" in line:
+                port = int(line.split("127.0.0.1:")[1].split()[0])
+                break
+        assert port is not None
+        client.conn.port.sendto(mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(mavlink.MAVLink(None, 255, 190)), ("127.0.0.1", port))
+        client.wait_type("HEARTBEAT")
+        end = client.fly(500, lambda t: client.attitude(t, mask=IGNORE_ALL))
+        assert end.time_boot_ms == 500
+    finally:
+        plant.kill()
+        plant.communicate()
+        client.close()
