@@ -78,17 +78,19 @@ def fly(
     samples = int(round(duration / sample_time_s))
     t_out, pos, ref, tilt, thrust, cost = [], [], [], [], [], []
     diverged = None
+    ref_next = trajectory.reference(0.0)
     for n in range(samples + 1):
         t = n * sample_time_s
+        ref_now, ref_next = ref_next, trajectory.reference((n + 1) * sample_time_s)
         truth = sim.truth()
         phi, theta = float(truth.euler_rad[0]), float(truth.euler_rad[1])
         if not np.all(np.isfinite(sim.x)) or math.cos(phi) * math.cos(theta) <= 0.0 or np.max(np.abs(truth.pos_ned_m)) > 1e4:
             diverged = t
             break
-        actuation = pilot.command(meter.measure(truth), trajectory, t)
+        actuation = pilot.command(meter.measure(truth), ref_now, ref_next)
         t_out.append(t)
         pos.append(truth.pos_ned_m)
-        ref.append(trajectory.reference(t).pos_ned_m)
+        ref.append(ref_now.pos_ned_m)
         tilt.append(math.acos(max(-1.0, min(1.0, math.cos(phi) * math.cos(theta)))))
         thrust.append(pilot.thrust_n)
         cost.append(pilot.cost_s)

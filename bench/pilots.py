@@ -23,7 +23,7 @@ import numpy as np
 from offboard.baselines import Px4Gains, Px4PositionController, SE3Controller
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
 from offboard.frames import euler_rates_from_body_rates, paper_state, tracking_reference
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import Reference
 from sitl_plant.simulation import EulerAccelActuation
 from sitl_plant.state import VehicleState
 from sitl_plant.vehicle import VehicleParams
@@ -46,7 +46,10 @@ TABLE_II = Belief(mass_kg=0.6, inertia_kg_m2=(2.7e-3, 4.8e-3, 8.9e-3))
 
 
 class Pilot:
-    """Base: ``command(measured, trajectory, t) -> actuation``; ``thrust_n`` and ``cost_s`` of the last."""
+    """Base: ``command(measured, ref_n, ref_n1) -> actuation``; ``thrust_n`` and ``cost_s`` of the last.
+
+    ``ref_n``, ``ref_n1``: the references at this sample and the next (the paper's law uses both).
+    """
 
     name = ""
     thrust_n = 0.0
@@ -72,12 +75,11 @@ class PaperPilot(Pilot):
         self.controller = RosalesController(self.params)
         self._inertia = np.diag(self.params.inertia_kg_m2)
 
-    def command(self, measured: VehicleState, trajectory: Trajectory, t_s: float) -> EulerAccelActuation:
+    def command(self, measured: VehicleState, ref_n: Reference, ref_n1: Reference) -> EulerAccelActuation:
         p = self.params
         rates = euler_rates_from_body_rates(measured.euler_rad, measured.body_rate_frd_rad_s, p.euler_rate_form)
         x = paper_state(measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, rates)
-        ref_n = tracking_reference(trajectory.reference(t_s))
-        ref_n1 = tracking_reference(trajectory.reference(t_s + p.sample_time_s))
+        ref_n, ref_n1 = tracking_reference(ref_n), tracking_reference(ref_n1)
         start = time.perf_counter()
         out = self.controller.step(x, ref_n, ref_n1)
         self.cost_s = time.perf_counter() - start
@@ -94,8 +96,7 @@ class Se3Pilot(Pilot):
             tilt_max_rad=math.radians(TILT_MAX_DEG),
         )  # fmt: skip
 
-    def command(self, measured: VehicleState, trajectory: Trajectory, t_s: float):  # noqa: ANN201
-        reference = trajectory.reference(t_s)
+    def command(self, measured: VehicleState, reference: Reference, ref_n1: Reference):  # noqa: ANN201
         start = time.perf_counter()
         target = self.controller.step(measured, reference)
         self.cost_s = time.perf_counter() - start
@@ -121,8 +122,7 @@ class Px4Pilot(Pilot):
         self.loop = Px4Loop(plant_params(vehicle), model, 1e-3)  # type: ignore[arg-type]
         self.loop.landed = False
 
-    def command(self, measured: VehicleState, trajectory: Trajectory, t_s: float):  # noqa: ANN201
-        reference = trajectory.reference(t_s)
+    def command(self, measured: VehicleState, reference: Reference, ref_n1: Reference):  # noqa: ANN201
         start = time.perf_counter()
         target = self.controller.step(measured, reference)
         self.cost_s = time.perf_counter() - start

@@ -1,0 +1,224 @@
+"""Tracking: the paper's law against SE(3) and the PX4 cascade, same missions, limits, noise, wind.
+
+Every controller flies the same rigid-body vehicle, from the same start, with the same sample
+time (To = 50 ms), thrust range (0-19.6 N) and tilt limit (35 deg), its own inner loop at the
+physics rate (1 kHz); see ``bench.pilots``. Conditions:
+
+- ``nominal``: the controllers know the vehicle;
+- ``table-ii``: they believe the paper's Table II (m = 0.6 kg, I = 2.7/4.8/8.9e-3) while the
+  vehicle has m = 0.5 kg, I = 3.8/3.8/7.1e-3;
+- ``noise``: the paper's 5 % acceleration noise with integrated velocity and position
+  (``paper:0.05``);
+- ``wind``: Dryden turbulence with a 5 m/s mean wind and a 5 m/s 1-cosine gust from the east at
+  t = 6 s, on the vehicle variant with linear drag (``bench/vehicles/paper-quad-drag.toml``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+BENCH_DIR = Path(__file__).resolve().parent
+CONTROLLERS = ("paper", "se3", "px4", "paper+i")
+CONTROLLER_TITLES = {
+    "paper": "paper's law",
+    "se3": "SE(3) (Lee)",
+    "px4": "PX4 cascade",
+    "paper+i": "paper's law + integral",
+}
+INTEGRAL_GAIN_PER_S = 1.0  # missions/paper-sim2-integral.toml's
+WIND_SPEC = "dryden:5+gust:t=6,amp=5,dur=2,dir=270"
+
+
+@dataclass(frozen=True)
+class Mission:
+    key: str
+    file: str
+    duration_s: float | None
+    note: str
+
+
+MISSIONS = (
+    Mission("helix", "paper-helix.toml", 11.95,
+            "the helix phase (0-12 s) of the paper's Simulation 1; the vehicle starts hovering at the "
+            "reference's start (2, 0, 2 m up) at rest, while the reference moves at 2.15 m/s"),
+    Mission("square", "paper-square.toml", None,
+            "Simulation 3's 5 m square at 5 m, 1 m/s, then a 5 s hold; starts hovering at the first corner"),
+    Mission("figure-eight", "figure-eight.toml", None,
+            "take-off to 3 m, two laps of an 8 m x 4 m eight (16 s a lap) facing along the path, land; "
+            "starts on the ground"),
+    Mission("waypoints", "px4-sitl-box.waypoints", None,
+            "QGC WPL box around PX4 SITL's home: take-off to 10 m, four waypoints with loiters, land; "
+            "starts on the ground"),
+)  # fmt: skip
+CONDITIONS = ("nominal", "table-ii", "noise", "wind")
+
+
+def _job(args: tuple) -> dict:
+    mission_key, condition, controller, quick_s = args
+    from bench.flight import fly
+    from bench.pilots import NOMINAL, TABLE_II, make_pilot
+    from offboard.missions import MISSIONS_DIR, load_mission
+    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+
+    mission = next(m for m in MISSIONS if m.key == mission_key)
+    trajectory = load_mission(MISSIONS_DIR / mission.file).trajectory
+    vehicle_file = BENCH_DIR / "vehicles" / "paper-quad-drag.toml" if condition == "wind" else PAPER_VEHICLE_FILE
+    vehicle = load_vehicle(vehicle_file)
+    belief = TABLE_II if condition == "table-ii" else NOMINAL
+    pilot = make_pilot(controller, belief, INTEGRAL_GAIN_PER_S)
+    duration = mission.duration_s if mission.duration_s is not None else trajectory.duration_s
+    if quick_s:
+        duration = min(duration, quick_s)
+    result = fly(
+        pilot, trajectory, vehicle, duration_s=duration,
+        sensors="paper:0.05" if condition == "noise" else "clean",
+        wind=WIND_SPEC if condition == "wind" else "none",
+        seed=1,
+    )  # fmt: skip
+    err = result.error_m
+    every = max(1, len(result.t_s) // 400)
+    return {
+        "mission": mission_key,
+        "condition": condition,
+        "controller": controller,
+        "rms_m": float(np.sqrt(np.mean(err**2))) if len(err) else math.nan,
+        "max_m": float(np.max(err)) if len(err) else math.nan,
+        "tilt_deg": float(np.degrees(np.max(result.tilt_rad))) if len(err) else math.nan,
+        "thrust_n": float(np.max(result.thrust_n)) if len(err) else math.nan,
+        "cost_us": float(np.median(result.cost_s) * 1e6) if len(err) else math.nan,
+        "diverged_at_s": result.diverged_at_s,
+        "flown_s": float(result.t_s[-1]) if len(err) else 0.0,
+        "path": result.pos_ned_m[::every].tolist(),
+        "ref": result.ref_ned_m[::every].tolist(),
+    }
+
+
+def run(*, workers: int = 2, quick_s: float | None = None, missions: tuple[str, ...] | None = None,
+        controllers: tuple[str, ...] = CONTROLLERS) -> list[dict]:  # fmt: skip
+    """Fly the whole matrix (in ``workers`` processes); one dict per flight."""
+    jobs = [
+        (m.key, c, k, quick_s)
+        for m in MISSIONS
+        if missions is None or m.key in missions
+        for c in CONDITIONS
+        for k in controllers
+    ]
+    jobs.sort(key=lambda j: j[2] in ("se3", "px4"), reverse=True)  # the slow ones first
+    if workers <= 1:
+        results = [_job(j) for j in jobs]
+    else:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("spawn")
+        env_path = str(BENCH_DIR.parent)
+        os.environ["PYTHONPATH"] = env_path + os.pathsep + os.environ.get("PYTHONPATH", "")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            results = list(pool.map(_job, jobs))
+    order = {(m.key, c, k): i for i, (m, c, k) in enumerate(
+        (m, c, k) for m in MISSIONS for c in CONDITIONS for k in CONTROLLERS)}  # fmt: skip
+    return sorted(results, key=lambda r: order[(r["mission"], r["condition"], r["controller"])])
+
+
+def _cell(value: float, best: bool, fmt: str) -> str:
+    text = format(value, fmt) if math.isfinite(value) else "-"
+    return f"**{text}**" if best else text
+
+
+def tables(results: list[dict], controllers: tuple[str, ...]) -> str:
+    """One markdown table per mission: rows condition x metric, columns the controllers."""
+    out = []
+    metrics = (("rms_m", "RMS 3D error (m)", ".3f", True), ("max_m", "max 3D error (m)", ".2f", True),
+               ("tilt_deg", "peak tilt (deg)", ".0f", False), ("thrust_n", "peak thrust (N)", ".1f", False))  # fmt: skip
+    for mission in MISSIONS:
+        rows = [r for r in results if r["mission"] == mission.key]
+        if not rows:
+            continue
+        out.append(f"#### {mission.key}\n\n{mission.note}.\n")
+        out.append(f"![{mission.key}](tracking-{mission.key}.png)\n")
+        out.append("| condition | metric | " + " | ".join(CONTROLLER_TITLES[c] for c in controllers) + " |")
+        out.append("|---|---|" + "---:|" * len(controllers))
+        for condition in CONDITIONS:
+            cells = {r["controller"]: r for r in rows if r["condition"] == condition}
+            if not cells:
+                continue
+            for key, title, fmt, lower_is_better in metrics:
+                values = [cells[c][key] if c in cells else math.nan for c in controllers]
+                finite = [v for v in values if math.isfinite(v)]
+                best = min(finite) if (finite and lower_is_better) else None
+                texts = []
+                for c, v in zip(controllers, values):
+                    text = _cell(v, best is not None and v == best, fmt)
+                    if c in cells and cells[c]["diverged_at_s"] is not None and key == "rms_m":
+                        text += f" (diverged at {cells[c]['diverged_at_s']:.2f} s)"
+                    texts.append(text)
+                out.append(f"| {condition} | {title} | " + " | ".join(texts) + " |")
+        nominal = {r["controller"]: r for r in rows if r["condition"] == "nominal"}
+        out.append("| all | controller step, median (µs) | "
+                   + " | ".join(f"{nominal[c]['cost_us']:.0f}" if c in nominal else "-" for c in controllers) + " |")  # fmt: skip
+        out.append("")
+    return "\n".join(out)
+
+
+def summary(results: list[dict], controllers: tuple[str, ...]) -> str:
+    """RMS error of every flight in one table, and who wins where."""
+    lines = ["| mission | condition | " + " | ".join(CONTROLLER_TITLES[c] for c in controllers) + " | best |",
+             "|---|---|" + "---:|" * len(controllers) + "---|"]  # fmt: skip
+    wins = {c: 0 for c in controllers}
+    base = [c for c in controllers if c != "paper+i"]
+    for mission in MISSIONS:
+        for condition in CONDITIONS:
+            cells = {r["controller"]: r for r in results if r["mission"] == mission.key and r["condition"] == condition}
+            if not cells:
+                continue
+            rms = {c: cells[c]["rms_m"] if c in cells and cells[c]["diverged_at_s"] is None else math.inf for c in controllers}
+            best = min(base, key=lambda c: rms[c])
+            wins[best] += 1
+            lines.append(f"| {mission.key} | {condition} | " + " | ".join(
+                _cell(rms[c], c == best, ".3f") for c in controllers) + f" | {CONTROLLER_TITLES[best]} |")  # fmt: skip
+    lines.append("")
+    lines.append("Lowest RMS error among the three published controllers: "
+                 + ", ".join(f"{CONTROLLER_TITLES[c]} {wins[c]}" for c in base) + " flights.")  # fmt: skip
+    return "\n".join(lines)
+
+
+def plots(results: list[dict], out_dir: Path, controllers: tuple[str, ...]) -> list[Path]:
+    """One PNG per mission (nominal condition): top view and height against sample, all paths."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    colours = {"paper": "tab:red", "se3": "tab:blue", "px4": "tab:green", "paper+i": "tab:purple"}
+    written = []
+    for mission in MISSIONS:
+        rows = {r["controller"]: r for r in results if r["mission"] == mission.key and r["condition"] == "nominal"}
+        if not rows:
+            continue
+        fig = Figure(figsize=(8.0, 3.6), dpi=80)
+        FigureCanvasAgg(fig)
+        top, side = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+        ref = np.array(next(iter(rows.values()))["ref"])
+        top.plot(ref[:, 1], ref[:, 0], color="k", lw=1.0, ls="--", label="reference")
+        side.plot(-ref[:, 2], color="k", lw=1.0, ls="--")
+        for c in controllers:
+            if c not in rows:
+                continue
+            path = np.array(rows[c]["path"])
+            top.plot(path[:, 1], path[:, 0], color=colours[c], lw=1.0, label=CONTROLLER_TITLES[c])
+            side.plot(-path[:, 2], color=colours[c], lw=1.0)
+        top.set_xlabel("east (m)")
+        top.set_ylabel("north (m)")
+        top.set_aspect("equal", adjustable="datalim")
+        top.legend(fontsize=7, loc="best")
+        side.set_xlabel("sample")
+        side.set_ylabel("height (m)")
+        fig.suptitle(f"{mission.key}: nominal parameters", fontsize=9)
+        fig.tight_layout()
+        path = out_dir / f"tracking-{mission.key}.png"
+        fig.savefig(path)
+        written.append(path)
+    return written
