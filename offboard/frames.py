@@ -26,8 +26,21 @@ def ned_from_paper_position(xyz_up_m: np.ndarray) -> np.ndarray:
 
 
 def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: str) -> np.ndarray:
-    """eta_dot = W_eta^-1 omega (eq. 3)."""
-    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form), body_rate_frd_rad_s)
+    """eta_dot = W_eta^-1 omega (eq. 3), solved in closed form (W's first column is (1, 0, 0)).
+
+    With W = [[1, 0, -s_theta], [0, c_a, c_theta s_a], [0, k s_a, c_theta c_a]] (eq. 4, ``a`` and
+    ``k`` set by ``form``) the lower 2x2 block gives the pitch and yaw rates and the first row the
+    roll rate. Raises ``numpy.linalg.LinAlgError`` where W is singular, as ``numpy.linalg.solve``.
+    """
+    w = euler_rate_matrix(np.asarray(euler_rad, dtype=float), form)
+    p, q, r = (float(v) for v in body_rate_frd_rad_s)
+    ca, ct_sa, k_sa, ct_ca = float(w[1, 1]), float(w[1, 2]), float(w[2, 1]), float(w[2, 2])
+    det = ca * ct_ca - ct_sa * k_sa
+    if det == 0.0:
+        raise np.linalg.LinAlgError(f"W_eta ({form}) is singular at the Euler angles {tuple(euler_rad)}")
+    theta_dot = (ct_ca * q - ct_sa * r) / det
+    psi_dot = (ca * r - k_sa * q) / det
+    return np.array((p - float(w[0, 2]) * psi_dot, theta_dot, psi_dot))
 
 
 def body_rates_from_euler_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, form: str) -> np.ndarray:

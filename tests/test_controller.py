@@ -312,3 +312,17 @@ def test_integral_off_by_default_and_validated():
     assert PARAMS.integral_gain_per_s == 0.0
     with pytest.raises(ValueError, match="integral_gain_per_s"):
         PARAMS.with_changes(integral_gain_per_s=-1.0)
+
+
+@pytest.mark.parametrize("form", ["castillo", "printed", "zyx"])
+def test_euler_rates_from_body_rates_inverts_w_eta(form):
+    """The closed-form W_eta^-1 (offboard.frames) is the inverse of eq. 3's W_eta."""
+    from offboard.frames import body_rates_from_euler_rates, euler_rates_from_body_rates
+    from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        eta, omega = rng.uniform(-1.2, 1.2, 3), rng.normal(size=3)
+        eta_dot = euler_rates_from_body_rates(eta, omega, form)
+        np.testing.assert_allclose(euler_rate_matrix(eta, form) @ eta_dot, omega, atol=1e-9)
+        np.testing.assert_allclose(body_rates_from_euler_rates(eta, eta_dot, form), omega, atol=1e-9)
