@@ -11,6 +11,7 @@ from sitl_plant.errors import ParameterFileError, UserError
 __all__ = [
     "CommandRejected",
     "LinkTimeout",
+    "LockstepMismatch",
     "LogFormatError",
     "MissionFormatError",
     "ParameterFileError",
@@ -38,3 +39,7 @@ class CommandRejected(UserError, RuntimeError):
 
 class LogFormatError(UserError, ValueError):
     """A flight log cannot be read at all (not a tlog, empty)."""
+
+
+class LockstepMismatch(UserError, ValueError):
+    """The lockstep plant's period differs from the controller's sample time."""

@@ -41,7 +41,7 @@ import numpy as np
 from offboard import codec
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
-from offboard.errors import CommandRejected, LinkTimeout, MissionFormatError, UserError
+from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.frames import tracking_reference
 from offboard.missions.geo import LocalProjection
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
@@ -61,10 +61,6 @@ RIGID_BODY_THRUST_MIN_FRACTION = 0.12
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
-
-
-class LockstepMismatch(UserError, ValueError):
-    """The lockstep plant's period differs from the controller's sample time."""
 
 
 class Link(Protocol):

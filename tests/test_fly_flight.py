@@ -18,8 +18,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, load_controller
 from offboard.codec import Scaling
-from offboard.errors import LinkTimeout
-from offboard.flight import ControllerChoice, Flight, FlightConfig, LockstepMismatch, resolve_controller
+from offboard.errors import LinkTimeout, LockstepMismatch, UserError
+from offboard.flight import ControllerChoice, Flight, FlightConfig, resolve_controller
 from offboard.record import FlightStatus
 from offboard.trajectory.analytic import Line
 from sitl_plant.autopilot import Autopilot, Mode
@@ -296,8 +296,10 @@ def test_missing_thrust_scaling_is_a_clear_error_and_an_override_fixes_it():
 def test_lockstep_period_must_match_the_sample_time():
     link = PlantLink(make_plant(period_s=0.02), FakeClock())
     flight, _ = make_flight(link)
-    with pytest.raises(LockstepMismatch, match="advances 20 ms a period but the controller's To is 50 ms"):
+    with pytest.raises(LockstepMismatch, match="advances 20 ms a period but the controller's To is 50 ms") as caught:
         flight.run()
+    # one of the user errors of offboard.errors: the command line prints it as one line, exit 2
+    assert isinstance(caught.value, UserError) and isinstance(caught.value, ValueError)
 
 
 # --- the controller flown: precedence of options, file and vehicle ------------------------------
