@@ -4,8 +4,9 @@ Incoming: ATTITUDE and LOCAL_POSITION_NED become a ``MeasuredState`` (NED/FRD), 
 ``controller_state`` turns into the paper's 12-state (``offboard.frames``); HEARTBEAT,
 COMMAND_ACK, PARAM_VALUE and TIMESYNC become small typed values.
 Outgoing: the law's output becomes SET_ATTITUDE_TARGET (``attitude_setpoint``) or
-SET_ACTUATOR_CONTROL_TARGET (``actuator_setpoint``) fields, and commands are built as
-COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
+SET_ACTUATOR_CONTROL_TARGET (``actuator_setpoint``) fields — ``law_setpoint`` chooses between
+them and is the one encoding both ``offboard fly`` and ``offboard replay --rerun`` use, so a
+re-run compares like with like — and commands are built as COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
 
 Frames and units are MAVLink's: NED metres, FRD body rates in rad/s, the quaternion (w, x, y, z)
 rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboard.md):
@@ -41,6 +42,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.law import ControlOutput
+from offboard.controller.params import ControllerParams
 from offboard.frames import body_rates_from_euler_rates, euler_rates_from_body_rates, paper_state
 from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
 from sitl_plant.dynamics.rotations import quat_from_euler
@@ -57,6 +59,8 @@ PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Ret
 
 #: The vehicle models the offboard process knows how to talk to (``--model``).
 MODELS = ("rigid-body", "paper")
+#: The setpoint messages the law's output can travel in (``--output``; ``law_setpoint``).
+OUTPUTS = ("attitude", "actuator")
 
 FORCE_ARM_MAGIC = 21196  # PX4: param2 of ARM_DISARM that skips the checks (not used by default)
 
@@ -301,6 +305,55 @@ def actuator_setpoint(out: ControlOutput, euler_rad: np.ndarray, model: str, eul
     controls = (tau[0] / rp, tau[1] / rp, tau[2] / yw)
     clipped = tuple(min(max(float(c), -1.0), 1.0) for c in controls)
     return ActuatorSetpoint(controls=(clipped[0], clipped[1], clipped[2], thrust_norm(out.law.thrust_n, scaling)))
+
+
+def law_setpoint(
+    out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, scaling: Scaling, *, output: str, model: str
+) -> AttitudeSetpoint | ActuatorSetpoint:
+    """The setpoint of one mission sample: the law's output as the message fields that carry it.
+
+    The one encoding of the law's output: ``offboard.flight`` sends it, ``offboard.replay``'s
+    re-run compares it with the log, so both turn the same output into the same fields.
+
+    Parameters
+    ----------
+    out : ControlOutput
+        The controller's output for sample n.
+    euler_rad : ndarray (3,)
+        The measured attitude of sample n (roll, pitch, yaw; rad).
+    params : ControllerParams
+        The controller that produced ``out``: its W_eta form and whether it is yaw-aware.
+    scaling : Scaling
+        The vehicle's normalisation (``SIM_THR_MAX``; the torque maxima for ``actuator``).
+    output : str
+        ``attitude`` (SET_ATTITUDE_TARGET, ``attitude_setpoint``) or ``actuator``
+        (SET_ACTUATOR_CONTROL_TARGET, ``actuator_setpoint``).
+    model : str
+        ``rigid-body`` or ``paper``: what the vehicle is (module docstring).
+
+    Raises
+    ------
+    ValueError
+        An unknown output or model, or the actuator output without the torque scaling.
+    """
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if output == "actuator":
+        return actuator_setpoint(out, euler_rad, model, params.euler_rate_form, scaling)
+    return attitude_setpoint(out, euler_rad, params.euler_rate_form, scaling, model=model, yaw_aware=params.yaw_aware)
+
+
+def setpoint_fields(sp: AttitudeSetpoint | ActuatorSetpoint) -> tuple[float, ...]:
+    """The numbers a setpoint message carries, in message order (what a re-run compares).
+
+    SET_ATTITUDE_TARGET: q_w, q_x, q_y, q_z, body roll, pitch, yaw rate (rad/s), thrust (0..1);
+    SET_ACTUATOR_CONTROL_TARGET group 0: the four controls. The message rounds them to float32.
+    """
+    if isinstance(sp, ActuatorSetpoint):
+        return tuple(sp.controls)
+    return (*sp.q_wxyz, *sp.body_rates_frd_rad_s, sp.thrust_norm)
 
 
 def hold_setpoint(euler_rad: np.ndarray, thrust: float) -> AttitudeSetpoint:

@@ -48,7 +48,7 @@ from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
 from offboard.trajectory.base import Phase, Reference, Trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
-OUTPUTS = ("attitude", "actuator")
+OUTPUTS = codec.OUTPUTS
 #: tlog and TIMESYNC origin in lockstep (the plant uses the same: 2020-01-01T00:00:00Z).
 LOCKSTEP_EPOCH_S = 1_577_836_800
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
@@ -1043,12 +1043,7 @@ class Flight:
             raise _End(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
         if n >= self._mission_samples:
             self._mission_done = True
-        if self.config.output == "actuator":
-            sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint = codec.actuator_setpoint(
-                out, measured.euler_rad, self.config.model, params.euler_rate_form, self.scaling)
-        else:
-            sp = codec.attitude_setpoint(out, measured.euler_rad, params.euler_rate_form, self.scaling,
-                                         model=self.config.model, yaw_aware=params.yaw_aware)
+        sp = codec.law_setpoint(out, measured.euler_rad, params, self.scaling, output=self.config.output, model=self.config.model)
         return self._setpoint_message(sp, measured.time_boot_ms)
 
     def _say_start(self, measured: MeasuredState) -> None:

@@ -1193,8 +1193,8 @@ def rerun_controller(
     Each sample: the ATTITUDE and LOCAL_POSITION_NED the logged command answered become the
     controller's state by ``offboard.codec`` (``measured_state``, ``controller_state``), the
     references are the mission's at ``t`` and ``t + To``, and the output becomes the message
-    fields by the codec's ``attitude_setpoint`` / ``actuator_setpoint``, rounded to float32 as
-    the message carries them.
+    fields by ``codec.law_setpoint`` (the encoding ``offboard fly`` sends) and
+    ``codec.setpoint_fields``, rounded to float32 as the message carries them.
 
     Parameters
     ----------
@@ -1250,12 +1250,8 @@ def rerun_controller(
         )  # fmt: skip
         if not out.is_finite():
             continue
-        if output == "attitude":
-            sp = codec.attitude_setpoint(out, measured.euler_rad, form, scaling, model=model, yaw_aware=params.yaw_aware)  # type: ignore[attr-defined]
-            values = (*sp.q_wxyz, *sp.body_rates_frd_rad_s, sp.thrust_norm)
-        else:
-            values = codec.actuator_setpoint(out, measured.euler_rad, model, form, scaling).controls
-        rerun[k] = np.array(values, dtype=np.float32)
+        sp = codec.law_setpoint(out, measured.euler_rad, params, scaling, output=output, model=model)  # type: ignore[arg-type]
+        rerun[k] = np.array(codec.setpoint_fields(sp), dtype=np.float32)
     steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
     gaps = int(np.sum(np.maximum(steps - 1, 0)))
     rerun_record = builder.build(phases=record.phases, meta={**record.meta, "rerun": True})

@@ -236,3 +236,34 @@ def test_set_attitude_target_wire_layout():
     msg = mavlink.MAVLink(None).parse_buffer(raw)[0]
     assert msg.time_boot_ms == 5 and msg.type_mask == 3  # time_boot_ms wraps as uint32
     assert_allclose([msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust], [0.1, 0.2, 0.3, 0.4], rtol=1e-7)
+
+
+@pytest.mark.parametrize("output, model, form, yaw_aware", [
+    ("attitude", "rigid-body", "zyx", True),
+    ("attitude", "paper", "castillo", False),
+    ("actuator", "rigid-body", "zyx", True),
+    ("actuator", "paper", "castillo", False),
+])  # fmt: skip
+def test_law_setpoint_is_the_one_encoding_of_the_laws_output(output, model, form, yaw_aware):
+    out, m = control_output(euler=(0.01, -0.02, 0.7), form=form, yaw_aware=yaw_aware, still=True)
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form=form, yaw_aware=yaw_aware)
+    sp = codec.law_setpoint(out, m.euler_rad, params, SCALING, output=output, model=model)
+    if output == "attitude":
+        assert sp == codec.attitude_setpoint(out, m.euler_rad, form, SCALING, model=model, yaw_aware=yaw_aware)
+        msg = wire(codec.set_attitude_target(m.time_boot_ms, sp, 1, 1))
+        carried = (*msg.q, msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust)
+    else:
+        assert sp == codec.actuator_setpoint(out, m.euler_rad, model, form, SCALING)
+        msg = wire(codec.set_actuator_control_target(m.time_boot_ms, sp, 1, 1))
+        carried = tuple(msg.controls[:4])
+    # setpoint_fields lists what the message carries, in its order (float32 on the wire)
+    assert_allclose(np.float32(codec.setpoint_fields(sp)), np.float32(carried), rtol=0, atol=0)
+
+
+def test_law_setpoint_refuses_an_unknown_output_or_model():
+    out, m = control_output()
+    params = load_controller(PAPER_CONTROLLER_FILE)
+    with pytest.raises(ValueError, match="output must be one of"):
+        codec.law_setpoint(out, m.euler_rad, params, SCALING, output="position", model="rigid-body")
+    with pytest.raises(ValueError, match="model must be one of"):
+        codec.law_setpoint(out, m.euler_rad, params, SCALING, output="attitude", model="blimp")
