@@ -9,6 +9,7 @@ actuation and ``sitl_plant.dynamics.batch.FastRigidBodySim`` (the compiled twin 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ class FlightResult:
     thrust_n: np.ndarray
     cost_s: np.ndarray
     diverged_at_s: float | None
+    physics_wall_s: float = 0.0  # wall time spent in the physics stepping alone
 
     @property
     def error_m(self) -> np.ndarray:
@@ -78,6 +80,7 @@ def fly(
     samples = int(round(duration / sample_time_s))
     t_out, pos, ref, tilt, thrust, cost = [], [], [], [], [], []
     diverged = None
+    physics_wall_s = 0.0
     ref_next = trajectory.reference(0.0)
     for n in range(samples + 1):
         t = n * sample_time_s
@@ -99,11 +102,14 @@ def fly(
         sim.actuation = actuation
         try:
             with np.errstate(divide="raise", over="raise", invalid="raise"):
+                start_physics = time.perf_counter()
                 sim.step(n_physics)
+                physics_wall_s += time.perf_counter() - start_physics
         except (ArithmeticError, FloatingPointError, np.linalg.LinAlgError):
             diverged = t
             break
     return FlightResult(
         t_s=np.array(t_out), pos_ned_m=np.array(pos).reshape(-1, 3), ref_ned_m=np.array(ref).reshape(-1, 3),
         tilt_rad=np.array(tilt), thrust_n=np.array(thrust), cost_s=np.array(cost), diverged_at_s=diverged,
+        physics_wall_s=physics_wall_s,
     )  # fmt: skip

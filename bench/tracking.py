@@ -32,6 +32,7 @@ CONTROLLER_TITLES = {
     "paper+i": "paper's law + integral",
 }
 INTEGRAL_GAIN_PER_S = 1.0  # missions/paper-sim2-integral.toml's
+FINAL_WINDOW_S = 2.0
 WIND_SPEC = "dryden:5+gust:t=6,amp=5,dur=2,dir=270"
 
 
@@ -89,6 +90,8 @@ def _job(args: tuple) -> dict:
         "controller": controller,
         "rms_m": float(np.sqrt(np.mean(err**2))) if len(err) else math.nan,
         "max_m": float(np.max(err)) if len(err) else math.nan,
+        # the steady state a model error leaves: mean error over the last FINAL_WINDOW_S
+        "final_m": float(np.mean(err[result.t_s >= result.t_s[-1] - FINAL_WINDOW_S])) if len(err) else math.nan,
         "tilt_deg": float(np.degrees(np.max(result.tilt_rad))) if len(err) else math.nan,
         "thrust_n": float(np.max(result.thrust_n)) if len(err) else math.nan,
         "cost_us": float(np.median(result.cost_s) * 1e6) if len(err) else math.nan,
@@ -134,6 +137,7 @@ def tables(results: list[dict], controllers: tuple[str, ...]) -> str:
     """One markdown table per mission: rows condition x metric, columns the controllers."""
     out = []
     metrics = (("rms_m", "RMS 3D error (m)", ".3f", True), ("max_m", "max 3D error (m)", ".2f", True),
+               ("final_m", f"mean error, last {FINAL_WINDOW_S:g} s (m)", ".3f", True),
                ("tilt_deg", "peak tilt (deg)", ".0f", False), ("thrust_n", "peak thrust (N)", ".1f", False))  # fmt: skip
     for mission in MISSIONS:
         rows = [r for r in results if r["mission"] == mission.key]
