@@ -305,24 +305,24 @@ def physics_batch(sizes: list[int], steps: int, numpy_max: int) -> list[dict]:
         cmd = hover_rotor_speed(vehicle) + rng.uniform(-5, 5, (n, 4))
         wind = rng.normal(size=(n, 3))
         k = max(1, steps // max(1, n // 1000))  # fewer steps for big batches, same work order
-        best = math.inf
-        for _ in range(3):
-            xs = x.copy()
-            start = time.perf_counter()
-            batch.step_many(xs, cmd, wind, vehicle, 1e-3, k)
-            best = min(best, time.perf_counter() - start)
-        row = {"vehicles": n, "steps": k, "compiled_per_s": n * k / best, "numpy_per_s": None}
+        row = {"vehicles": n, "steps": k, "numpy_per_s": None}
+        row["compiled_per_s"] = n * k / _best_s(lambda xs: batch.step_many(xs, cmd, wind, vehicle, 1e-3, k), x, 3)
         if n <= numpy_max:
             kn = max(1, min(k, 20))
-            best = math.inf
-            for _ in range(2):
-                xs = x.copy()
-                start = time.perf_counter()
-                batch.step_many_numpy(xs, cmd, wind, vehicle, 1e-3, kn)
-                best = min(best, time.perf_counter() - start)
-            row["numpy_per_s"] = n * kn / best
+            row["numpy_per_s"] = n * kn / _best_s(lambda xs: batch.step_many_numpy(xs, cmd, wind, vehicle, 1e-3, kn), x, 2)
         rows.append(row)
     return rows
+
+
+def _best_s(step, x: np.ndarray, repeats: int) -> float:  # noqa: ANN001
+    """Shortest wall time of ``step`` on a fresh copy of the batch ``x`` over ``repeats`` tries."""
+    best = math.inf
+    for _ in range(repeats):
+        xs = x.copy()
+        start = time.perf_counter()
+        step(xs)
+        best = min(best, time.perf_counter() - start)
+    return best
 
 
 def numba_compile_s() -> float:
