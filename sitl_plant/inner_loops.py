@@ -444,6 +444,20 @@ class Px4Loop:
         self.last_output = (self._thrust_n, torque)
         return self.last_output
 
+    def held(self, model: Model, x: np.ndarray, max_steps: int) -> tuple[float, np.ndarray, int]:
+        """This step's output and for how many steps (``1 <= k <= max_steps``) it holds.
+
+        Exactly what ``k`` calls of ``self(model, x)`` would return at the same states, since
+        between two gyro samples the loop returns its last output without reading ``x``: a
+        stepper may integrate those ``k`` steps with the output held, in one go (the compiled
+        ``FastRigidBodySim`` does). The internal step counter advances by ``k``.
+        """
+        thrust, torque = self(model, x)
+        # idle outputs nothing whatever the state
+        k = max_steps if self._mode == "idle" else min(max_steps, 1 + (-self._step_count) % self._every)
+        self._step_count += k - 1
+        return thrust, torque, k
+
 
 # --- the paper's loop and the actuator path -----------------------------------------------------
 

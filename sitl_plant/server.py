@@ -62,6 +62,17 @@ def make_model(kind: str, vehicle: VehicleParams) -> Model:
     raise ValueError(f"model must be one of {MODELS}, got {kind!r}")
 
 
+def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleSim:
+    """The stepper: ``FastRigidBodySim`` (the same equations compiled, results equal to 1e-12)
+    for the rigid body when numba is installed, else the reference ``VehicleSim``."""
+    if not isinstance(model, PaperModel):
+        from sitl_plant.dynamics import batch
+
+        if batch.NUMBA:
+            return batch.FastRigidBodySim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
+    return VehicleSim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
+
+
 # --- telemetry streams ---------------------------------------------------------------------------
 
 #: message id -> (name, default rate Hz on the onboard/API link, on the GCS link); PX4's
@@ -207,7 +218,7 @@ class Plant:
             if abs(period_ms - round(period_ms)) > 1e-9:
                 raise ValueError(f"the lockstep period must be a whole number of milliseconds, got {config.lockstep_period_s} s")
         model = make_model(config.model, vehicle)
-        self.sim = VehicleSim(model, physics_dt_s=config.physics_dt_s, wind=wind)  # type: ignore[arg-type]
+        self.sim = make_sim(model, config.physics_dt_s, wind)
         self.loops = InnerLoops(params, model, config.physics_dt_s, config.inner_loop)
         self.streams = [StreamSchedule(API), StreamSchedule(GCS)]
         self.counters = Counters()

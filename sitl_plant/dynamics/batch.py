@@ -32,13 +32,11 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import replace
-
 import numpy as np
 
 from sitl_plant.dynamics import rigid_body
 from sitl_plant.dynamics.rigid_body import QUAT, STATE_SIZE, RigidBodyModel
-from sitl_plant.simulation import EulerAccelActuation, HeldActuation
+from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
 from sitl_plant.state import VehicleState
 from sitl_plant.vehicle import VehicleParams
 
@@ -524,46 +522,22 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     return resting
 
 
-@_jit
-def _advance_python_actuation_step(x, cmd, wind, p, dt, ground, xdot):  # noqa: ANN001, ANN202
-    """One physics step with rotor commands already mixed (the actuation ran in Python)."""
-    k1 = np.empty(STATE_SIZE)
-    k2 = np.empty(STATE_SIZE)
-    k3 = np.empty(STATE_SIZE)
-    k4 = np.empty(STATE_SIZE)
-    tmp = np.empty(STATE_SIZE)
-    nxt = np.empty(STATE_SIZE)
-    _rk4_into(x, cmd, wind, p, dt, nxt, k1, k2, k3, k4, tmp)
-    for i in range(STATE_SIZE):
-        xdot[i] = (nxt[i] - x[i]) / dt
-    resting = False
-    if ground:
-        resting = _ground(nxt)
-        if resting:
-            for i in range(STATE_SIZE):
-                xdot[i] = 0.0
-    for i in range(STATE_SIZE):
-        x[i] = nxt[i]
-    return resting
-
-
-@_jit
-def _mix_speeds(thrust, tx, ty, tz, p, cmd):  # noqa: ANN001, ANN202
-    _speeds_for(thrust, tx, ty, tz, p, cmd)
-
-
 _EULER_FORMS = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
 
 
-class FastRigidBodySim:
+class FastRigidBodySim(VehicleSim):
     """``VehicleSim`` with a ``RigidBodyModel``, stepped by the compiled kernels.
 
     Same constructor, attributes (``model``, ``x``, ``time_s``, ``steps``, ``on_ground``,
     ``actuation``) and methods (``step``, ``truth``, ``truth_position_ned``) as
-    ``VehicleSim``, and the same results to rounding (``tests/test_batch.py``).
+    ``VehicleSim``, of which it is a subclass, and the same results to rounding
+    (``tests/test_batch.py``).
 
     ``HeldActuation`` and ``EulerAccelActuation`` run a whole ``step(n)`` in one compiled
-    call; any other actuation is called in Python once per physics step.
+    call. An actuation with a ``held(model, x, max_steps) -> (thrust, torque, k)`` method (the
+    plant's ``Px4Loop``, whose output is held between gyro samples) is called once per ``k``
+    steps, which are integrated in one compiled call; any other actuation is called in Python
+    once per physics step.
     """
 
     def __init__(
@@ -578,28 +552,27 @@ class FastRigidBodySim:
     ) -> None:
         if not isinstance(model, RigidBodyModel):
             raise TypeError("FastRigidBodySim steps a RigidBodyModel")
-        if physics_dt_s <= 0:
-            raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
-        self.model = model
-        self.physics_dt_s = physics_dt_s
-        self.wind = wind
-        self.ground = ground
-        self.time_s = 0.0
-        self.steps = 0
-        pos = np.zeros(3) if initial_pos_ned_m is None else np.asarray(initial_pos_ned_m, dtype=float)
-        self.x = np.ascontiguousarray(model.initial_state(pos, initial_yaw_rad), dtype=float)
-        self.on_ground = ground and bool(pos[2] >= 0.0)
-        from sitl_plant.simulation import IDLE
-
-        self.actuation = IDLE
-        self._p = param_vector(model.params)
+        super().__init__(
+            model, physics_dt_s=physics_dt_s, wind=wind, ground=ground,
+            initial_pos_ned_m=initial_pos_ned_m, initial_yaw_rad=initial_yaw_rad,
+        )  # fmt: skip
+        self.x = np.ascontiguousarray(self.x, dtype=float)
+        self._last_xdot = np.ascontiguousarray(self._last_xdot, dtype=float)
         self._cmd = np.zeros(4)
-        self._xdot = np.zeros(STATE_SIZE)
-        self._wind_now = np.zeros(3)
-        if not self.on_ground:
-            self._xdot = model.derivative(self.x, 0.0, np.zeros(3), self._wind_now)
         self._no_wind: np.ndarray = np.zeros((0, 3))
         self._zeros3 = np.zeros(3)
+
+    @property
+    def model(self) -> RigidBodyModel:
+        return self._model
+
+    @model.setter
+    def model(self, model: RigidBodyModel) -> None:
+        """A new vehicle (the plant rebuilds it when a SIM_* parameter changes): new kernel parameters."""
+        if not isinstance(model, RigidBodyModel):
+            raise TypeError("FastRigidBodySim steps a RigidBodyModel")
+        self._model = model
+        self._p = param_vector(model.params)
 
     def _winds(self, n_steps: int) -> np.ndarray:
         if self.wind is None:
@@ -613,43 +586,46 @@ class FastRigidBodySim:
         self._wind_now = out[n_steps - 1].copy()
         return out
 
+    def _held(self, thrust: float, torque: np.ndarray, n_steps: int, winds: np.ndarray) -> None:
+        """``n_steps`` with thrust and body torque held (mixed once), in one compiled call."""
+        self.on_ground = bool(
+            _advance(self.x, n_steps, self.physics_dt_s, 0, thrust, torque, self._zeros3, 0, -1.0, self._p, winds,
+                     self.ground, self._last_xdot, self._cmd)  # fmt: skip
+        )
+
     def step(self, n_steps: int = 1) -> None:
         """Advance ``n_steps`` physics steps with the current actuation."""
         act = self.actuation
-        dt = self.physics_dt_s
         winds = self._winds(n_steps)
-        if isinstance(act, (HeldActuation, EulerAccelActuation)):
-            if isinstance(act, HeldActuation):
-                mode, thrust, torque = 0, float(act.thrust_n), np.asarray(act.torque_nm, dtype=float)
-                believed, (index, sign) = self._zeros3, (0, -1.0)
-            else:
-                mode, thrust, torque = 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float)
-                believed = np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float)
-                index, sign = _EULER_FORMS[act.form]
+        if isinstance(act, HeldActuation):
+            self._held(float(act.thrust_n), np.asarray(act.torque_nm, dtype=float), n_steps, winds)
+        elif isinstance(act, EulerAccelActuation):
+            believed = np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float)
+            index, sign = _EULER_FORMS[act.form]
             self.on_ground = bool(
-                _advance(self.x, n_steps, dt, mode, thrust, torque, believed, index, sign, self._p, winds,
-                         self.ground, self._xdot, self._cmd)  # fmt: skip
+                _advance(self.x, n_steps, self.physics_dt_s, 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),
+                         believed, index, sign, self._p, winds, self.ground, self._last_xdot, self._cmd)  # fmt: skip
             )
         else:
-            for i in range(n_steps):
-                thrust, torque = act(self.model, self.x)
-                _mix_speeds(float(thrust), float(torque[0]), float(torque[1]), float(torque[2]), self._p, self._cmd)
-                self.on_ground = bool(
-                    _advance_python_actuation_step(self.x, self._cmd, winds[i], self._p, dt, self.ground, self._xdot)
-                )
-                self.steps += 1
-                self.time_s = self.steps * dt
+            held = getattr(act, "held", None)
+            done = 0
+            while done < n_steps:
+                if held is not None:
+                    thrust, torque, k = held(self._model, self.x, n_steps - done)
+                else:
+                    (thrust, torque), k = act(self._model, self.x), 1
+                self._held(float(thrust), np.asarray(torque, dtype=float), k, winds[done : done + k])
+                done += k
+                self.steps += k
+                self.time_s = self.steps * self.physics_dt_s
             return
         self.steps += n_steps
-        self.time_s = self.steps * dt
+        self.time_s = self.steps * self.physics_dt_s
 
     def truth_position_ned(self) -> np.ndarray:
         return self.x[0:3].copy()
 
     def truth(self) -> VehicleState:
         """The true state now; acceleration is the mean over the last physics step."""
-        self.model._cmd = self._cmd  # the rotor speeds it reports with an instant motor model
-        state = self.model.vehicle_state(self.x, self.time_s, self._xdot)
-        if self.on_ground != state.on_ground:
-            state = replace(state, on_ground=self.on_ground)
-        return state
+        self._model._cmd = self._cmd  # the rotor speeds it reports with an instant motor model
+        return super().truth()
