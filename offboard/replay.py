@@ -39,7 +39,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
-from offboard.errors import LogFormatError
+from offboard.errors import LogFormatError, ParameterFileError
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
 from offboard.trajectory.base import Phase, Trajectory
 from sitl_plant.dynamics.rotations import euler_from_quat
@@ -1293,8 +1293,10 @@ def flight_controller(
     - ``controller_file`` given: that file as ``offboard fly --controller FILE`` would fly it on
       this vehicle (``offboard.flight.resolve_controller``: the file's mass and inertia, thrust
       bounded by the vehicle, its tilt limit or 35 degrees);
-    - else the flight's own ``summary.json`` (``summary``): its resolved controller (the fields
-      it records override the paper file's);
+    - else the flight's own ``summary.json`` (``summary``): the controller file it names
+      (``controller_file``; null or absent: the paper's file believing the vehicle's SIM_*
+      values) resolved as ``offboard fly`` resolved it, then overridden by the resolved
+      controller the summary records, field by field (older summaries lack some fields);
     - else ``offboard fly``'s default: the paper's file believing the vehicle's SIM_* values,
       read back from the PARAM_VALUE messages in the log.
 
@@ -1308,12 +1310,27 @@ def flight_controller(
     if controller_file is not None:
         choice = ControllerChoice(base=load_controller(controller_file), from_file=True)
         return resolve_controller(choice, model, vehicle_params, scaling)[0], f"{controller_file} (as offboard fly --controller flies it)"
-    params = resolve_controller(ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE)), model, vehicle_params, scaling)[0]
     recorded = (summary or {}).get("controller")
+    flown_file = (summary or {}).get("controller_file")
+    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE))
+    file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values"
+    if isinstance(flown_file, str) and flown_file:
+        if Path(flown_file).is_file():
+            choice = ControllerChoice(base=load_controller(flown_file), from_file=True)
+            file_note = f"controller file {flown_file}"
+        elif isinstance(recorded, dict):
+            file_note = f"controller file {flown_file} no longer there: the values summary.json records"
+        else:
+            raise ParameterFileError(f"summary.json: the flight's controller file {flown_file} no longer exists and the "
+                                     "summary records no controller; pass --controller FILE (a copy of it)")
+    params = resolve_controller(choice, model, vehicle_params, scaling)[0]
     if not isinstance(recorded, dict):
+        if summary is not None and "controller_file" in summary:
+            return params, f"the flight's ({file_note}, named in summary.json)"
         return params, f"offboard fly's default ({PAPER_CONTROLLER_FILE.name}, the vehicle's SIM_* values from the log)"
     changes: dict[str, object] = {}
-    for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware"):
+    for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware",
+                "integral_gain_per_s", "integral_limit_m_s"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
     if "inertia_kg_m2" in recorded:
@@ -1327,7 +1344,7 @@ def flight_controller(
             thrust_max_n=recorded.get("thrust_max_n"),
             tilt_max_rad=None if tilt is None else math.radians(float(tilt)),
         )
-    return params.with_changes(**changes), "the flight's (summary.json beside the log)"  # type: ignore[attr-defined]
+    return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"  # type: ignore[attr-defined]
 
 
 def rerun_panels(result: RerunResult, thrust_max_n: float) -> list[tuple[str, np.ndarray, np.ndarray, tuple[str, ...]]]:

@@ -74,7 +74,7 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def fly(folder: Path, output: str, model: str = "rigid-body") -> Flown:
+def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, ...] = ()) -> Flown:
     folder.mkdir(parents=True, exist_ok=True)
     mission = folder / "replay-test.toml"
     mission.write_text(MISSION)
@@ -90,7 +90,7 @@ def fly(folder: Path, output: str, model: str = "rigid-body") -> Flown:
     try:
         done = subprocess.run(
             [str(BIN / "offboard"), "fly", str(mission), "--connect", f"udpin:127.0.0.1:{port}", "--lockstep",
-             "--output", output, "--model", model, "--run-dir", str(run_dir), "--quiet", "--no-plots"],
+             "--output", output, "--model", model, "--run-dir", str(run_dir), "--quiet", "--no-plots", *extra],
             capture_output=True, text=True, timeout=120, cwd=folder,
         )  # fmt: skip
     finally:
@@ -114,6 +114,22 @@ def flown(request, tmp_path_factory) -> Flown:
 def flown_paper_model(tmp_path_factory) -> Flown:
     """The paper's model with the plant's paper inner loop (the law's rates flown as eq. 16)."""
     return fly(tmp_path_factory.mktemp("flight-paper"), "attitude", model="paper")
+
+
+def integral_controller(folder: Path) -> Path:
+    """Table I's gains with integral action (a field summary.json did not always record)."""
+    text = PAPER_CONTROLLER_FILE.read_text()
+    assert "integral_gain_per_s = 0.0" in text and "yaw_aware = false" in text
+    path = folder / "integral.toml"
+    path.write_text(text.replace("integral_gain_per_s = 0.0", "integral_gain_per_s = 0.4").replace("yaw_aware = false", "yaw_aware = true"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def flown_with_controller_file(tmp_path_factory) -> Flown:
+    folder = tmp_path_factory.mktemp("flight-controller-file")
+    folder.mkdir(exist_ok=True)
+    return fly(folder, "attitude", extra=("--controller", str(integral_controller(folder))))
 
 
 def replay_json(capsys, *argv: str) -> tuple[int, dict]:
@@ -156,6 +172,57 @@ def test_rerun_encodes_with_the_flights_own_setpoint_function(flown, tmp_path, c
     code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
     assert code == 0 and payload["rerun"]["exact"]
     assert calls == [flown.output] * payload["rerun"]["samples"]
+
+
+def test_summary_names_the_mission_and_controller_files_by_full_path(flown, flown_with_controller_file):
+    assert flown.summary["mission_file"] == str(flown.mission.resolve())
+    assert flown.summary["controller_file"] is None  # the default: the paper's gains, the vehicle's SIM_*
+    other = flown_with_controller_file
+    assert other.summary["controller_file"] == str((other.mission.parent / "integral.toml").resolve())
+    assert other.summary["controller"]["integral_gain_per_s"] == 0.4
+
+
+def test_rerun_finds_the_mission_from_summary_json_wherever_it_is_run(flown, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # neither beside the log nor here nor among the bundled missions
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--run-dir", str(tmp_path / "r"))
+    assert code == 0 and payload["rerun"]["exact"]
+    assert payload["mission"].startswith(str(flown.mission.resolve())) and payload["references"] == "mission"
+
+
+def _copy_flight(flown: Flown, folder: Path, edit) -> Path:
+    """The flight's log and an edited summary.json in ``folder`` (the fixture's stay untouched)."""
+    folder.mkdir()
+    log = folder / flown.flight_log.name
+    log.write_bytes(flown.flight_log.read_bytes())
+    summary = json.loads((flown.run_dir / "summary.json").read_text())
+    edit(summary)
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return log
+
+
+def test_rerun_uses_the_controller_file_named_in_summary_json(flown_with_controller_file, tmp_path, capsys, monkeypatch):
+    flown = flown_with_controller_file
+    monkeypatch.chdir(tmp_path)
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--run-dir", str(tmp_path / "r"))
+    assert code == 0 and payload["rerun"]["exact"] and payload["rerun"]["samples"] > 100
+    assert payload["rerun"]["controller"].startswith("the flight's") and "integral.toml" in payload["rerun"]["controller"]
+    # a summary that records no resolved controller: the file it names alone decides (its integral action)
+    log = _copy_flight(flown, tmp_path / "bare", lambda s: s.pop("controller"))
+    code, payload = replay_json(capsys, str(log), "--rerun", "--run-dir", str(tmp_path / "r2"))
+    assert code == 0 and payload["rerun"]["exact"], payload["rerun"]
+    assert "integral.toml" in payload["rerun"]["controller"]
+
+
+def test_rerun_reads_a_summary_from_before_the_file_fields(flown, tmp_path, capsys, monkeypatch):
+    def older(summary: dict) -> None:
+        del summary["mission_file"], summary["controller_file"]
+
+    log = _copy_flight(flown, tmp_path / "old", older)
+    (tmp_path / "old" / flown.mission.name).write_text(flown.mission.read_text())  # found by name, beside the log
+    monkeypatch.chdir(tmp_path)
+    code, payload = replay_json(capsys, str(log), "--rerun", "--run-dir", str(tmp_path / "r"))
+    assert code == 0 and payload["rerun"]["exact"] and payload["rerun"]["controller"].startswith("the flight's")
+    assert "named in summary.json" in payload["mission"]
 
 
 def test_rerun_of_the_plants_log_also_reproduces_it(flown, tmp_path, capsys):

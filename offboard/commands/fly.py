@@ -204,8 +204,12 @@ def run(args: argparse.Namespace) -> int:
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
     log_clock = LogClock(args.lockstep)
     console = _Console(sys.stderr, args.quiet)
-    meta = {"mission": mission.name, "mission_source": mission.source, "output": args.output, "model": args.model,
-            "lockstep": args.lockstep, "connect": args.connect, "controller": str(controller_file)}  # fmt: skip
+    # the files behind the flight, by their full paths, so that `offboard replay --rerun` finds them
+    # from anywhere: the mission, and the controller file (None: the paper's gains believing the
+    # vehicle's SIM_* values, offboard fly's default)
+    meta = {"mission": mission.name, "mission_source": mission.source, "mission_file": str(args.mission.resolve()),
+            "controller_file": None if args.controller is None else str(args.controller.resolve()),
+            "output": args.output, "model": args.model, "lockstep": args.lockstep, "connect": args.connect}  # fmt: skip
     started = time.monotonic()
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
@@ -254,6 +258,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "inertia_kg_m2": list(c.inertia_kg_m2), "gravity_m_s2": c.gravity_m_s2,
             "drag_to_thrust_m": c.drag_to_thrust_m, "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
             "gains": dataclasses.asdict(c.gains),
+            "integral_gain_per_s": c.integral_gain_per_s, "integral_limit_m_s": c.integral_limit_m_s,
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
         },  # fmt: skip

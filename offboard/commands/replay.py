@@ -129,6 +129,11 @@ def _mission(args: argparse.Namespace, summary: dict | None):
 
     if args.mission is not None:
         return load_mission(args.mission).trajectory, str(args.mission)
+    recorded = (summary or {}).get("mission_file")  # its full path (summaries before it: only the name)
+    if isinstance(recorded, str) and recorded:
+        if Path(recorded).is_file():
+            return load_mission(recorded).trajectory, f"{recorded} (summary.json's mission_file)"
+        _warn(f"summary.json's mission file {recorded} no longer exists; looking for it by name")
     name = (summary or {}).get("mission_source")
     if isinstance(name, str) and name:
         for folder in (args.log.parent, Path.cwd(), MISSIONS_DIR):
