@@ -43,9 +43,10 @@ from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
 from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.frames import tracking_reference
-from offboard.missions.geo import LocalProjection
+from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
-from offboard.trajectory.base import Phase, Reference, Trajectory
+from offboard.trajectory.base import Trajectory
+from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
 OUTPUTS = codec.OUTPUTS
@@ -269,37 +270,6 @@ def resolve_controller(
         f"u in [{thrust_min:.3g}, {thrust_max:.4g}] N, tilt limit {tilt_text}"
     )
     return params, notes
-
-
-@dataclass(frozen=True)
-class ShiftedTrajectory:
-    """A trajectory moved by a constant NED offset (a mission's origin in the vehicle's frame)."""
-
-    trajectory: Trajectory
-    offset_ned_m: tuple[float, float, float]
-
-    @property
-    def duration_s(self) -> float:
-        return self.trajectory.duration_s
-
-    def phases(self) -> list[Phase]:
-        return self.trajectory.phases()
-
-    def reference(self, t_s: float) -> Reference:
-        r = self.trajectory.reference(t_s)
-        return Reference(r.pos_ned_m + np.asarray(self.offset_ned_m), r.vel_ned_m_s, r.acc_ned_m_s2, r.yaw_rad, r.yaw_rate_rad_s)
-
-
-def mission_offset_ned(mission_home: tuple[float, float, float], vehicle_home: tuple[float, float, float],
-                       home_local_ned_m: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Where a mission's local origin lies in the vehicle's local NED frame.
-
-    The mission's origin is its home (lat, lon); the vehicle reports its home's (lat, lon) and
-    the home's local position. Heights in a waypoint file are relative to home, so vertically
-    the mission's origin is the vehicle's home (its local down), whatever the two AMSL altitudes.
-    """
-    north, east = LocalProjection(vehicle_home[0], vehicle_home[1]).north_east(mission_home[0], mission_home[1])
-    return (north + home_local_ned_m[0], east + home_local_ned_m[1], home_local_ned_m[2])
 
 
 # --- results -------------------------------------------------------------------------------------
@@ -746,8 +716,9 @@ class Flight:
             raise MissionFormatError(f"the mission's home ({self.mission_home[0]:.6f}, {self.mission_home[1]:.6f}) is "
                                      f"{horizontal / 1000:.1f} km from the vehicle's: not a mission for this vehicle")
         self.home_offset_ned_m = offset
-        if max(abs(v) for v in offset) > 1e-3:
-            self.trajectory = ShiftedTrajectory(self.trajectory, offset)
+        shifted = shift_trajectory(self.trajectory, offset)
+        if shifted is not self.trajectory:
+            self.trajectory = shifted
             self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
 
     def _now_ns(self) -> int:

@@ -420,6 +420,7 @@ class LogScan:
     commands: list[tuple] = field(default_factory=list)  # (n, t_s, src, target system, command, param1)
     acks: list[tuple] = field(default_factory=list)  # (n, t_s, src, target system, command, result)
     params: dict[int, dict[str, float]] = field(default_factory=dict)  # sysid -> name -> last value
+    home_positions: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (n, lat deg, lon deg, alt m, x, y, z)
     events: list[Event] = field(default_factory=list)
     _status: dict[int, codec.VehicleStatus] = field(default_factory=dict)  # sysid -> latest heartbeat
     _text_chunks: dict[tuple[int, int], list[str]] = field(default_factory=dict)
@@ -525,6 +526,11 @@ class LogScan:
         target = int(getattr(msg, "target_system", 0) or 0)
         self.acks.append((self.messages, t_s, src, target, int(msg.command), int(msg.result)))
 
+    def _home_position(self, t_s: float, src: tuple[int, int], msg) -> None:
+        self.home_positions.setdefault(src[0], []).append(
+            (self.messages, msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0, float(msg.x), float(msg.y), float(msg.z))
+        )  # as offboard.flight reads it
+
     def _param_value(self, t_s: float, src: tuple[int, int], msg) -> None:
         name, value = codec.param_value(msg)  # PX4 sends integers as their bytes in the float
         self.params.setdefault(src[0], {})[name] = value
@@ -558,6 +564,7 @@ _HANDLERS: dict[str, Callable[[LogScan, float, tuple[int, int], object], None]] 
     "SET_ATTITUDE_TARGET": LogScan._set_attitude_target,
     "SET_ACTUATOR_CONTROL_TARGET": LogScan._set_actuator_target,
     "PARAM_VALUE": LogScan._param_value,
+    "HOME_POSITION": LogScan._home_position,
     "COMMAND_LONG": LogScan._command,
     "COMMAND_INT": LogScan._command,
     "COMMAND_ACK": LogScan._command_ack,
@@ -652,6 +659,25 @@ def arm_accepted(scan: LogScan, sysid: int) -> tuple[int, float] | None:
         if src[0] == sysid and cmd == MAV_CMD_COMPONENT_ARM_DISARM and result == 0 and any(a[0] == target for a in asked):
             return n, t_s
     return None
+
+
+def logged_mission_offset(scan: LogScan, sysid: int, mission_home: tuple[float, float, float]) -> tuple[float, float, float] | None:
+    """Where a geo-referenced mission's origin lay in vehicle ``sysid``'s local frame (NED, m),
+    from the vehicle's HOME_POSITION in the log, as ``offboard fly`` places it before arming.
+
+    The HOME_POSITION used is the last one logged before the accepted arm (the flight aligns the
+    mission before it streams and arms; PX4 may move its home when it arms), else the first.
+    None when the log holds no HOME_POSITION from the vehicle.
+    """
+    from offboard.missions.geo import mission_offset_ned
+
+    homes = scan.home_positions.get(sysid)
+    if not homes:
+        return None
+    arm = arm_accepted(scan, sysid)
+    before = [h for h in homes if arm is not None and h[0] < arm[0]]
+    _n, lat, lon, alt, x, y, z = before[-1] if before else homes[0]
+    return mission_offset_ned(mission_home, (lat, lon, alt), (x, y, z))
 
 
 def _latest(times: np.ndarray, at: np.ndarray) -> np.ndarray:

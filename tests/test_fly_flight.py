@@ -372,7 +372,7 @@ def test_command_line_options_win():
 
 
 def test_mission_offset_is_the_mission_home_in_the_vehicle_frame():
-    from offboard.flight import mission_offset_ned
+    from offboard.missions.geo import mission_offset_ned
 
     home = (47.397742, 8.545594, 488.0)
     north_of_it = (47.397742 + 10.0 / 111_195.0, 8.545594, 500.0)  # ~10 m north, another AMSL altitude

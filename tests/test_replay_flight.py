@@ -74,17 +74,18 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, ...] = ()) -> Flown:
+def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, ...] = (), *,
+        mission_file: str = "replay-test.toml", mission_text: str = MISSION, plant_extra: tuple[str, ...] = ()) -> Flown:
     folder.mkdir(parents=True, exist_ok=True)
-    mission = folder / "replay-test.toml"
-    mission.write_text(MISSION)
+    mission = folder / mission_file
+    mission.write_text(mission_text)
     run_dir = folder / "run"
     port = free_udp_port()
     plant = subprocess.Popen(
         [str(BIN / "sitl-plant"), "--lockstep", "--model", model, "--inner-loop", "paper" if model == "paper" else "px4",
          "--api-bind", "127.0.0.1:0",
          "--api-remote", f"127.0.0.1:{port}", "--gcs-bind", "none", "--log", str(folder / "plant.tlog"),
-         "--quiet", "--duration", "120"],
+         "--quiet", "--duration", "120", *plant_extra],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
     )  # fmt: skip
     try:
@@ -130,6 +131,24 @@ def flown_with_controller_file(tmp_path_factory) -> Flown:
     folder = tmp_path_factory.mktemp("flight-controller-file")
     folder.mkdir(exist_ok=True)
     return fly(folder, "attitude", extra=("--controller", str(integral_controller(folder))))
+
+
+#: A geo-referenced mission (QGC WPL): take-off to 2 m, 3 m north, land; home at the plant's default.
+GEO_MISSION = "\n".join("\t".join(item) for item in (
+    ("QGC WPL 110",),
+    ("0", "1", "0", "16", "0", "0", "0", "0", "47.397742", "8.545594", "488.0", "1"),
+    ("1", "0", "3", "22", "0", "0", "0", "nan", "47.397742", "8.545594", "2.0", "1"),
+    ("2", "0", "3", "16", "0", "0", "0", "nan", "47.397769", "8.545594", "2.0", "1"),
+    ("3", "0", "3", "21", "0", "0", "0", "nan", "0", "0", "0.0", "1"),
+)) + "\n"  # fmt: skip
+#: The vehicle's home 1.5 m north of the mission's: the mission is flown 1.5 m south of the vehicle's origin.
+GEO_VEHICLE_HOME = f"{47.397742 + 1.5 / 111_195.0:.8f},8.545594,488.0"
+
+
+@pytest.fixture(scope="module")
+def flown_geo(tmp_path_factory) -> Flown:
+    return fly(tmp_path_factory.mktemp("flight-geo"), "attitude", mission_file="geo.waypoints", mission_text=GEO_MISSION,
+               plant_extra=("--home", GEO_VEHICLE_HOME))  # fmt: skip
 
 
 def replay_json(capsys, *argv: str) -> tuple[int, dict]:
@@ -374,3 +393,42 @@ def test_paper_model_flight_reruns_exactly_and_reports_the_flights_numbers(flown
     for a, b in zip(payload["phases"], flown.summary["phases"]):
         assert a["axes"]["3d"]["rms_m"] == pytest.approx(b["axes"]["3d"]["rms_m"], rel=1e-12)
     assert payload["peak_thrust_n"] == pytest.approx(flown.summary["peak_thrust_n"], rel=1e-12)
+
+
+# --- a geo-referenced mission, flown away from the vehicle's origin -------------------------------
+
+
+def _series_refs(flown: Flown) -> np.ndarray:
+    return np.array([[float(r[f"ref_pos_ned_m_{i}"]) for i in range(3)] for r in _series(flown)])
+
+
+def test_replay_compares_a_geo_mission_with_the_reference_where_it_was_flown(flown_geo, tmp_path, capsys, monkeypatch):
+    from offboard.missions import load_mission
+
+    flown = flown_geo
+    offset = flown.summary["mission_offset_ned_m"]
+    assert offset[0] == pytest.approx(-1.5, abs=0.01) and abs(offset[1]) < 1e-6  # the flight moved it 1.5 m south
+    monkeypatch.chdir(tmp_path)
+    run_dir = tmp_path / "r"
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--run-dir", str(run_dir))
+    assert code == 0 and payload["rerun"]["exact"], payload["rerun"]  # the law saw the moved references too
+    assert payload["mission_offset_ned_m"] == offset and "mission_offset_ned_m" in payload["mission"]
+    replayed = np.array([[float(r[f"ref_pos_ned_m_{i}"]) for i in range(3)] for r in csv.DictReader((run_dir / "series.csv").open())])
+    assert_allclose(replayed, _series_refs(flown), rtol=0, atol=0)  # the references the flight flew, exactly
+    as_written = load_mission(flown.mission).trajectory.reference(0.0).pos_ned_m
+    assert replayed[0][0] == pytest.approx(as_written[0] - 1.5, abs=0.01)
+    # and the errors are the flight's own, phase by phase
+    for a, b in zip(payload["phases"], flown.summary["phases"]):
+        assert a["axes"]["3d"]["rms_m"] == pytest.approx(b["axes"]["3d"]["rms_m"], rel=1e-12)
+
+
+def test_without_summary_the_logged_home_position_places_a_geo_mission(flown_geo, tmp_path, capsys):
+    flown = flown_geo
+    log = tmp_path / "alone.tlog"  # no summary.json describes it
+    log.write_bytes(flown.flight_log.read_bytes())
+    run_dir = tmp_path / "r"
+    code, payload = replay_json(capsys, str(log), "--mission", str(flown.mission), "--run-dir", str(run_dir))
+    assert code == 0 and "HOME_POSITION" in payload["mission"]
+    assert_allclose(payload["mission_offset_ned_m"], flown.summary["mission_offset_ned_m"], rtol=0, atol=0)
+    replayed = np.array([[float(r[f"ref_pos_ned_m_{i}"]) for i in range(3)] for r in csv.DictReader((run_dir / "series.csv").open())])
+    assert_allclose(replayed, _series_refs(flown), rtol=0, atol=0)

@@ -124,24 +124,48 @@ def _flight_summary(log: Path) -> dict | None:
 
 
 def _mission(args: argparse.Namespace, summary: dict | None):
-    """The mission's trajectory and a note saying where it came from (None, '' without one)."""
+    """The mission (``offboard.missions.Mission``) and a note saying where it came from (None, ''
+    without one)."""
     from offboard.missions import MISSIONS_DIR, load_mission
 
     if args.mission is not None:
-        return load_mission(args.mission).trajectory, str(args.mission)
+        return load_mission(args.mission), str(args.mission)
     recorded = (summary or {}).get("mission_file")  # its full path (summaries before it: only the name)
     if isinstance(recorded, str) and recorded:
         if Path(recorded).is_file():
-            return load_mission(recorded).trajectory, f"{recorded} (summary.json's mission_file)"
+            return load_mission(recorded), f"{recorded} (summary.json's mission_file)"
         _warn(f"summary.json's mission file {recorded} no longer exists; looking for it by name")
     name = (summary or {}).get("mission_source")
     if isinstance(name, str) and name:
         for folder in (args.log.parent, Path.cwd(), MISSIONS_DIR):
             candidate = folder / name
             if candidate.is_file():
-                return load_mission(candidate).trajectory, f"{candidate} (named in summary.json)"
+                return load_mission(candidate), f"{candidate} (named in summary.json)"
         _warn(f"summary.json names the mission {name!r}, not found beside the log, here or in {MISSIONS_DIR}; pass --mission FILE")
     return None, ""
+
+
+def _mission_offset(mission, scan, vehicle: int | None, summary: dict | None) -> tuple[tuple[float, float, float] | None, str]:
+    """Where a geo-referenced mission was flown: its origin in the vehicle's frame (NED, m), and
+    where that came from. ``offboard fly`` moves a mission with a home by this offset
+    (``mission_offset_ned_m`` in summary.json); without a summary, the vehicle's HOME_POSITION
+    in the log gives it. A mission without a home was flown as written."""
+    from offboard.replay import logged_mission_offset
+
+    if mission.home is None:
+        return None, ""
+    if summary is not None and "mission_offset_ned_m" in summary:
+        recorded = summary["mission_offset_ned_m"]
+        if recorded is None:
+            return None, "flown as written (summary.json: no HOME_POSITION from the vehicle)"
+        north, east, down = (float(v) for v in recorded)
+        return (north, east, down), "summary.json's mission_offset_ned_m"
+    offset = logged_mission_offset(scan, vehicle, mission.home) if vehicle is not None else None
+    if offset is None:
+        _warn("the mission is geo-referenced but neither summary.json nor the log (HOME_POSITION) says where the "
+              "vehicle's home was: references as the file places them about the vehicle's origin")
+        return None, ""
+    return offset, "the vehicle's HOME_POSITION in the log"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -166,10 +190,17 @@ def run(args: argparse.Namespace) -> int:
 def _report(args: argparse.Namespace, reader, scan) -> int:
     from offboard import replay
     from offboard.metrics import format_table, summarize
+    from offboard.trajectory.shifted import shift_trajectory
 
     summary_json = _flight_summary(args.log)
-    trajectory, mission_note = _mission(args, summary_json)
+    mission, mission_note = _mission(args, summary_json)
     vehicle = args.sysid if args.sysid is not None else scan.vehicle_sysid()
+    trajectory, offset = None, None
+    if mission is not None:
+        offset, offset_note = _mission_offset(mission, scan, vehicle, summary_json)
+        trajectory = shift_trajectory(mission.trajectory, offset)
+        if trajectory is not mission.trajectory:
+            mission_note += f"; moved by NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m, {offset_note}"
     params_log = scan.params.get(vehicle, {}) if vehicle is not None else {}
     thrust_max = args.thrust_max_n if args.thrust_max_n is not None else params_log.get("SIM_THR_MAX", math.nan)
     scaling = replay.Scaling(thrust_max, params_log.get("SIM_TQ_RP_MAX", math.nan), params_log.get("SIM_TQ_Y_MAX", math.nan))
@@ -220,6 +251,7 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         "log": str(args.log),
         "run_dir": str(run_dir),
         "mission": mission_note or None,
+        "mission_offset_ned_m": None if offset is None else list(offset),
         **meta,
         "samples": len(record),
         **summary.to_dict(),

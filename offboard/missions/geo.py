@@ -63,3 +63,16 @@ class LocalProjection:
         if not -180.0 <= lon_deg <= 180.0:
             lon_deg = (lon_deg + 180.0) % 360.0 - 180.0
         return math.degrees(lat), lon_deg, alt
+
+
+def mission_offset_ned(mission_home: tuple[float, float, float], vehicle_home: tuple[float, float, float],
+                       home_local_ned_m: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Where a mission's local origin lies in the vehicle's local NED frame (m).
+
+    The mission's origin is its home (lat deg, lon deg, alt m AMSL); the vehicle reports its
+    home's (lat, lon, alt) and the home's local position (HOME_POSITION x, y, z). Heights in a
+    waypoint file are relative to home, so vertically the mission's origin is the vehicle's home
+    (its local down), whatever the two AMSL altitudes.
+    """
+    north, east = LocalProjection(vehicle_home[0], vehicle_home[1]).north_east(mission_home[0], mission_home[1])
+    return (north + home_local_ned_m[0], east + home_local_ned_m[1], home_local_ned_m[2])
