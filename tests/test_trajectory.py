@@ -320,3 +320,19 @@ def test_reference_lookup_uses_precomputed_starts():
     traj = _paper_helix()
     assert traj.starts_s == (0.0, 12.0, 25.0)
     assert [traj.segment_at(t) for t in (-1.0, 0.0, 11.999, 12.0, 30.0, 99.0)] == [0, 0, 0, 1, 2, 2]
+
+
+def test_a_shifted_trajectory_moves_positions_only_and_a_tiny_offset_not_at_all():
+    from offboard.trajectory.shifted import MIN_SHIFT_M, ShiftedTrajectory, shift_trajectory
+
+    helix = Helix(center_ned_m=(0.0, 0.0, -2.0), radius_m=2.0, angular_rate_rad_s=1.0, climb_rate_m_s=0.8, duration_s=12.0)
+    assert shift_trajectory(helix, None) is helix
+    assert shift_trajectory(helix, (MIN_SHIFT_M / 2, 0.0, -MIN_SHIFT_M / 2)) is helix
+    moved = shift_trajectory(helix, (-1.5, 2.0, 0.25))
+    assert isinstance(moved, ShiftedTrajectory) and moved.duration_s == helix.duration_s and moved.phases() == helix.phases()
+    for t in (0.0, 3.3, 12.0, 20.0):
+        a, b = helix.reference(t), moved.reference(t)
+        assert_allclose(b.pos_ned_m - a.pos_ned_m, [-1.5, 2.0, 0.25], atol=1e-12)
+        assert_allclose(b.vel_ned_m_s, a.vel_ned_m_s, rtol=0, atol=0)
+        assert_allclose(b.acc_ned_m_s2, a.acc_ned_m_s2, rtol=0, atol=0)
+        assert (b.yaw_rad, b.yaw_rate_rad_s) == (a.yaw_rad, a.yaw_rate_rad_s)
