@@ -280,3 +280,25 @@ def test_written_plan_is_what_qgroundcontrol_expects(tmp_path):
     assert first["Altitude"] == pytest.approx(10.0)
     assert [i["doJumpId"] for i in mission["items"]] == list(range(1, len(mission["items"]) + 1))
     np.testing.assert_equal(read_plan(tmp_path / "w.plan").items, items.items)
+
+
+@pytest.mark.parametrize("reader, suffix, kind", [(read_wpl, ".waypoints", "waypoint file"), (read_plan, ".plan", ".plan JSON")])
+def test_a_file_that_cannot_be_read_is_one_line(tmp_path, reader, suffix, kind):
+    """Both readers open their files the same way (offboard.missions.fields.read_mission_text)."""
+    folder = tmp_path / f"folder{suffix}"
+    folder.mkdir()
+    binary = tmp_path / f"binary{suffix}"
+    binary.write_bytes(b"\xff\xfe\x00garbage\x80")
+    cases = [
+        (tmp_path / f"absent{suffix}", "no such file"),
+        (folder, "is a directory, expected"),
+        (binary, "not a text file; expected"),
+        (binary / f"inside{suffix}", "cannot read it: Not a directory"),  # any other OSError
+    ]
+    for path, fragment in cases:
+        with pytest.raises(MissionFormatError) as info:
+            reader(path)
+        message = str(info.value)
+        assert fragment in message and "\n" not in message
+        if fragment != "no such file":
+            assert kind in message or "cannot read" in message

@@ -1,7 +1,9 @@
-"""TOML fields of mission files: ``sitl_plant.tomlfile.Fields`` raising ``MissionFormatError``.
+"""Reading mission files: TOML fields raising ``MissionFormatError``, and the text of the others.
 
-Same one-line messages (``file: mission.segment #2 (hold-12m): radius_m: must be > 0, got -2``),
-but of the mission kind, so callers can tell a bad mission from a bad parameter file.
+``MissionFields`` is ``sitl_plant.tomlfile.Fields`` with the same one-line messages
+(``file: mission.segment #2 (hold-12m): radius_m: must be > 0, got -2``) but of the mission kind,
+so callers can tell a bad mission from a bad parameter file. ``read_mission_text`` is how the
+waypoint (QGC WPL) and ``.plan`` readers open their files: every I/O error is one line.
 """
 
 from __future__ import annotations
@@ -46,3 +48,29 @@ def read_mission_toml(path: Path) -> dict[str, Any]:
         return read_toml(path)
     except ParameterFileError as exc:
         raise MissionFormatError(str(exc)) from None
+
+
+def read_mission_text(path: Path, expected: str) -> str:
+    """The text of a mission file (UTF-8); every way it cannot be read is one line.
+
+    Parameters
+    ----------
+    path : Path
+    expected : str
+        What the file should be, for the messages (``"a 'QGC WPL 110' waypoint file"``).
+
+    Raises
+    ------
+    MissionFormatError
+        No such file, a directory, not text, or unreadable (permissions, I/O).
+    """
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MissionFormatError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MissionFormatError(f"{path}: is a directory, expected {expected}") from None
+    except UnicodeDecodeError:
+        raise MissionFormatError(f"{path.name}: not a text file; expected {expected}") from None
+    except OSError as exc:
+        raise MissionFormatError(f"{path}: cannot read it: {exc.strerror or exc}") from None

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from offboard.errors import MissionFormatError
+from offboard.missions.fields import read_mission_text
 from offboard.missions.items import AMSL_FRAMES, FRAME_GLOBAL, NAV_COMMANDS, ItemMission, MissionItem
 
 #: Values written in ``mission``: MAV_AUTOPILOT_PX4, MAV_TYPE_QUADROTOR.
@@ -44,14 +45,7 @@ def read_plan(path: str | Path) -> ItemMission:
     """
     path = Path(path)
     source = path.name
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise MissionFormatError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MissionFormatError(f"{path}: is a directory, expected a .plan file") from None
-    except UnicodeDecodeError:
-        raise MissionFormatError(f"{source}: not a text file; expected QGroundControl .plan JSON") from None
+    text = read_mission_text(path, "QGroundControl .plan JSON")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 from offboard.errors import MissionFormatError
+from offboard.missions.fields import read_mission_text
 from offboard.missions.items import GLOBAL_FRAMES, ItemMission, MissionItem
 
 HEADER = "QGC WPL 110"
@@ -46,14 +47,7 @@ def read_wpl(path: str | Path) -> ItemMission:
     """
     path = Path(path)
     source = path.name
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise MissionFormatError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MissionFormatError(f"{path}: is a directory, expected a waypoint file") from None
-    except UnicodeDecodeError:
-        raise MissionFormatError(f"{source}: not a text file; expected a '{HEADER}' waypoint file") from None
+    text = read_mission_text(path, f"a '{HEADER}' waypoint file")
     lines = text.splitlines()
     header = lines[0].strip() if lines else ""
     if header != HEADER:
