@@ -69,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     net.add_argument("--gcs-remote", metavar="HOST:PORT", default=None, help=f"where the GCS link sends until a client talks (default 127.0.0.1:{GCS_REMOTE_PORT}; 'none': wait)")
     net.add_argument("--sysid", metavar="N", type=int, default=1, help="MAVLink system id (component is 1, the autopilot)")
     net.add_argument("--log", metavar="FILE.tlog", type=Path, default=None, help="record every packet sent and received (tlog)")
+    net.add_argument("--log-clock", choices=("sim", "wall"), default="sim",
+                     help="tlog timestamps: start epoch + simulation time (reproducible in lockstep), or the wall "
+                     "clock when each packet is sent or handled (to measure latencies)")
     parser.add_argument("--quiet", action="store_true", help="no banner, status line or summary")
     return parser
 
@@ -91,6 +94,10 @@ def _address(text: str | None, default: str, what: str) -> tuple[str, int] | Non
         return parse_address(default if text is None else text, what)
     except ValueError as exc:
         raise ArgumentError(str(exc)) from None
+
+
+def _wall_clock_us() -> int:
+    return time.time_ns() // 1000
 
 
 def _unhealthy(text: str) -> set[str]:
@@ -186,7 +193,7 @@ def _run(args: argparse.Namespace) -> int:
         for e in endpoints:
             e.close()
         raise
-    link = Link(endpoints, tlog, plant.epoch_us)
+    link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else _wall_clock_us)
 
     stopping = {"flag": False}
 

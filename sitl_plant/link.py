@@ -38,6 +38,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl_plant.errors import UserError
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
+KEEPALIVE_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT})  # whose latest packet a keepalive may resend
 _TLOG_STAMP = struct.Struct(">Q")
 
 
@@ -134,9 +135,8 @@ class Endpoint:
             raise LinkError(f"{name} link: bad bind address {bind[0]}:{bind[1]}: {exc}") from None
         self.sock.setblocking(False)
         self.packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-        # lockstep keepalives are packed apart (always seq 0), so they do not shift the logged
-        # sequence numbers
-        self.keepalive_packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        #: the latest packet sent of each message id in KEEPALIVE_IDS (resent by lockstep keepalives)
+        self.latest: dict[int, bytes] = {}
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.remembered: dict[str, list[bytes]] = {}
@@ -148,16 +148,19 @@ class Endpoint:
     def close(self) -> None:
         self.sock.close()
 
-    def pack(self, messages: list[mavlink.MAVLink_message], packer: mavlink.MAVLink | None = None) -> list[bytes]:
+    def pack(self, messages: list[mavlink.MAVLink_message]) -> list[bytes]:
         """Serialise messages with this link's sequence numbers."""
         out = []
-        packer = self.packer if packer is None else packer
+        packer = self.packer
         for msg in messages:
             try:
-                out.append(msg.pack(packer))
+                packet = msg.pack(packer)
             except (struct.error, OverflowError, ValueError, TypeError):
                 self.counters.encode_errors += 1  # a value out of its field's range: not sent
                 continue
+            out.append(packet)
+            if msg.id in KEEPALIVE_IDS:
+                self.latest[msg.id] = packet
             packer.seq = (packer.seq + 1) & 0xFF
         return out
 
@@ -297,15 +300,17 @@ class Link:
                 for d in datagrams:
                     endpoint.send_datagram(d)
 
-    def send_keepalive(self, index: int, messages: list[mavlink.MAVLink_message]) -> None:
-        """Send messages outside the logged stream: not in the tlog, and always sequence number 0,
-        so the same content gives the same bytes however many keepalives the wall clock fired
-        (a client that logs them logs the same bytes every run)."""
+    def send_keepalive(self, index: int, message_ids: list[int]) -> None:
+        """Resend, byte for byte and not logged, the latest packet sent of each of ``message_ids``
+        (in ``KEEPALIVE_IDS``) that the remembered datagrams do not already carry: no sequence
+        number is spent, so the logged stream is the same however many keepalives the wall clock
+        fired, and a client's duplicate filter drops the copies."""
         endpoint = self.endpoints[index]
-        endpoint.keepalive_packer.seq = 0
-        packets = endpoint.pack(messages, endpoint.keepalive_packer)
-        endpoint.keepalive_packer.seq = 0
-        endpoint.send_packets(packets)
+        remembered = [d for datagrams in endpoint.remembered.values() for d in datagrams]
+        for mid in message_ids:
+            packet = endpoint.latest.get(mid)
+            if packet is not None and not any(packet in d for d in remembered):
+                endpoint.send_datagram(packet)
 
     def flush(self) -> None:
         if self.tlog is not None:

@@ -204,6 +204,7 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
         ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, min=0.5, max=4.0, unit="m/s"),
         ParamSpec("MPC_TILTMAX_AIR", 45.0, min=20.0, max=89.0, unit="deg"),
         ParamSpec("MPC_THR_HOVER", hover, min=0.05, max=0.9, description="normalised hover thrust"),
+        ParamSpec("MPC_THR_MIN", 0.12, min=0.05, max=0.5, description="minimum collective thrust in flight, normalised (the offboard's thrust floor)"),
         ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s"),
         ParamSpec("MPC_TKO_SPEED", 1.5, min=1.0, max=5.0, unit="m/s"),
         ParamSpec("MIS_TAKEOFF_ALT", 2.5, min=0.0, max=80.0, unit="m", description="default takeoff height"),

@@ -69,6 +69,7 @@ def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleS
         from sitl_plant.dynamics import batch
 
         if batch.NUMBA:
+            batch.warm_up()  # before any link opens: the first period is not late
             return batch.FastRigidBodySim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
     return VehicleSim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
 
@@ -450,7 +451,8 @@ class Plant:
 
     def _on_timesync(self, index: int, msg: mavlink.MAVLink_message) -> None:
         if msg.tc1 == 0:
-            self.outbox[index].append(codec.timesync_reply(self.time_us * 1000, msg.ts1))
+            # tc1 = 0 marks a request, so a reply at simulation time 0 says 1 ns (still deterministic)
+            self.outbox[index].append(codec.timesync_reply(max(self.time_us * 1000, 1), msg.ts1))
 
     def _on_ping(self, index: int, msg: mavlink.MAVLink_message) -> None:
         if msg.target_system == 0 and msg.target_component == 0:
@@ -618,10 +620,10 @@ class _Driver:
             self.link.send(i, msgs, remember="telemetry" if lockstep else None)
 
     def keepalive(self) -> None:
-        """Lockstep, nobody answering: the latest telemetry again and a heartbeat of now."""
+        """Lockstep, nobody answering: the latest telemetry and heartbeat again, byte for byte."""
         self.link.resend_remembered()
         for i in range(len(self.link.endpoints)):
-            self.link.send_keepalive(i, [codec.heartbeat(self.plant.autopilot.status())])
+            self.link.send_keepalive(i, [mavlink.MAVLINK_MSG_ID_HEARTBEAT])
 
     def housekeeping(self) -> None:
         now = self.clock()

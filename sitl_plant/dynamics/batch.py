@@ -522,6 +522,15 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     return resting
 
 
+def warm_up() -> None:
+    """Load (or compile) the one-vehicle kernel now, not at the first physics step (numba loads
+    its cached machine code lazily, which takes a good part of a second)."""
+    x = np.zeros(STATE_SIZE)
+    x[6] = 1.0
+    _advance(x, 1, 1e-3, 0, 0.0, np.zeros(3), np.zeros(3), 0, -1.0, param_vector(VehicleParams()), np.zeros((1, 3)),
+             True, np.zeros(STATE_SIZE), np.zeros(4))  # fmt: skip
+
+
 _EULER_FORMS = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
 
 
