@@ -44,7 +44,7 @@ from offboard.controller import ActionLimits, ControllerParams, RosalesControlle
 from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.frames import tracking_reference
 from offboard.missions.geo import mission_offset_ned
-from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder
+from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
 from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
@@ -983,7 +983,6 @@ class Flight:
         x = codec.controller_state(measured, params.euler_rate_form)
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
         out = self.controller.step(x, tracking_reference(ref_n), tracking_reference(ref_n1))
-        law = out.law
         why = _diverged(measured)
         if recording:
             if why:
@@ -992,20 +991,8 @@ class Flight:
                 self.loop.periods_s.append(now - self._last_sample_wall)
             self._last_sample_wall = now
             self.loop.samples += 1
-            self.rows.append(
-                t_s=t,
-                pos_ned_m=measured.pos_ned_m,
-                vel_ned_m_s=measured.vel_ned_m_s,
-                euler_rad=measured.euler_rad,
-                ref_pos_ned_m=ref_n.pos_ned_m,
-                ref_yaw_rad=ref_n.yaw_rad,
-                ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
-                thrust_n=law.thrust_n,
-                torques_nm=out.torques_nm,
-                tau_tilde=law.tau_tilde,
-                time_boot_ms=measured.time_boot_ms,
-                sample_wall_s=now - (self._mission_wall0 or now),
-            )
+            self.rows.append(**control_row(t, measured, ref_n, out), time_boot_ms=measured.time_boot_ms,
+                             sample_wall_s=now - (self._mission_wall0 or now))  # fmt: skip
             if self._progress is not None:
                 err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]

@@ -25,7 +25,7 @@ import numpy as np
 
 from offboard.controller import ControllerParams, RosalesController
 from offboard.frames import euler_rates_from_body_rates, paper_state, tracking_reference
-from offboard.record import FlightRecord, FlightStatus, RecordBuilder
+from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, Model, PaperModel, VehicleSim
@@ -145,18 +145,7 @@ def run_scenario(scenario: Scenario, progress: Callable[[float], None] | None = 
         if why:
             status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}"
             break
-        rows.append(
-            t_s=t,
-            pos_ned_m=truth.pos_ned_m,
-            vel_ned_m_s=truth.vel_ned_m_s,
-            euler_rad=truth.euler_rad,
-            ref_pos_ned_m=ref_n.pos_ned_m,
-            ref_yaw_rad=ref_n.yaw_rad,
-            ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
-            thrust_n=law.thrust_n,
-            torques_nm=out.torques_nm,
-            tau_tilde=law.tau_tilde,
-        )
+        rows.append(**control_row(t, truth, ref_n, out))  # the truth, as the paper plots it
         if not out.is_finite():
             status, detail = FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite"
             break

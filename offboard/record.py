@@ -10,10 +10,14 @@ import csv
 import enum
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from offboard.trajectory.base import Phase
+from offboard.trajectory.base import Phase, Reference
+
+if TYPE_CHECKING:
+    from offboard.controller.law import ControlOutput
 
 
 class FlightStatus(enum.Enum):
@@ -55,6 +59,49 @@ COLUMNS: dict[str, int] = {
     "torques_nm": 3,  # eq. 16 real torques
     "tau_tilde": 3,  # eq. 40-42
 }
+
+
+class StateSample(Protocol):
+    """What a record row takes of a vehicle state: ``offboard.codec.MeasuredState`` (a MAVLink
+    flight, a re-run) or the simulator's truth (``run_scenario``)."""
+
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    euler_rad: np.ndarray
+
+
+def control_row(t_s: float, state: StateSample, ref: Reference, out: ControlOutput) -> dict[str, object]:
+    """One record row (``COLUMNS``) of a control sample: the state, the reference at n and the
+    law's output for it.
+
+    The one place a sample becomes a row, for the in-process run, the MAVLink flight and the
+    re-run of a log alike, so their records compare column for column.
+
+    Parameters
+    ----------
+    t_s : float
+        Mission time of sample n (s).
+    state : StateSample
+        The vehicle's position and velocity (NED, m, m/s) and ZYX Euler angles (rad).
+    ref : Reference
+        The mission's reference at n (NED).
+    out : ControlOutput
+        The controller's output for sample n: u, the angle references x7ez, x9ez, x11d(n+1),
+        the eq. 16 torques and tau_tilde (eq. 40-42).
+    """
+    law = out.law
+    return {
+        "t_s": t_s,
+        "pos_ned_m": state.pos_ned_m,
+        "vel_ned_m_s": state.vel_ned_m_s,
+        "euler_rad": state.euler_rad,
+        "ref_pos_ned_m": ref.pos_ned_m,
+        "ref_yaw_rad": ref.yaw_rad,
+        "ref_euler_rad": (law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
+        "thrust_n": law.thrust_n,
+        "torques_nm": out.torques_nm,
+        "tau_tilde": law.tau_tilde,
+    }
 
 
 @dataclass

@@ -1237,7 +1237,7 @@ def rerun_controller(
     """
     from offboard.controller import RosalesController
     from offboard.frames import tracking_reference
-    from offboard.record import RecordBuilder
+    from offboard.record import RecordBuilder, control_row
 
     output = record.meta.get("commands")
     if output not in RERUN_FIELDS:
@@ -1267,13 +1267,7 @@ def rerun_controller(
         x = codec.controller_state(measured, form)
         ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
         out = controller.step(x, tracking_reference(ref_n), tracking_reference(ref_n1))
-        law = out.law
-        builder.append(
-            t_s=t, pos_ned_m=measured.pos_ned_m, vel_ned_m_s=measured.vel_ned_m_s, euler_rad=measured.euler_rad,
-            ref_pos_ned_m=ref_n.pos_ned_m, ref_yaw_rad=ref_n.yaw_rad,
-            ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
-            thrust_n=law.thrust_n, torques_nm=out.torques_nm, tau_tilde=law.tau_tilde,
-        )  # fmt: skip
+        builder.append(**control_row(t, measured, ref_n, out))
         if not out.is_finite():
             continue
         sp = codec.law_setpoint(out, measured.euler_rad, params, scaling, output=output, model=model)  # type: ignore[arg-type]
