@@ -1,0 +1,69 @@
+"""Smoke test of bench/loop.py with tiny sizes: it runs the real processes, returns finite positive
+figures and well-formed markdown, and leaves no process behind. No timed assertion."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+
+from bench import loop
+
+
+def _alive(pattern: str) -> list[str]:
+    out = subprocess.run(["pgrep", "-af", pattern], capture_output=True, text=True).stdout
+    return [line for line in out.splitlines() if "pgrep" not in line]
+
+
+def test_floor_ping_pong_counts_cycles():
+    r = loop.floor(cycles=50, warmup=5)
+    assert r["cycles"] == 50 and math.isfinite(r["cycles_per_s"]) and r["cycles_per_s"] > 0
+    assert not _alive("--floor-role")
+
+
+def test_breakdown_attributes_samples_to_the_innermost_part(tmp_path):
+    raw = tmp_path / "plant.raw"
+    root = "<module> (sitl_plant/cli.py:1);run_lockstep (sitl_plant/server.py:700)"
+    raw.write_text(
+        f"{root};Link.wait (sitl_plant/link.py:260) 40\n"
+        f"{root};Plant.advance (sitl_plant/server.py:264);FastRigidBodySim.step (sitl_plant/dynamics/batch.py:601);"
+        "Px4Loop.held (sitl_plant/inner_loops.py:450) 30\n"
+        f"{root};Plant.advance (sitl_plant/server.py:264) 10\n"
+        "<module> (sitl_plant/cli.py:1);import_stuff (x.py:1) 99\n"  # outside the loop: not counted
+    )
+    rows = {r["part"]: r["us_per_cycle"] for r in loop.breakdown(raw, loop.PLANT_PARTS, loop.PLANT_SCOPE, cycles=10, rate_hz=1000)}
+    assert rows["waiting for the setpoint (select)"] == 4000.0
+    assert rows["PX4 attitude/rate loop (Python)"] == 3000.0
+    assert rows["autopilot, truth state"] == 1000.0
+    assert sum(rows.values()) == 8000.0
+
+
+def test_flights_give_finite_figures_and_markdown(tmp_path):
+    floor = loop.floor(cycles=30, warmup=5)
+    long = loop.long_flight(tmp_path, 3.0)
+    rt = loop.real_time(tmp_path, 50.0, 1.0)
+    assert long["status"] == "complete" and long["cycles_per_s"] > 0
+    assert long["hwm_kb"]["plant"] > 0 and long["hwm_kb"]["offboard"] > 0
+    assert rt["samples"] > 0 and rt["latency_count"] > 0
+    for key in ("jitter_p50_ms", "jitter_max_ms", "latency_p50_ms", "latency_max_ms"):
+        assert math.isfinite(rt[key]) and rt[key] >= 0, key
+    assert rt["latency_p50_ms"] > 0
+    assert loop.plant_periods(tmp_path / "long" / "plant.tlog") >= long["samples"]
+    result = {
+        "numba": True,
+        "lockstep": {
+            "cycles_per_s": long["cycles_per_s"], "floor_cycles_per_s": floor["cycles_per_s"],
+            "ratio": long["cycles_per_s"] / floor["cycles_per_s"], "commands": ["python -m sitl_plant.cli", "python -m offboard.cli fly"],
+        },  # fmt: skip
+        "profile": {"error": "not profiled in the smoke test"},
+        "real_time": [rt],
+        "memory": {"paper_helix_hwm_kb": long["hwm_kb"], "long": long},
+    }
+    text = loop.markdown(result)
+    for heading in ("### MAVLink lockstep loop", "### Real-time loop", "### Memory"):
+        assert text.count(heading) == 1
+    for line in text.splitlines():
+        if line.startswith("|"):
+            assert line.endswith("|") and "nan" not in line.lower(), line
+    for pid in long["pids"] + rt["pids"]:  # every process the harness started is gone
+        assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
