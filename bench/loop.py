@@ -23,8 +23,10 @@ process group: SIGINT, then SIGKILL).
   temporary folder), RSS of both sampled every second, with the growth slope fitted after the
   first 10 % (start-up), converted to kB per simulated minute with the flight's mean rate.
 
-``measure(quick)`` returns every figure (JSON-serialisable), ``markdown(result)`` the RESULTS.md
-section. Alone: ``python bench/loop.py [--quick] [--long-s 3600] [--json FILE]``.
+``measure(quick)`` returns every figure (JSON-serialisable) in about 2.5 minutes on 2 cores
+(quick: under a minute, no profile), ``markdown(result)`` the RESULTS.md section. Alone:
+``python bench/loop.py [--quick] [--long-s 3600] [--json FILE]`` (py-spy for the profile:
+``pip install py-spy``).
 """
 
 from __future__ import annotations
@@ -53,6 +55,9 @@ PAPER_HELIX = ROOT / "missions" / "paper-helix.toml"
 PX4_PORTS = {14540, 14550, 14580, 18570}  # never used: a real PX4 or ground station may be on them
 LOCKSTEP_PERIOD_S = 0.05
 FLIGHT_TIMEOUT_S = 600.0
+#: Simulated seconds of the long hover in a full run: half an hour fits the ~2.5 min budget at
+#: ~500 cycles/s (the hour takes ~140 s of wall time on its own: ``--long-s 3600``).
+LONG_S = 1800.0
 STARTUP_S = 4.0  # wall seconds of a flight's start-up left out of the RSS growth fit
 PROFILE_HZ = 400  # py-spy samples per second (it reads the process from outside: no overhead inside)
 
@@ -77,9 +82,10 @@ def free_ports(count: int) -> list[int]:
             return ports
 
 
-def _start(cmd: list[str], log: Path) -> subprocess.Popen:
+def _start(cmd: list[str], log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
     with log.open("w") as out:
-        return subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        return subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                env=None if env is None else {**os.environ, **env})  # fmt: skip
 
 
 def _stop(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
@@ -157,6 +163,7 @@ def fly(
     profile: bool = False,
     rss_interval_s: float | None = 0.05,
     timeout_s: float = FLIGHT_TIMEOUT_S,
+    plant_env: dict[str, str] | None = None,
 ) -> dict:
     """Fly ``mission`` with ``sitl-plant`` and ``offboard fly`` as two processes (``make demo``'s
     configuration: rigid body, PX4 inner loop, attitude output); returns the offboard's summary
@@ -186,7 +193,7 @@ def fly(
     try:
         # the offboard first, so that it hears the plant's very first packets (as the demo does)
         fly_proc = _start(fly_full, run_dir / "offboard.out")
-        plant_proc = _start(plant_full, run_dir / "plant.out")
+        plant_proc = _start(plant_full, run_dir / "plant.out", plant_env)
         if rss_interval_s is not None:
             sampler = RssSampler({"plant": _python_pid(plant_proc), "offboard": _python_pid(fly_proc)}, rss_interval_s)
             sampler.start()
@@ -557,9 +564,15 @@ def measure(quick: bool = False, long_s: float | None = None) -> dict:
             "ratio": rate / floor_run["cycles_per_s"],
             "commands": best["commands"],
         }
+        if not quick:  # before: the plant on the reference VehicleSim (interpreted RK4)
+            ref = fly(folder / "lockstep-reference", PAPER_HELIX, lockstep=True, plant_env={"SITL_PLANT_NO_NUMBA": "1"})
+            result["lockstep"]["reference_sim_cycles_per_s"] = _cycles_per_s(ref["summary"])
+            result["lockstep"]["reference_sim_plant_hwm_kb"] = ref["hwm_kb"].get("plant")
         result["memory"] = {"paper_helix_hwm_kb": best["hwm_kb"]}
-        # profiled (py-spy, sampling from outside): where the time goes
+        # profiled (py-spy, sampling from outside): where the time goes (not in a quick run)
         try:
+            if quick:
+                raise RuntimeError("not profiled in a quick run")
             prof = fly(folder / "profiled", PAPER_HELIX, lockstep=True, profile=True, rss_interval_s=None)
             cycles = int(prof["summary"]["loop"]["samples"])
             d = Path(prof["run_dir"])
@@ -575,10 +588,10 @@ def measure(quick: bool = False, long_s: float | None = None) -> dict:
         except (RuntimeError, OSError) as exc:
             result["profile"] = {"error": str(exc).splitlines()[0]}
         # real time at 50 Hz and 250 Hz
-        seconds = 4.0 if quick else 10.0
+        seconds = 3.0 if quick else 10.0
         result["real_time"] = [real_time(folder, hz, seconds) for hz in (50.0, 250.0)]
         # memory over a long flight
-        sim_s = long_s if long_s is not None else (600.0 if quick else 3600.0)
+        sim_s = long_s if long_s is not None else (300.0 if quick else LONG_S)
         result["memory"]["long"] = long_flight(folder, sim_s)
     return result
 
@@ -612,6 +625,16 @@ def markdown(result: dict) -> str:
         f"| plant + offboard, lockstep | {ls['cycles_per_s']:.0f} | {ls['cycles_per_s'] * LOCKSTEP_PERIOD_S:.1f}× | "
         f"{100 * ls['ratio']:.0f} % |",
         f"| floor: bare pymavlink ping-pong | {ls['floor_cycles_per_s']:.0f} | – | 100 % |",
+    ]
+    if "reference_sim_cycles_per_s" in ls:
+        ref = ls["reference_sim_cycles_per_s"]
+        lines.append(f"| before: plant on the interpreted `VehicleSim` (`SITL_PLANT_NO_NUMBA=1`) | {ref:.0f} | "
+                     f"{ref * LOCKSTEP_PERIOD_S:.1f}× | {100 * ref / ls['floor_cycles_per_s']:.0f} % |")  # fmt: skip
+    lines += [
+        "",
+        f"Target ≥ 70 % of the floor: {'met' if ls['ratio'] >= 0.7 else 'not met'}. "
+        "The machine is shared: the better of the unprofiled runs counts "
+        f"({', '.join(f'{v:.0f}' for v in ls.get('all_cycles_per_s', [ls['cycles_per_s']]))} cycles/s).",
         "",
     ]
     prof = result.get("profile", {})
@@ -629,7 +652,7 @@ def markdown(result: dict) -> str:
                 lines.append(f"| {proc} | {row['part']} | {row['us_per_cycle']:.0f} |")
         lines.append("")
     elif "error" in prof:
-        lines += [f"Profile failed: {prof['error']}", ""]
+        lines += [f"No profile: {prof['error']}.", ""]
     lines += [
         "### Real-time loop",
         "",
@@ -656,7 +679,9 @@ def markdown(result: dict) -> str:
         "### Memory",
         "",
         f"Peak RSS (VmHWM) during the lockstep paper helix: plant {_mb(hwm.get('plant'))} MB, "
-        f"offboard {_mb(hwm.get('offboard'))} MB.",
+        f"offboard {_mb(hwm.get('offboard'))} MB"
+        + (f" (plant without numba: {_mb(ls['reference_sim_plant_hwm_kb'])} MB; numba's LLVM is most of the difference)."
+           if ls.get("reference_sim_plant_hwm_kb") else "."),
         "",
         f"A lockstep hover of {long.get('sim_s', 0) / 60:.0f} simulated minutes ({long.get('samples', 0)} samples, "
         f"{long.get('cycles_per_s', math.nan):.0f} cycles/s, {long.get('wall_s', math.nan):.0f} s wall), RSS every "
@@ -681,7 +706,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python bench/loop.py", description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="smaller runs (well under a minute)")
-    parser.add_argument("--long-s", type=float, default=None, help="simulated seconds of the long hover (default 3600; quick 600)")
+    parser.add_argument("--long-s", type=float, default=None, help=f"simulated seconds of the long hover (default {LONG_S:g}; quick 300)")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     parser.add_argument("--floor-role", choices=("vehicle", "client"), help=argparse.SUPPRESS)
     parser.add_argument("--port", type=int, help=argparse.SUPPRESS)

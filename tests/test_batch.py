@@ -128,3 +128,39 @@ def test_fast_sim_refuses_other_models() -> None:
 
     with pytest.raises(TypeError):
         batch.FastRigidBodySim(PaperModel(DRAGGY))  # type: ignore[arg-type]
+
+
+class _PerStep:
+    """The same Px4Loop seen as a plain actuation (no ``held``): called at every physics step."""
+
+    def __init__(self, loop) -> None:  # noqa: ANN001
+        self.loop = loop
+
+    def __call__(self, model, x):  # noqa: ANN001, ANN204
+        return self.loop(model, x)
+
+
+def test_px4_loop_held_steps_equal_per_step_calls() -> None:
+    """FastRigidBodySim integrates the steps between the PX4 loop's gyro samples in one call: the
+    flight is bit for bit the per-step one, and VehicleSim's to rounding."""
+    from sitl_plant.inner_loops import Px4Loop
+    from sitl_plant.params import plant_params
+
+    def flight(cls, held: bool) -> np.ndarray:  # noqa: ANN001
+        model = RigidBodyModel(DRAGGY)
+        sim = cls(model, initial_pos_ned_m=np.array([0.0, 0.0, -3.0]))
+        loop = Px4Loop(plant_params(DRAGGY), model, 1e-3)
+        loop.landed = False
+        out = []
+        for i, (q, thrust) in enumerate([((1.0, 0.0, 0.0, 0.0), 6.0), ((0.995, 0.0998, 0.0, 0.0), 5.5),
+                                         ((0.98, 0.0, 0.15, 0.13), 5.0)] * 3):  # fmt: skip
+            loop.fly_attitude(q, thrust, 0.2 * (i % 2))
+            sim.actuation = loop if held else _PerStep(loop)
+            sim.step(50 if i % 2 else 47)  # also periods that are not a whole number of gyro samples
+            out.append(np.concatenate([sim.x, [sim.time_s, loop._step_count]]))
+        return np.array(out)
+
+    held = flight(batch.FastRigidBodySim, True)
+    np.testing.assert_array_equal(held, flight(batch.FastRigidBodySim, False))
+    np.testing.assert_allclose(held, flight(VehicleSim, True), rtol=1e-10, atol=1e-10)
+    assert abs(held[-1, 0]) + abs(held[-1, 1]) > 0.01  # it flew somewhere
