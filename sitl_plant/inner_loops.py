@@ -444,6 +444,36 @@ class Px4Loop:
         self.last_output = (self._thrust_n, torque)
         return self.last_output
 
+    def advance_rigid_body(self, sim: object, n_steps: int, winds: np.ndarray) -> bool:
+        """Fly ``n_steps`` of a ``FastRigidBodySim`` in one compiled call (``px4_kernel``), the
+        same operations as calling this loop at every step; False (nothing done) outside the
+        attitude and rate modes or on another model, where the caller steps as usual."""
+        if self._mode not in ("attitude", "rates") or self._euler_attitude:
+            return False
+        from sitl_plant import px4_kernel
+
+        if getattr(self, "_kernel_version", None) != self._version:
+            self._kernel_gains = np.array([self._att_p, self._rate_p, self._rate_i, self._rate_d, self._int_lim], dtype=float)
+            self._kernel_rate_max = np.array(self._rate_max, dtype=float)
+            self._kernel_tq_max = np.array(self._tq_max, dtype=float)
+            self._kernel_version = self._version
+        torque = np.array(self.last_output[1], dtype=float)
+        rate_int = np.array(self._rate_int, dtype=float)
+        prev = np.zeros(3) if self._prev_rates is None else np.array(self._prev_rates, dtype=float)
+        resting, count, has_prev, thrust = px4_kernel.advance_px4(
+            sim.x, n_steps, sim.physics_dt_s, winds, sim.ground, sim._last_xdot, sim._cmd, sim._p,  # type: ignore[attr-defined]
+            self._every, self._step_count, self._mode == "attitude", np.array(self._q_sp, dtype=float),
+            np.array(self._rates_sp, dtype=float), float(self._yaw_ff), float(self._thrust_n), float(self.last_output[0]),
+            self._yaw_w, self._kernel_gains, self._kernel_rate_max, self._kernel_tq_max, bool(self.landed), rate_int, prev,
+            self._prev_rates is not None, torque,
+        )  # fmt: skip
+        sim.on_ground = bool(resting)  # type: ignore[attr-defined]
+        self._step_count = int(count)
+        self._rate_int = rate_int.tolist()
+        self._prev_rates = tuple(prev.tolist()) if has_prev else None  # type: ignore[assignment]
+        self.last_output = (float(thrust), torque)
+        return True
+
     def held(self, model: Model, x: np.ndarray, max_steps: int) -> tuple[float, np.ndarray, int]:
         """This step's output and for how many steps (``1 <= k <= max_steps``) it holds.
 

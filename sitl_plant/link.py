@@ -159,8 +159,9 @@ class Endpoint:
                 self.counters.encode_errors += 1  # a value out of its field's range: not sent
                 continue
             out.append(packet)
-            if msg.id in KEEPALIVE_IDS:
-                self.latest[msg.id] = packet
+            mid = msg.get_msgId()  # not msg.id: some messages (HIGHRES_IMU) have a field named id
+            if mid in KEEPALIVE_IDS:
+                self.latest[mid] = packet
             packer.seq = (packer.seq + 1) & 0xFF
         return out
 

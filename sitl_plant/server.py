@@ -63,13 +63,18 @@ def make_model(kind: str, vehicle: VehicleParams) -> Model:
 
 
 def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleSim:
-    """The stepper: ``FastRigidBodySim`` (the same equations compiled, results equal to 1e-12)
-    for the rigid body when numba is installed, else the reference ``VehicleSim``."""
+    """The stepper: for the rigid body, ``FastRigidBodySim`` (the same equations compiled, equal
+    to ``VehicleSim`` to 1e-12; the PX4 attitude and rate loops fused into it) when numba is
+    installed and its kernels are already compiled in numba's cache (``python -m
+    sitl_plant.px4_kernel`` compiles them, ~10 s once; the test suite and the benchmarks do it
+    too); else the reference ``VehicleSim``. Compiling here would keep a starting plant silent
+    for seconds, longer than a client waits for its first heartbeat."""
     if not isinstance(model, PaperModel):
+        from sitl_plant import px4_kernel
         from sitl_plant.dynamics import batch
 
-        if batch.NUMBA:
-            batch.warm_up()  # before any link opens: the first period is not late
+        if px4_kernel.compiled_ready():
+            px4_kernel.compile_all()  # load now, before any link opens: the first period is not late
             return batch.FastRigidBodySim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
     return VehicleSim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
 
@@ -225,6 +230,7 @@ class Plant:
         self.counters = Counters()
         self.outbox: list[list[mavlink.MAVLink_message]] = [[], []]
         self._statustext_id = 0
+        self._heartbeat_status: object = None  # the status the latest heartbeat reported
         self._truth = self.sim.truth()
         self._measured: VehicleState | None = None
         self._rigid = not isinstance(model, PaperModel)
@@ -477,6 +483,16 @@ class Plant:
             self._measured = truth if self.sensors is None else self.sensors.measure(truth)  # type: ignore[attr-defined]
         return self._measured
 
+    def status_changed(self) -> bool:
+        """Whether the vehicle's status (mode, arming, failsafe...) differs from what the latest
+        heartbeat said (lockstep: a heartbeat then goes out at once, see ``run_lockstep``)."""
+        return self._heartbeat_status is not None and self.autopilot.status() != self._heartbeat_status
+
+    def heartbeat_now(self) -> None:
+        """A heartbeat of the current status on every link (in the outbox)."""
+        for box in self.outbox:
+            box.append(self._build(mavlink.MAVLINK_MSG_ID_HEARTBEAT))  # type: ignore[arg-type]
+
     def telemetry(self, index: int, *, force: tuple[int, ...] = ()) -> list[mavlink.MAVLink_message]:
         """The streams due now on link ``index`` (plus ``force``d ones), all stamped now."""
         due = self.streams[index].due(self.time_us)
@@ -488,7 +504,9 @@ class Plant:
     def _build(self, mid: int) -> mavlink.MAVLink_message | None:
         t_ms, t_us = self.time_ms, self.time_us
         if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-            return codec.heartbeat(self.autopilot.status())
+            status = self.autopilot.status()
+            self._heartbeat_status = status
+            return codec.heartbeat(status)
         if mid in _STATE_STREAMS:
             st = self.measured()
             if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
@@ -611,11 +629,15 @@ class _Driver:
 
     def send_telemetry(self, *, lockstep: bool = False) -> None:
         """Replies first, then the due streams (in lockstep the streams are also kept for the
-        keepalive, which repeats them byte for byte)."""
+        keepalive, which repeats them byte for byte, and carry a heartbeat whenever the status
+        changed since the last one, so that what the keepalive repeats is current)."""
         self.flush_outbox()
         plant = self.plant
+        changed = lockstep and plant.status_changed()
         for i in range(len(self.link.endpoints)):
             force = LOCKSTEP_STREAMS if (lockstep and i == API) else ()
+            if changed:
+                force = (*force, mavlink.MAVLINK_MSG_ID_HEARTBEAT)
             msgs = plant.telemetry(i, force=force)
             self.link.send(i, msgs, remember="telemetry" if lockstep else None)
 
@@ -721,6 +743,8 @@ def run_lockstep(
                     d.send_telemetry(lockstep=True)
                     last_send = clock()
                 else:
+                    if plant.status_changed():  # a command changed it while time stands still
+                        plant.heartbeat_now()
                     d.flush_outbox()
         elif clock() - last_send >= keepalive_s:
             d.keepalive()

@@ -141,8 +141,9 @@ class _PerStep:
 
 
 def test_px4_loop_held_steps_equal_per_step_calls() -> None:
-    """FastRigidBodySim integrates the steps between the PX4 loop's gyro samples in one call: the
-    flight is bit for bit the per-step one, and VehicleSim's to rounding."""
+    """FastRigidBodySim flies the PX4 attitude and rate loops compiled with the physics
+    (px4_kernel): the flight, the loop's integrators and output are bit for bit those of the
+    Python loop called at every step, and VehicleSim's to rounding."""
     from sitl_plant.inner_loops import Px4Loop
     from sitl_plant.params import plant_params
 
@@ -153,14 +154,39 @@ def test_px4_loop_held_steps_equal_per_step_calls() -> None:
         loop.landed = False
         out = []
         for i, (q, thrust) in enumerate([((1.0, 0.0, 0.0, 0.0), 6.0), ((0.995, 0.0998, 0.0, 0.0), 5.5),
-                                         ((0.98, 0.0, 0.15, 0.13), 5.0)] * 3):  # fmt: skip
-            loop.fly_attitude(q, thrust, 0.2 * (i % 2))
+                                         ((0.98, 0.0, 0.15, 0.13), 5.0), (None, 5.2)] * 3):  # fmt: skip
+            if q is None:
+                loop.fly_rates((0.3, -0.2, 0.1), thrust)
+            else:
+                loop.fly_attitude(q, thrust, 0.2 * (i % 2))
             sim.actuation = loop if held else _PerStep(loop)
             sim.step(50 if i % 2 else 47)  # also periods that are not a whole number of gyro samples
-            out.append(np.concatenate([sim.x, [sim.time_s, loop._step_count]]))
+            out.append(np.concatenate([sim.x, [sim.time_s, loop._step_count, *loop._rate_int, loop.last_output[0]],
+                                       loop.last_output[1]]))  # fmt: skip
         return np.array(out)
 
     held = flight(batch.FastRigidBodySim, True)
     np.testing.assert_array_equal(held, flight(batch.FastRigidBodySim, False))
     np.testing.assert_allclose(held, flight(VehicleSim, True), rtol=1e-10, atol=1e-10)
     assert abs(held[-1, 0]) + abs(held[-1, 1]) > 0.01  # it flew somewhere
+
+
+def test_plant_steps_compiled_only_from_a_warm_cache(tmp_path) -> None:
+    """A plant never compiles at start-up (seconds of silence): with numba's cache cold it flies
+    the reference VehicleSim; once the kernels are compiled, the compiled one."""
+    import os
+    import subprocess
+    import sys
+
+    from sitl_plant import px4_kernel
+    from sitl_plant.server import make_model, make_sim
+
+    code = ("from sitl_plant.server import make_model, make_sim; from sitl_plant.vehicle import VehicleParams; "
+            "print(type(make_sim(make_model('rigid-body', VehicleParams()), 1e-3, None)).__name__)")  # fmt: skip
+    cold = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})  # fmt: skip
+    assert cold.stdout.strip() == "VehicleSim", cold.stderr
+    px4_kernel.compile_all()
+    sim = make_sim(make_model("rigid-body", VehicleParams()), 1e-3, None)
+    assert type(sim).__name__ == ("FastRigidBodySim" if batch.NUMBA else "VehicleSim")
+    assert type(make_sim(make_model("paper", VehicleParams()), 1e-3, None)).__name__ == "VehicleSim"

@@ -93,7 +93,8 @@ def test_keepalive_heartbeat_is_the_latest_sent_when_telemetry_has_none(tmp_path
     try:
         beat = mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3)
         link.send(0, [beat])
-        link.send(0, [mavlink.MAVLink_attitude_message(50, 0, 0, 0, 0, 0, 0)], remember="telemetry")
+        imu = mavlink.MAVLink_highres_imu_message(50_000, *([0.0] * 13), 0, 0)  # has a field named id (= 0)
+        link.send(0, [mavlink.MAVLink_attitude_message(50, 0, 0, 0, 0, 0, 0), imu], remember="telemetry")
         sent = _received(peer)
         seq = endpoint.packer.seq
         time.sleep(0.01)

@@ -522,6 +522,22 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     return resting
 
 
+def is_cached(*kernels: object) -> bool:
+    """Whether numba's on-disk cache holds these compiled kernels, newer than their source: then
+    loading them takes a fraction of a second, where compiling takes seconds (first run)."""
+    if not NUMBA:
+        return False
+    try:
+        for kernel in kernels:
+            index = kernel._cache._cache_file._index_path  # type: ignore[attr-defined]
+            source = kernel.py_func.__code__.co_filename  # type: ignore[attr-defined]
+            if not os.path.isfile(index) or os.path.getmtime(index) < os.path.getmtime(source):
+                return False
+    except (AttributeError, OSError):
+        return False
+    return True
+
+
 def warm_up() -> None:
     """Load (or compile) the one-vehicle kernel now, not at the first physics step (numba loads
     its cached machine code lazily, which takes a good part of a second)."""
@@ -543,7 +559,10 @@ class FastRigidBodySim(VehicleSim):
     (``tests/test_batch.py``).
 
     ``HeldActuation`` and ``EulerAccelActuation`` run a whole ``step(n)`` in one compiled
-    call. An actuation with a ``held(model, x, max_steps) -> (thrust, torque, k)`` method (the
+    call, and so does an actuation with an ``advance_rigid_body(sim, n_steps, winds) -> bool``
+    method when it returns True (the plant's ``Px4Loop`` in its attitude and rate modes, fused
+    with the physics in ``sitl_plant.px4_kernel``). An actuation with a
+    ``held(model, x, max_steps) -> (thrust, torque, k)`` method (the
     plant's ``Px4Loop``, whose output is held between gyro samples) is called once per ``k``
     steps, which are integrated in one compiled call; any other actuation is called in Python
     once per physics step.
@@ -615,6 +634,8 @@ class FastRigidBodySim(VehicleSim):
                 _advance(self.x, n_steps, self.physics_dt_s, 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),
                          believed, index, sign, self._p, winds, self.ground, self._last_xdot, self._cmd)  # fmt: skip
             )
+        elif getattr(act, "advance_rigid_body", None) is not None and act.advance_rigid_body(self, n_steps, winds):
+            pass  # the actuation flew the steps itself, in one compiled call (Px4Loop)
         else:
             held = getattr(act, "held", None)
             done = 0
