@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -78,6 +79,27 @@ def test_downward_step_keeps_principal_angles_and_reverses_thrust():
     out, _ = law_step(PARAMS, LawMemory.from_state(x), x, TrackingReference(0, 0, 0, 0), TrackingReference(0.3, 0.2, -2.0, 0))
     assert abs(out.roll_ref_rad) < math.pi / 2 and abs(out.pitch_ref_rad) < math.pi / 2
     assert out.thrust_n < 0
+
+
+@pytest.mark.parametrize("yaw_aware", [False, True])
+def test_downward_step_with_a_thrust_floor_tilts_for_the_thrust_flown(yaw_aware):
+    """With rotors that cannot push down (thrust_min_n > 0) the floor flies u > 0: the angles must
+    point that positive thrust towards the horizontal demand (north: pitch down, east: roll
+    right), not take the negative-u branch, which would push the other way."""
+    floor = 0.12 * 19.6
+    params = replace(PARAMS, yaw_aware=yaw_aware, limits=ActionLimits(floor, 19.6, math.radians(35)))
+    x = (0.0,) * 12
+    ref_n, ref_n1 = TrackingReference(0, 0, 0, 0), TrackingReference(0.3, 0.2, -2.0, 0)
+    out, _ = law_step(params, LawMemory.from_state(x), x, ref_n, ref_n1)
+    assert out.thrust_n == floor
+    assert out.pitch_ref_rad < 0 and out.roll_ref_rad > 0
+    unbounded, _ = law_step(PARAMS, LawMemory.from_state(x), x, ref_n, ref_n1)
+    assert unbounded.pitch_ref_rad > 0 and unbounded.roll_ref_rad < 0  # the negative-u branch
+    # above the floor nothing changes
+    up = TrackingReference(0.3, 0.2, 0.5, 0)
+    with_floor, _ = law_step(params, LawMemory.from_state(x), x, ref_n, up)
+    without, _ = law_step(replace(params, limits=ActionLimits(None, 19.6, math.radians(35))), LawMemory.from_state(x), x, ref_n, up)
+    assert with_floor == without
 
 
 def discrete_model_step(x, u, tau_tilde, params):

@@ -24,7 +24,11 @@ Choices where the paper is silent or garbled (each pinned by a test):
 
 - **atan2 branch.** When ``dx6 + g To < 0`` (a strong downward step), eq. 28-29 are taken at
   their principal value in (-pi/2, pi/2) and u of eq. 39 changes sign, rather than the
-  upside-down solution a plain ``atan2(num, den)`` would give.
+  upside-down solution a plain ``atan2(num, den)`` would give. With a positive thrust floor
+  (``limits.thrust_min_n > 0``: rotors that cannot push down, PX4's MPC_THR_MIN) u cannot change
+  sign, so the angles are taken for the thrust actually flown: ``dx6 + g To`` floored at
+  ``thrust_min_n To / m``. The negative-u branch would point the horizontal force the wrong way
+  and feed back (the demo's 12 m descent rang at 35 deg; docs/offboard.md).
 - **Start-up memory.** At n = 0 the previous desired values are initialised from the measured
   state: x2d(0) = x2(0), ..., x7ez(0) = x7(0), x9ez(0) = x9(0).
 - **Integral action** (``integral_gain_per_s`` > 0, off by default): the paper names the mass
@@ -170,10 +174,19 @@ def law_step(
         dx_fwd, dx_right = dx2, dx4
 
     # eq. 28 and the non-singular form of eq. 29, principal branch (see module docstring)
-    sign = ops.copysign(1.0, vertical)
-    x7ez = ops.atan2(dx_right * sign, vertical * sign)
-    x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez) * sign, vertical * sign)
     limits = params.limits
+    if limits.thrust_min_n is not None and limits.thrust_min_n > 0.0:
+        # The rotors cannot push down: where the law asks for u < 0, the floor flies u > 0, and
+        # angles from the negative-u branch would turn the horizontal force the wrong way
+        # (positive feedback: a 1 cm error grew to 35 deg in the demo's 12 m descent). Take
+        # the angles for the thrust actually flown: the vertical demand floored at the minimum.
+        angle_vertical = ops.maximum(vertical, limits.thrust_min_n * to / params.mass_kg)
+        x7ez = ops.atan2(dx_right, angle_vertical)
+        x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez), angle_vertical)
+    else:
+        sign = ops.copysign(1.0, vertical)
+        x7ez = ops.atan2(dx_right * sign, vertical * sign)
+        x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez) * sign, vertical * sign)
     if limits.tilt_max_rad is not None:
         x7ez = ops.minimum(ops.maximum(x7ez, -limits.tilt_max_rad), limits.tilt_max_rad)
         x9ez = ops.minimum(ops.maximum(x9ez, -limits.tilt_max_rad), limits.tilt_max_rad)
