@@ -33,7 +33,7 @@ def test_breakdown_attributes_samples_to_the_innermost_part(tmp_path):
     )
     rows = {r["part"]: r["us_per_cycle"] for r in loop.breakdown(raw, loop.PLANT_PARTS, loop.PLANT_SCOPE, cycles=10, rate_hz=1000)}
     assert rows["waiting for the setpoint (select)"] == 4000.0
-    assert rows["PX4 attitude/rate loop (Python)"] == 3000.0
+    assert rows["PX4 loops in Python (position modes, or no numba)"] == 3000.0
     assert rows["autopilot, truth state"] == 1000.0
     assert sum(rows.values()) == 8000.0
 
