@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from sitl_plant.dynamics import batch
-from sitl_plant.dynamics.batch import _ground, _jit, _rk4_into, _speeds_for
+from sitl_plant.dynamics.batch import _jit, _speeds_for, physics_step
 from sitl_plant.dynamics.rigid_body import STATE_SIZE
 
 I_FACTOR_RATE = math.radians(400.0)  # as inner_loops._I_FACTOR_RATE (PX4 RateControl)
@@ -156,17 +156,7 @@ def advance_px4(x, n_steps, dt, winds, ground, xdot, cmd, p, every, count, attit
             out_thrust = thrust
             _speeds_for(out_thrust, torque[0], torque[1], torque[2], p, cmd)
         count += 1
-        _rk4_into(x, cmd, winds[step], p, dt, nxt, k1, k2, k3, k4, tmp)
-        for i in range(STATE_SIZE):
-            xdot[i] = (nxt[i] - x[i]) / dt
-        resting = False
-        if ground:
-            resting = _ground(nxt)
-            if resting:
-                for i in range(STATE_SIZE):
-                    xdot[i] = 0.0
-        for i in range(STATE_SIZE):
-            x[i] = nxt[i]
+        resting = physics_step(x, cmd, winds[step], p, dt, ground, xdot, nxt, k1, k2, k3, k4, tmp)
     return resting, count, has_prev, out_thrust
 
 

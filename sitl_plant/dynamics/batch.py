@@ -509,16 +509,25 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     for step in range(n_steps):
         if mode == 1:
             _euler_accel_command(x, thrust, torque, believed, index, sign, p, cmd)
-        _rk4_into(x, cmd, winds[step], p, dt, nxt, k1, k2, k3, k4, tmp)
-        for i in range(STATE_SIZE):
-            xdot[i] = (nxt[i] - x[i]) / dt
-        if ground:
-            resting = _ground(nxt)
-            if resting:
-                for i in range(STATE_SIZE):
-                    xdot[i] = 0.0
-        for i in range(STATE_SIZE):
-            x[i] = nxt[i]
+        resting = physics_step(x, cmd, winds[step], p, dt, ground, xdot, nxt, k1, k2, k3, k4, tmp)
+    return resting
+
+
+@_jit
+def physics_step(x, cmd, wind, p, dt, ground, xdot, nxt, k1, k2, k3, k4, tmp):  # noqa: ANN001, ANN201
+    """One ``VehicleSim`` physics step with rotor commands ``cmd``, in place: RK4, renormalise,
+    ``xdot`` = mean derivative over the step, ground contact. Returns whether it rests."""
+    _rk4_into(x, cmd, wind, p, dt, nxt, k1, k2, k3, k4, tmp)
+    for i in range(STATE_SIZE):
+        xdot[i] = (nxt[i] - x[i]) / dt
+    resting = False
+    if ground:
+        resting = _ground(nxt)
+        if resting:
+            for i in range(STATE_SIZE):
+                xdot[i] = 0.0
+    for i in range(STATE_SIZE):
+        x[i] = nxt[i]
     return resting
 
 
