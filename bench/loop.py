@@ -50,9 +50,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from offboard.demo import free_udp_ports  # noqa: E402  (after the path is set)
+
 PY = sys.executable
 PAPER_HELIX = ROOT / "missions" / "paper-helix.toml"
-PX4_PORTS = {14540, 14550, 14580, 18570}  # never used: a real PX4 or ground station may be on them
 LOCKSTEP_PERIOD_S = 0.05
 FLIGHT_TIMEOUT_S = 600.0
 #: Simulated seconds of the long hover in a full run: the hour the issue asks for (~100 s of wall
@@ -63,23 +64,6 @@ PROFILE_HZ = 400  # py-spy samples per second (it reads the process from outside
 
 
 # --- processes ---------------------------------------------------------------------------------
-
-
-def free_ports(count: int) -> list[int]:
-    """Distinct UDP ports the OS hands out on 127.0.0.1 (never PX4's or QGroundControl's)."""
-    while True:
-        socks = []
-        try:
-            for _ in range(count):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                s.bind(("127.0.0.1", 0))
-                socks.append(s)
-            ports = [s.getsockname()[1] for s in socks]
-        finally:
-            for s in socks:
-                s.close()
-        if not PX4_PORTS & set(ports):
-            return ports
 
 
 def _start(cmd: list[str], log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
@@ -169,7 +153,7 @@ def fly(
     configuration: rigid body, PX4 inner loop, attitude output); returns the offboard's summary
     (``summary``), RSS samples and peaks, and the paths of the logs and profiles."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    plant_port, fly_port = free_ports(2)
+    plant_port, fly_port = free_udp_ports(2)
     plant_cmd = [
         "-m", "sitl_plant.cli", "--model", "rigid-body", "--api-bind", f"127.0.0.1:{plant_port}",
         "--api-remote", f"127.0.0.1:{fly_port}", "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"), "--quiet",
@@ -292,7 +276,7 @@ def _floor_client(port: int) -> None:
 
 def floor(cycles: int, warmup: int = 200) -> dict:
     """Cycles per second of the bare ping-pong (two processes, like the loop)."""
-    vehicle_port, client_port = free_ports(2)
+    vehicle_port, client_port = free_udp_ports(2)
     procs = []
     try:
         client = subprocess.Popen([PY, __file__, "--floor-role", "client", "--port", str(client_port)], cwd=ROOT,

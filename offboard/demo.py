@@ -29,18 +29,25 @@ PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
 STOP_TIMEOUT_S = 5.0
 
 
+#: PX4 SITL's and QGroundControl's ports: a real PX4 or ground station may be on them.
+PX4_PORTS = frozenset({14540, 14550, 14580, 18570})
+
+
 def free_udp_ports(count: int) -> list[int]:
-    """Ports the OS has just handed out for UDP on 127.0.0.1 (all distinct)."""
-    socks = []
-    try:
-        for _ in range(count):
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
+    """Ports the OS has just handed out for UDP on 127.0.0.1 (all distinct, none of PX4_PORTS)."""
+    while True:
+        socks = []
+        try:
+            for _ in range(count):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                s.bind(("127.0.0.1", 0))
+                socks.append(s)
+            ports = [s.getsockname()[1] for s in socks]
+        finally:
+            for s in socks:
+                s.close()
+        if not PX4_PORTS & set(ports):
+            return ports
 
 
 def stop_process(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S) -> int:
