@@ -73,7 +73,7 @@ def machine() -> dict:
     except OSError:
         pass
     versions = {}
-    for dist in ("numpy", "pymavlink", "numba", "rotorpy", "scipy", "pyinstrument"):
+    for dist in ("numpy", "pymavlink", "numba", "rotorpy", "scipy", "py-spy"):
         try:
             versions[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
