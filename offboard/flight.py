@@ -277,16 +277,30 @@ def resolve_controller(
 
 @dataclass
 class LoopStats:
-    """The sample clock's behaviour over the mission."""
+    """The sample clock's behaviour over the mission.
+
+    The wall-clock periods between recorded samples are spooled like the record's rows
+    (``RecordBuilder``: 8 bytes a period, in blocks, to a temporary file), so an hour's flight
+    keeps none of them in memory and the summary's percentiles are still exact.
+    """
 
     samples: int = 0
     overruns: int = 0  # real time: samples skipped because we were late by a whole period
     missed: int = 0  # real time: mission periods without a setpoint (telemetry stale)
     mission_wall_s: float = 0.0
-    periods_s: list[float] = field(default_factory=list)
+    periods: RecordBuilder = field(default_factory=lambda: RecordBuilder({"period_s": 1}), repr=False, compare=False)
+
+    def add_period(self, period_s: float) -> None:
+        """One wall-clock period between two recorded samples (s)."""
+        self.periods.append(period_s=period_s)
+
+    @property
+    def periods_s(self) -> np.ndarray:
+        """Every period added, in order (s)."""
+        return self.periods.build()["period_s"]
 
     def to_dict(self, sample_time_s: float) -> dict:
-        periods = np.asarray(self.periods_s, dtype=float)
+        periods = self.periods_s
         jitter = np.abs(periods - sample_time_s) if len(periods) else np.zeros(1)
         return {
             "samples": self.samples,
@@ -513,6 +527,9 @@ class Flight:
             end = self._last_sample_wall if self._last_sample_wall is not None else self.clock()
             self.loop.mission_wall_s = end - self._mission_wall0
         record = self.rows.build(phases=self.phases, status=status, status_detail=detail, meta=self.meta)
+        for builder in (self.rows, self.loop.periods):
+            if builder.spool_error is not None:
+                self._note(builder.spool_error)
         return FlightResult(
             record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
             vehicle_params=dict(self.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.timesync,
@@ -988,7 +1005,7 @@ class Flight:
             if why:
                 raise _End(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
             if self._last_sample_wall is not None:
-                self.loop.periods_s.append(now - self._last_sample_wall)
+                self.loop.add_period(now - self._last_sample_wall)
             self._last_sample_wall = now
             self.loop.samples += 1
             self.rows.append(**control_row(t, measured, ref_n, out), time_boot_ms=measured.time_boot_ms,
