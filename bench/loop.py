@@ -20,8 +20,9 @@ process group: SIGINT, then SIGKILL).
   SET_ATTITUDE_TARGET echoing T.
 - **Memory**: VmHWM (peak RSS) of both processes over the lockstep helix, read from
   ``/proc/PID/status`` while they run; then a long hover in lockstep (a mission written to a
-  temporary folder), RSS of both sampled every second, with the growth slope fitted after the
-  first 10 % (start-up), converted to kB per simulated minute with the flight's mean rate.
+  temporary folder), RSS of both sampled every second, with the growth slope fitted between the
+  first 10 % (start-up) and the last 5 % (landing, exit), in kB per simulated minute at the
+  flight's mean rate.
 
 ``measure(quick)`` returns every figure (JSON-serialisable) in about 2.5 minutes on 2 cores
 (quick: under a minute, no profile), ``markdown(result)`` the RESULTS.md section. Alone:
@@ -507,9 +508,12 @@ def long_flight(folder: Path, sim_s: float) -> dict:
     # start-up (imports, numba, connection, arming) is not growth: fit after the first 10 % of the
     # flight's wall time, and at least STARTUP_S
     t_fit = t0 + max(STARTUP_S, 0.1 * (samples[-1][0] - t0))
+    # nor is the end (landing, then the offboard building its record for the summary and the
+    # plots): fit up to the last 5 % of the wall time, and at least STARTUP_S before the exit
+    t_stop = samples[-1][0] - max(STARTUP_S, 0.05 * (samples[-1][0] - t0))
     for name in ("plant", "offboard"):
         series = [(t - t0, rss[name]) for t, rss in samples if name in rss]
-        steady = [p for p in series if p[0] >= t_fit - t0]
+        steady = [p for p in series if t_fit - t0 <= p[0] <= t_stop - t0]
         if len(steady) < 2:
             continue
         per_wall_s = _slope(steady)
@@ -673,8 +677,9 @@ def markdown(result: dict) -> str:
         "",
         f"A lockstep hover of {long.get('sim_s', 0) / 60:.0f} simulated minutes ({long.get('samples', 0)} samples, "
         f"{long.get('cycles_per_s', math.nan):.0f} cycles/s, {long.get('wall_s', math.nan):.0f} s wall), RSS every "
-        f"second; start = the first sample after start-up (the first 10 % of the wall time, at least {STARTUP_S:g} s), "
-        "slope fitted from there, in kB per simulated minute:",
+        f"second, fitted from the end of start-up (the first 10 % of the wall time, at least {STARTUP_S:g} s) to the "
+        f"start of the landing and exit (the last 5 %, at least {STARTUP_S:g} s; the offboard then builds its "
+        "record for the summary and the plots), in kB per simulated minute; start, mid and end are the fit's:",
         "",
         "| process | RSS start (MB) | mid (MB) | end (MB) | peak (MB) | growth (kB / sim min) |",
         "|---|---:|---:|---:|---:|---:|",
