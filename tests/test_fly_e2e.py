@@ -161,6 +161,9 @@ until_s = 3
     assert len(first) > 10_000
     assert first == second  # offboard's tlog, byte for byte
     assert a.plant_tlog.read_bytes() == b.plant_tlog.read_bytes()  # and the plant's
+    # the vehicle paces a lockstep flight: no period jitter against To in its summary
+    text = (a.tlog.parent / "summary.txt").read_text()
+    assert "lockstep: paced by the vehicle" in text and "period jitter" not in text
 
 
 def test_real_time_flight_holds_the_sample_period(tmp_path):
@@ -175,6 +178,7 @@ def test_real_time_flight_holds_the_sample_period(tmp_path):
     assert loop["samples"] + loop["overruns"] == 61 and loop["missed"] == 0
     for key in ("jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms"):
         assert math.isfinite(loop[key]) and loop[key] >= 0
+    assert "period jitter p50" in (flown.tlog.parent / "summary.txt").read_text()
     msgs = read_tlog(flown.tlog)
     att = setpoints(msgs, "SET_ATTITUDE_TARGET")
     telemetry_stamps = {m.time_boot_ms for m in msgs if m.get_type() == "ATTITUDE"}

@@ -274,16 +274,22 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
     }
 
 
-def format_fly_lines(extra: dict) -> str:
-    """The lines under the tracking table: messages, loop timing, outages, landing."""
+def format_fly_lines(extra: dict, lockstep: bool = False) -> str:
+    """The lines under the tracking table: messages, loop timing, outages, landing.
+
+    In lockstep the vehicle paces the samples, so the period's jitter against To means nothing
+    and is not shown (summary.json keeps it).
+    """
     m, loop = extra["messages"], extra["loop"]
     lost_pct = 100.0 * m["lost"] / max(m["received"] + m["lost"], 1)
+    timing = ("lockstep: paced by the vehicle" if lockstep else
+              f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
+              f"max {loop['jitter_max_ms']:.2f} ms")  # fmt: skip
     lines = [
         f"messages: sent {m['sent']}, received {m['received']}, lost {m['lost']} ({lost_pct:.2f} %), "
         f"duplicates {m['duplicates']}, bad {m['bad']}",
         f"loop: {loop['samples']} samples in {loop['mission_wall_s']:.2f} s wall ({loop['rate_hz']:.1f} Hz), "
-        f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
-        f"max {loop['jitter_max_ms']:.2f} ms, overruns {loop['overruns']}, missed {loop['missed']}",
+        f"{timing}, overruns {loop['overruns']}, missed {loop['missed']}",
     ]
     if extra["link_outages_s"]:
         lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
@@ -303,7 +309,7 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
     payload: dict = {**meta, "run_dir": str(run_dir), "log": str(tlog)}
     if len(record):
         summary = summarize(record)
-        table = format_table(summary) + "\n" + format_fly_lines(extra)
+        table = format_table(summary) + "\n" + format_fly_lines(extra, bool(meta["lockstep"]))
         payload.update(summary.to_dict())
         record.write_csv(run_dir / "series.csv")
         if not no_plots:
@@ -311,7 +317,7 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
 
             payload["figures"] = [str(p) for p in write_figures(record, run_dir, title=f"{meta['mission']} over MAVLink ({meta['output']})")]
     else:
-        table = format_fly_lines(extra)
+        table = format_fly_lines(extra, bool(meta["lockstep"]))
     payload.update(extra)
     (run_dir / "summary.txt").write_text(table + "\n")
     (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
