@@ -87,7 +87,8 @@ def fly(
         ref_now, ref_next = ref_next, trajectory.reference((n + 1) * sample_time_s)
         truth = sim.truth()
         phi, theta = float(truth.euler_rad[0]), float(truth.euler_rad[1])
-        if not np.all(np.isfinite(sim.x)) or math.cos(phi) * math.cos(theta) <= 0.0 or np.max(np.abs(truth.pos_ned_m)) > 1e4:
+        if (not all(map(math.isfinite, sim.x.tolist())) or math.cos(phi) * math.cos(theta) <= 0.0
+                or max(map(abs, truth.pos_ned_m.tolist())) > 1e4):  # fmt: skip
             diverged = t
             break
         actuation = pilot.command(meter.measure(truth), ref_now, ref_next)

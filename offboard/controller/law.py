@@ -283,8 +283,8 @@ class RosalesController:
         if self.memory is None:
             self.memory = LawMemory.from_state(state)
         law, self.memory = law_step(self.params, self.memory, state, ref_n, ref_n1)
-        eta = np.array((state[6], state[8], state[10]))
-        eta_dot = np.array((state[7], state[9], state[11]))
-        torques = real_torques(eta, eta_dot, np.array(law.tau_tilde), self._inertia, self.params.euler_rate_form)
+        eta = (state[6], state[8], state[10])  # eq. 16 reads them as floats: no arrays needed
+        eta_dot = (state[7], state[9], state[11])
+        torques = real_torques(eta, eta_dot, law.tau_tilde, self._inertia, self.params.euler_rate_form)
         forces = rotor_forces(law.thrust_n, torques, self.params.arm_length_m, self.params.drag_to_thrust_m)
         return ControlOutput(law=law, torques_nm=torques, rotor_forces_n=forces)

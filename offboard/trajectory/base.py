@@ -19,8 +19,9 @@ def _vec3(value: object, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
     if arr.shape != (3,):
         raise ValueError(f"{name} must have 3 components, got {arr.shape[0]}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    x, y, z = arr.tolist()  # three floats: cheaper to check than a numpy reduction, per sample
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ValueError(f"{name} must be finite, got {[x, y, z]}")
     arr.setflags(write=False)
     return arr
 
