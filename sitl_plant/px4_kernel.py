@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from sitl_plant.dynamics import batch
-from sitl_plant.dynamics.batch import _jit, _speeds_for, physics_step
+from sitl_plant.dynamics.batch import _jit, _speeds_for, physics_scratch, physics_step
 from sitl_plant.dynamics.rigid_body import STATE_SIZE
 
 I_FACTOR_RATE = math.radians(400.0)  # as inner_loops._I_FACTOR_RATE (PX4 RateControl)
@@ -117,12 +117,7 @@ def advance_px4(x, n_steps, dt, winds, ground, xdot, cmd, p, every, count, attit
     when ``has_prev``) are updated in place. ``held_thrust`` is flown until the loop next runs,
     then ``thrust``. Returns (resting on the ground, step counter, has_prev, thrust flown last).
     """
-    k1 = np.empty(STATE_SIZE)
-    k2 = np.empty(STATE_SIZE)
-    k3 = np.empty(STATE_SIZE)
-    k4 = np.empty(STATE_SIZE)
-    tmp = np.empty(STATE_SIZE)
-    nxt = np.empty(STATE_SIZE)
+    k1, k2, k3, k4, tmp, nxt = physics_scratch()
     q = np.empty(4)
     sp = np.empty(3)
     loop_dt = dt * every

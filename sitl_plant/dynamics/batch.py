@@ -491,18 +491,20 @@ def _ground(x):  # noqa: ANN001, ANN202
 
 
 @_jit
+def physics_scratch():  # noqa: ANN202
+    """The work arrays of one ``physics_step`` loop: RK4's k1..k4, a stage state, the next state."""
+    return (np.empty(STATE_SIZE), np.empty(STATE_SIZE), np.empty(STATE_SIZE), np.empty(STATE_SIZE),
+            np.empty(STATE_SIZE), np.empty(STATE_SIZE))  # fmt: skip
+
+
+@_jit
 def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, winds, ground, xdot, cmd):  # noqa: ANN001, ANN202
     """``n_steps`` of ``VehicleSim.step``: actuation, RK4, normalise, ground. Returns on_ground.
 
     ``mode`` 0: held thrust and body torque (mixed once); 1: the paper's tau~ (``torque``) with
     eq. 16 at every step. ``winds`` (n_steps, 3). ``x`` and ``xdot`` are updated in place.
     """
-    k1 = np.empty(STATE_SIZE)
-    k2 = np.empty(STATE_SIZE)
-    k3 = np.empty(STATE_SIZE)
-    k4 = np.empty(STATE_SIZE)
-    tmp = np.empty(STATE_SIZE)
-    nxt = np.empty(STATE_SIZE)
+    k1, k2, k3, k4, tmp, nxt = physics_scratch()
     resting = False
     if mode == 0:
         _speeds_for(thrust, torque[0], torque[1], torque[2], p, cmd)
