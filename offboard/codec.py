@@ -22,7 +22,9 @@ rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboar
     in-process run; ``--inner-loop px4`` flies the same rates with PX4's rate controller.
   - rigid body (PX4): q = the attitude with the law's thrust axis and the heading x11d(n+1)
     (``setpoint_attitude``); PX4 flies q and reads ``body_yaw_rate`` as the yaw-rate
-    feed-forward (``yaw_sp_move_rate``, a world-frame rate), so that field carries x12ref and the
+    feed-forward (``yaw_sp_move_rate``, a world-frame rate, added to its own yaw P), so that field
+    carries the reference's yaw rate (``LawOutput.yaw_rate_ff_rad_s``: 0 at a step, where x12ref,
+    which holds the law's yaw-error feedback, asked for 63 rad/s at the paper's pi step) and the
     roll and pitch rates, which PX4 ignores beside an attitude, are marked ignored (type_mask 3).
     Sending the body-frame r there instead feeds roll and pitch motion into the yaw loop: on the
     paper helix that turns the yaw step at 12 s into a lasting +-35 deg limit cycle.
@@ -265,10 +267,10 @@ def attitude_setpoint(
     """
     law = out.law
     heading = float(euler_rad[2]) if yaw_aware else 0.0
-    q = setpoint_attitude(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad, heading, model)
+    q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, model)
     q_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
     if model == "rigid-body":  # PX4: attitude + yaw-rate feed-forward (module docstring)
-        return AttitudeSetpoint(q_wxyz, (0.0, 0.0, float(law.euler_rate_ref_rad_s[2])),
+        return AttitudeSetpoint(q_wxyz, (0.0, 0.0, float(law.yaw_rate_ff_rad_s)),
                                 thrust_norm(law.thrust_n, scaling), RIGID_BODY_TYPE_MASK)  # fmt: skip
     rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
     return AttitudeSetpoint(

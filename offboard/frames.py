@@ -59,7 +59,16 @@ def paper_state(
     return (n, vn, e, ve, -d, -vd, phi, dphi, theta, dtheta, psi, dpsi)
 
 
-def tracking_reference(reference: Reference) -> TrackingReference:
-    """(x1d, x3d, x5d, x11d) in the paper's frame from a NED reference."""
+def tracking_reference(reference: Reference, lead_s2: tuple[float, float] = (0.0, 0.0)) -> TrackingReference:
+    """(x1d, x3d, x5d, x11d) in the paper's frame from a NED reference.
+
+    ``lead_s2`` = (horizontal, vertical) c2 of ``[law] reference_lead_s2``: the position handed
+    to the law is ``r - c2 r''`` with the reference's own acceleration (docs/controller-design.md);
+    (0, 0), the paper's law, hands ``r`` itself.
+    """
     n, e, d = reference.pos_ned_m
-    return TrackingReference(float(n), float(e), float(-d), reference.yaw_rad)
+    ch, cv = lead_s2
+    if ch or cv:
+        an, ae, ad = reference.acc_ned_m_s2
+        n, e, d = n - ch * an, e - ch * ae, d - cv * ad
+    return TrackingReference(float(n), float(e), float(-d), reference.yaw_rad, reference.yaw_rate_rad_s)

@@ -102,11 +102,13 @@ def test_paper_attitude_output_is_the_rate_setpoint_the_paper_loop_inverts():
 
 
 def test_rigid_body_attitude_output_keeps_the_thrust_axis_at_the_reference_heading():
-    out, m = control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True, ref=(2.0, 1.0, 3.0, 2.5))
+    out, m = control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True, ref=(2.0, 1.0, 3.0, 2.5, 0.4))
     law = out.law
     sp = codec.attitude_setpoint(out, m.euler_rad, "zyx", SCALING, model="rigid-body", yaw_aware=True)
     assert sp.type_mask == codec.RIGID_BODY_TYPE_MASK == 3
-    assert sp.body_rates_frd_rad_s[2] == pytest.approx(law.euler_rate_ref_rad_s[2])  # PX4's yaw feed-forward
+    # PX4's yaw feed-forward is the reference's own yaw rate, not x12ref (the law's yaw feedback:
+    # here 7.2 rad/s for a 1.8 rad yaw error, 63 rad/s at the paper's pi step)
+    assert sp.body_rates_frd_rad_s[2] == pytest.approx(0.4) and abs(law.euler_rate_ref_rad_s[2]) > 5.0
     q = np.array(sp.q_wxyz)
     intended = rotation_matrix(quat_from_euler(law.roll_ref_rad, law.pitch_ref_rad, m.euler_rad[2]))[:, 2]
     assert_allclose(rotation_matrix(q)[:, 2], intended, atol=1e-12)  # the law's thrust axis ...

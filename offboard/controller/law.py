@@ -57,22 +57,30 @@ from sitl_plant.dynamics.rigid_body import rotor_forces
 #: Math namespace for scalar (Python float) evaluation of ``law_step``.
 MATH_OPS = SimpleNamespace(
     sin=math.sin, cos=math.cos, atan2=math.atan2, copysign=math.copysign, minimum=min, maximum=max,
+    hypot=math.hypot, asin=math.asin,
     wrap=lambda a: (a + math.pi) % (2.0 * math.pi) - math.pi,
 )
 #: Math namespace for batched (numpy array) evaluation of ``law_step``.
 NUMPY_OPS = SimpleNamespace(
     sin=np.sin, cos=np.cos, atan2=np.arctan2, copysign=np.copysign, minimum=np.minimum, maximum=np.maximum,
+    hypot=np.hypot, asin=np.arcsin,
     wrap=lambda a: np.mod(a + np.pi, 2.0 * np.pi) - np.pi,
 )
 
 
 class TrackingReference(NamedTuple):
-    """The references the law tracks at one sample, paper frame: (x1d, x3d, x5d, x11d)."""
+    """The references the law tracks at one sample, paper frame: (x1d, x3d, x5d, x11d).
+
+    ``yaw_rate_rad_s`` is the reference's own yaw rate (the trajectory's derivative of x11d, 0
+    at a step): the law does not use it; the attitude output hands it on as the yaw-rate
+    feed-forward (``LawOutput.yaw_rate_ff_rad_s``).
+    """
 
     x_m: float
     y_m: float
     z_up_m: float
     yaw_rad: float
+    yaw_rate_rad_s: float = 0.0
 
 
 class LawMemory(NamedTuple):
@@ -110,6 +118,10 @@ class LawOutput(NamedTuple):
     roll_ref_rad, pitch_ref_rad : x7ez and x9ez (eq. 28-29), the angle references at n+1.
     yaw_ref_rad : x11d(n+1).
     euler_rate_ref_rad_s : (x8ref, x10ref, x12ref) of eq. 33, the angle-rate references at n+1.
+    yaw_rate_ff_rad_s : the reference's yaw rate at n+1 (not x12ref, which carries the yaw
+        error's feedback: tens of rad/s at a yaw step), for an autopilot's yaw feed-forward.
+    roll_setpoint_rad, pitch_setpoint_rad : the attitude handed to an autopilot's attitude loop:
+        x7ez and x9ez, led by ``tilt_lead`` (``ControllerParams``) past the measured angles.
     """
 
     thrust_n: float
@@ -118,6 +130,26 @@ class LawOutput(NamedTuple):
     pitch_ref_rad: float
     yaw_ref_rad: float
     euler_rate_ref_rad_s: tuple[float, float, float]
+    yaw_rate_ff_rad_s: float = 0.0
+    roll_setpoint_rad: float = 0.0
+    pitch_setpoint_rad: float = 0.0
+
+
+def _bound_tilt(limits, x7: float, x9: float, ops: SimpleNamespace) -> tuple[float, float]:  # noqa: ANN001
+    """The tilt bound of ``limits`` on (roll, pitch): a cone on the thrust axis or each angle."""
+    if limits.tilt_max_rad is None:
+        return x7, x9
+    if limits.tilt_cone:
+        # bound the thrust axis's tilt from the vertical, keeping its horizontal direction (PX4's
+        # MPC_TILTMAX_AIR): the axis of eq. 18 is (-sin x9, cos x9 sin x7, cos x9 cos x7)
+        bx, by = -ops.sin(x9), ops.cos(x9) * ops.sin(x7)
+        bz = ops.cos(x9) * ops.cos(x7)
+        scale = ops.minimum(1.0, math.sin(limits.tilt_max_rad) / ops.maximum(ops.hypot(bx, by), 1e-12))
+        bx, by = bx * scale, by * scale
+        bz = ops.maximum(bz, math.cos(limits.tilt_max_rad))
+        return ops.atan2(by, bz), ops.asin(-bx)
+    lim = limits.tilt_max_rad
+    return ops.minimum(ops.maximum(x7, -lim), lim), ops.minimum(ops.maximum(x9, -lim), lim)
 
 
 def law_step(
@@ -158,12 +190,25 @@ def law_step(
         i3 = ops.minimum(ops.maximum(i3 + ki * to * (ref_n.y_m - x3), -cap), cap)
         i5 = ops.minimum(ops.maximum(i5 + ki * to * (ref_n.z_up_m - x5), -cap), cap)
         x2d, x4d, x6d = x2d + i1, x4d + i3, x6d + i5
+    limits = params.limits
+    if limits.speed_xy_max_m_s is not None:  # bounded desired speeds (PX4's MPC_XY_VEL_MAX)
+        scale = ops.minimum(1.0, limits.speed_xy_max_m_s / ops.maximum(ops.hypot(x2d, x4d), 1e-12))
+        x2d, x4d = x2d * scale, x4d * scale
+    if limits.speed_up_max_m_s is not None:  # ... MPC_Z_VEL_MAX_UP
+        x6d = ops.minimum(x6d, limits.speed_up_max_m_s)
+    if limits.speed_down_max_m_s is not None:  # ... MPC_Z_VEL_MAX_DN
+        x6d = ops.maximum(x6d, -limits.speed_down_max_m_s)
     x12d = (ops.wrap(ref_n1.yaw_rad - x11) - g.kx11 * ops.wrap(ref_n.yaw_rad - x11)) / to
 
     # eq. 33-34: reference speeds and the increments of eq. 34
     dx2 = x2d - g.kx2 * (memory.x2d - x2) - x2
     dx4 = x4d - g.kx4 * (memory.x4d - x4) - x4
     dx6 = x6d - g.kx6 * (memory.x6d - x6) - x6
+    if params.linear_drag_n_s_m > 0.0:
+        # a believed linear drag -d v (N): eq. 23's x2(n+1) = x2(n) + To (-u/m sin x9 - d/m x2(n)),
+        # so the thrust must also make up To d/m x2(n) of speed (likewise x4, x6); not in the paper
+        kd = to * params.linear_drag_n_s_m / params.mass_kg
+        dx2, dx4, dx6 = dx2 + kd * x2, dx4 + kd * x4, dx6 + kd * x6
     vertical = dx6 + params.gravity_m_s2 * to  # dx6 + g To
 
     if params.yaw_aware:  # horizontal increments in the heading frame (forward, right)
@@ -174,7 +219,6 @@ def law_step(
         dx_fwd, dx_right = dx2, dx4
 
     # eq. 28 and the non-singular form of eq. 29, principal branch (see module docstring)
-    limits = params.limits
     if limits.thrust_min_n is not None and limits.thrust_min_n > 0.0:
         # The rotors cannot push down: where the law asks for u < 0, the floor flies u > 0, and
         # angles from the negative-u branch would turn the horizontal force the wrong way
@@ -187,9 +231,7 @@ def law_step(
         sign = ops.copysign(1.0, vertical)
         x7ez = ops.atan2(dx_right * sign, vertical * sign)
         x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez) * sign, vertical * sign)
-    if limits.tilt_max_rad is not None:
-        x7ez = ops.minimum(ops.maximum(x7ez, -limits.tilt_max_rad), limits.tilt_max_rad)
-        x9ez = ops.minimum(ops.maximum(x9ez, -limits.tilt_max_rad), limits.tilt_max_rad)
+    x7ez, x9ez = _bound_tilt(limits, x7ez, x9ez, ops)
 
     s9, c9 = ops.sin(x9ez), ops.cos(x9ez)
     if limits.tilt_max_rad is None:
@@ -214,6 +256,13 @@ def law_step(
     x12ref = x12d - g.kx12 * (memory.x12d - x12)
     tau_tilde = ((x8ref - x8) / to, (x10ref - x10) / to, (x12ref - x12) / to)
 
+    # the attitude an autopilot's attitude loop is handed: led past the measured angles so that
+    # its P loop (a lag eq. 23 does not have) turns faster towards x7ez, x9ez (docs/controller-design.md)
+    lead = params.tilt_lead
+    roll_sp, pitch_sp = x7ez, x9ez
+    if lead > 0.0:
+        roll_sp, pitch_sp = _bound_tilt(limits, x7ez + lead * (x7ez - x7), x9ez + lead * (x9ez - x9), ops)
+
     output = LawOutput(
         thrust_n=thrust,
         tau_tilde=tau_tilde,
@@ -221,6 +270,9 @@ def law_step(
         pitch_ref_rad=x9ez,
         yaw_ref_rad=ref_n1.yaw_rad,
         euler_rate_ref_rad_s=(x8ref, x10ref, x12ref),
+        yaw_rate_ff_rad_s=ref_n1.yaw_rate_rad_s,
+        roll_setpoint_rad=roll_sp,
+        pitch_setpoint_rad=pitch_sp,
     )
     return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5)
 

@@ -51,12 +51,25 @@ class ActionLimits:
     thrust_min_n, thrust_max_n : float or None
         Bounds on u.
     tilt_max_rad : float or None
-        Bound on each of the angle references x7ez (roll) and x9ez (pitch).
+        Bound on each of the angle references x7ez (roll) and x9ez (pitch), or with
+        ``tilt_cone`` on the tilt of the thrust axis from the vertical (PX4's MPC_TILTMAX_AIR:
+        per angle, 35 deg on both gives 48 deg of tilt).
+    tilt_cone : bool
+        Bound the thrust axis's tilt instead of each angle.
+    speed_xy_max_m_s, speed_up_max_m_s, speed_down_max_m_s : float or None
+        Bounds on the desired speeds of eq. 32 (horizontal norm; up; down), as PX4's
+        MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN: a step in the reference is then flown
+        at a bounded speed, inside the range the linear design holds for
+        (docs/controller-design.md).
     """
 
     thrust_min_n: float | None = None
     thrust_max_n: float | None = None
     tilt_max_rad: float | None = None
+    tilt_cone: bool = False
+    speed_xy_max_m_s: float | None = None
+    speed_up_max_m_s: float | None = None
+    speed_down_max_m_s: float | None = None
 
     def __post_init__(self) -> None:
         lo, hi = self.thrust_min_n, self.thrust_max_n
@@ -64,10 +77,18 @@ class ActionLimits:
             raise ValueError(f"thrust_min_n ({lo}) must be below thrust_max_n ({hi})")
         if self.tilt_max_rad is not None and not 0.0 < self.tilt_max_rad < math.pi / 2:
             raise ValueError(f"tilt_max_rad must lie in (0, pi/2), got {self.tilt_max_rad}")
+        for name in SPEED_LIMITS:
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
 
     @property
     def any(self) -> bool:
-        return any(v is not None for v in (self.thrust_min_n, self.thrust_max_n, self.tilt_max_rad))
+        return any(getattr(self, name) is not None for name in ("thrust_min_n", "thrust_max_n", "tilt_max_rad", *SPEED_LIMITS))
+
+
+#: The optional bounds on the desired speeds of eq. 32 (``ActionLimits``).
+SPEED_LIMITS = ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s")
 
 
 @dataclass(frozen=True)
@@ -96,6 +117,19 @@ class ControllerParams:
         0 (the default) is the paper's law.
     integral_limit_m_s : float
         Anti-windup: the integral's contribution to each desired speed is clamped to +- this.
+    reference_lead_s2 : (float, float)
+        c2 (horizontal, vertical) of the designed closed loop's reference response
+        ``T = 1 + c2 s^2``: the law is handed ``r - c2 r''`` (``offboard.frames.tracking_reference``,
+        docs/controller-design.md). (0, 0), the default, hands it ``r``: the paper's law.
+    tilt_lead : float
+        The attitude handed to an autopilot's attitude loop is x7ez, x9ez plus ``tilt_lead``
+        times their difference from the measured angles (``LawOutput.roll_setpoint_rad``): a
+        lead on the autopilot's attitude P, chosen with the gains by ``offboard tune``
+        (docs/controller-design.md). 0, the default, hands x7ez and x9ez themselves.
+    linear_drag_n_s_m : float
+        A linear aerodynamic drag ``-d v`` (N) the controller believes (PX4 SIH's SIH_KDV):
+        the law's eq. 27 then asks the thrust to make it up too. 0, the default, is the paper's
+        model (eq. 18 has no drag).
     """
 
     sample_time_s: float = 0.05
@@ -110,6 +144,9 @@ class ControllerParams:
     limits: ActionLimits = field(default_factory=ActionLimits)
     integral_gain_per_s: float = 0.0
     integral_limit_m_s: float = 3.0
+    reference_lead_s2: tuple[float, float] = (0.0, 0.0)
+    tilt_lead: float = 0.0
+    linear_drag_n_s_m: float = 0.0
 
     def __post_init__(self) -> None:
         for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
@@ -122,6 +159,12 @@ class ControllerParams:
             raise ValueError(f"integral_gain_per_s must be >= 0, got {self.integral_gain_per_s}")
         if not (math.isfinite(self.integral_limit_m_s) and self.integral_limit_m_s > 0):
             raise ValueError(f"integral_limit_m_s must be > 0, got {self.integral_limit_m_s}")
+        if not (math.isfinite(self.linear_drag_n_s_m) and self.linear_drag_n_s_m >= 0):
+            raise ValueError(f"linear_drag_n_s_m must be >= 0, got {self.linear_drag_n_s_m}")
+        if not (math.isfinite(self.tilt_lead) and self.tilt_lead >= 0):
+            raise ValueError(f"tilt_lead must be >= 0, got {self.tilt_lead}")
+        if len(self.reference_lead_s2) != 2 or not all(math.isfinite(v) for v in self.reference_lead_s2):
+            raise ValueError(f"reference_lead_s2 must be 2 finite numbers, got {self.reference_lead_s2}")
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
 
@@ -142,6 +185,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
         thrust_min_n=None if not limits_table.has("thrust_min_n") else limits_table.number("thrust_min_n"),
         thrust_max_n=None if not limits_table.has("thrust_max_n") else limits_table.number("thrust_max_n", gt=0),
         tilt_max_rad=None if tilt_deg is None else math.radians(limits_table.number("tilt_max_deg", gt=0, lt=90)),
+        tilt_cone=limits_table.boolean("tilt_cone", False),
+        **{name: limits_table.number(name, gt=0) if limits_table.has(name) else None for name in SPEED_LIMITS},  # type: ignore[arg-type]
     )
     if limits.thrust_min_n is not None and limits.thrust_max_n is not None and limits.thrust_min_n >= limits.thrust_max_n:
         raise limits_table.error("thrust_min_n", "must be below thrust_max_n")
@@ -151,12 +196,15 @@ def controller_from_table(f: Fields) -> ControllerParams:
         yaw_aware=law.boolean("yaw_aware", False),
         integral_gain_per_s=law.number("integral_gain_per_s", 0.0, ge=0),
         integral_limit_m_s=law.number("integral_limit_m_s", 3.0, gt=0),
+        reference_lead_s2=law.vector("reference_lead_s2", 2, default=(0.0, 0.0)),  # type: ignore[arg-type]
+        tilt_lead=law.number("tilt_lead", 0.0, ge=0),
         mass_kg=model.number("mass_kg", gt=0),
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]
         gravity_m_s2=model.number("gravity_m_s2", 9.81, gt=0),
         euler_rate_form=model.string("euler_rate_form", "castillo", choices=EULER_RATE_FORMS),
         drag_to_thrust_m=model.number("drag_to_thrust_m", 0.016, gt=0),
+        linear_drag_n_s_m=model.number("linear_drag_n_s_m", 0.0, ge=0),
         gains=gains,
         limits=limits,
     )
