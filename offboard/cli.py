@@ -19,6 +19,7 @@ from offboard.errors import UserError
 COMMAND_MODULES = (
     "offboard.commands.simulate",
     "offboard.commands.fly",
+    "offboard.commands.tune",
     "offboard.commands.mission",
     "offboard.commands.replay",
 )

@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -41,6 +42,7 @@ import numpy as np
 from offboard import codec
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
+from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
 from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.frames import tracking_reference
 from offboard.missions.geo import mission_offset_ned
@@ -166,10 +168,17 @@ class ControllerChoice:
         rigid body (PX4's MPC_THR_MIN) and 0 on the paper's model.
     sample_time_s : float or None
         Explicit To; None: the file's.
+    tuned : bool
+        Design kx1..kx6 for the vehicle's inner loop from its parameters (``offboard fly``
+        without ``--controller``; docs/controller-design.md) instead of flying the base's gains.
+    latency_s : float
+        The latency the design assumes (s).
     """
 
     base: ControllerParams
     from_file: bool = False
+    tuned: bool = False
+    latency_s: float = 0.0
     mass_from_vehicle: bool = False
     yaw_aware: bool | None = None
     tilt_max_deg: float | None = None
@@ -190,22 +199,40 @@ VEHICLE_PARAMS = {
     "SIM_KM_KF": "rotor drag-to-thrust (m)",
     "COM_OF_LOSS_T": "the vehicle's offboard-loss timeout (s)",
     "PAP_TO": "the paper inner loop's To (s)",
+    "SIM_MOT_TAU": "motor time constant (s)",
+    "SIH_MASS": "PX4 SIH vehicle mass (kg)",
+    "SIH_T_MAX": "PX4 SIH thrust of one rotor at full throttle (N)",
 }
+VEHICLE_PARAMS.update({name: "PX4's inner loop and speed limits (the tuned design)" for name in AUTOPILOT_PARAMS})
+VEHICLE_PARAMS.update({name: "PX4 SIH's vehicle" for name in SIH_PARAMS if name not in VEHICLE_PARAMS})
+
+#: Which simulator's physical parameters a vehicle publishes: sitl-plant's SIM_*, PX4 SIH's SIH_*,
+#: or none (a real airframe).
+PARAM_FAMILIES = ("SIM", "SIH", "none")
 
 
-def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool) -> tuple[list[str], list[str]]:
-    """(required, optional) parameter names for this flight."""
+def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool,
+                   family: str = "SIM") -> tuple[list[str], list[str]]:  # fmt: skip
+    """(required, optional) parameter names for this flight, for a vehicle of ``family``."""
     required: list[str] = []
-    optional = ["COM_OF_LOSS_T", "PAP_TO"]
+    optional = ["COM_OF_LOSS_T"] + (["PAP_TO"] if family == "SIM" else [])
     if not thrust_max_given:
-        required.append("SIM_THR_MAX")
+        required.append("SIH_T_MAX" if family == "SIH" else "SIM_THR_MAX")
     if config.output == "actuator":
         required += ["SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX"]
+    mass = "SIH_MASS" if family == "SIH" else "SIM_MASS"
     if not choice.from_file:
-        optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", *optional]
+        if family == "SIH":
+            optional = [n for n in SIH_PARAMS if n not in required] + optional
+        elif family == "SIM":
+            optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", *optional]
     elif choice.mass_from_vehicle:
-        required.append("SIM_MASS")
-    return required, optional
+        required.append(mass)
+    if choice.tuned:
+        if family == "SIM":
+            optional += ["SIM_TQ_RP_MAX", "SIM_MOT_TAU"]
+        optional += list(AUTOPILOT_PARAMS)
+    return required, [n for n in dict.fromkeys(optional) if n not in required]
 
 
 def resolve_controller(
@@ -220,11 +247,21 @@ def resolve_controller(
     vehicle agree on u; without a file's minimum, a rigid body keeps 12 % of SIM_THR_MAX (PX4's
     MPC_THR_MIN: torque authority) and the paper's model 0; the tilt limit defaults to 35 degrees.
 
+    With ``choice.tuned`` the gains kx1..kx6 are then designed for the vehicle's inner loop
+    (``offboard.controller.tuning``), with the tilt bounded as a cone and the desired speeds by
+    the vehicle's MPC_*_VEL_MAX.
+
     Returns
     -------
     (ControllerParams, notes)
         ``notes`` say, one line each, where the believed values came from.
+
+    Raises
+    ------
+    ValueError
+        ``choice.tuned`` and the vehicle publishes no model to design for (a real airframe).
     """
+    vehicle = vehicle_values(vehicle)
     base = choice.base
     notes: list[str] = []
     changes: dict[str, object] = {"euler_rate_form": codec.euler_rate_form_for(model, base.euler_rate_form)}
@@ -242,6 +279,8 @@ def resolve_controller(
             changes["inertia_kg_m2"] = (float(vehicle["SIM_IXX"]), float(vehicle["SIM_IYY"]), float(vehicle["SIM_IZZ"]))
         if "SIM_KM_KF" in vehicle:
             changes["drag_to_thrust_m"] = float(vehicle["SIM_KM_KF"])
+        if "SIM_KDV" in vehicle:  # PX4 SIH's linear drag (tuning.vehicle_values)
+            changes["linear_drag_n_s_m"] = float(vehicle["SIM_KDV"])
     if choice.sample_time_s is not None:
         changes["sample_time_s"] = float(choice.sample_time_s)
     if choice.yaw_aware is not None:
@@ -264,6 +303,16 @@ def resolve_controller(
         tilt = math.radians(DEFAULT_TILT_MAX_DEG)
     changes["limits"] = ActionLimits(thrust_min_n=thrust_min, thrust_max_n=thrust_max, tilt_max_rad=tilt)
     params = base.with_changes(**changes)
+    if choice.tuned:
+        try:
+            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s)
+        except KeyError as exc:
+            raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
+                             "--params FILE writes one) or --controller paper") from None
+        params = tuned_params(params, design, vehicle)
+        notes.append(f"gains designed for the vehicle's inner loop ({design.model.source}, latency "
+                     f"{choice.latency_s * 1000:.0f} ms; docs/controller-design.md):")
+        notes.extend(f"  {line}" for line in design_summary(design))
     tilt_text = "none" if tilt is None else f"{math.degrees(tilt):.0f} deg"
     notes.append(
         f"controller: To {params.sample_time_s:g} s, W_eta {params.euler_rate_form}, yaw-aware {'on' if params.yaw_aware else 'off'}, "
@@ -555,8 +604,11 @@ class Flight:
 
     def _prepare(self) -> None:
         cfg, choice = self.config, self.choice
-        required, optional = params_to_read(choice, cfg, self._thrust_max_override is not None)
+        family = self._param_family()
+        required, optional = params_to_read(choice, cfg, self._thrust_max_override is not None, family)
         for name in required + optional:
+            if name in self.vehicle_params:
+                continue
             value = self._read_param(name)
             if value is None and name in required:
                 hint = " (pass --thrust-max-n for a vehicle without it)" if name == "SIM_THR_MAX" else ""
@@ -564,7 +616,7 @@ class Flight:
                                   f"after {cfg.param_attempts} tries{hint}")
             if value is not None:
                 self.vehicle_params[name] = value
-        p = self.vehicle_params
+        p = vehicle_values(self.vehicle_params)
         try:
             self.scaling = Scaling(
                 thrust_max_n=self._thrust_max_override if self._thrust_max_override is not None else p["SIM_THR_MAX"],
@@ -573,7 +625,19 @@ class Flight:
             )
         except ValueError as exc:
             raise LinkTimeout(f"the vehicle's scaling is unusable: {exc}") from None
-        self.params, notes = resolve_controller(choice, cfg.model, p, self.scaling)
+        try:
+            if choice.tuned and not cfg.lockstep:
+                # the design takes most of a second: keep streaming meanwhile (PX4 leaves OFFBOARD
+                # after COM_OF_LOSS_T without setpoints). In lockstep the vehicle waits for us, and
+                # a thread's timing would make the log differ from run to run.
+                with ThreadPoolExecutor(max_workers=1) as pool:
+                    future = pool.submit(resolve_controller, choice, cfg.model, dict(self.vehicle_params), self.scaling)
+                    self._pump(future.done)
+                    self.params, notes = future.result()
+            else:
+                self.params, notes = resolve_controller(choice, cfg.model, self.vehicle_params, self.scaling)
+        except ValueError as exc:
+            raise LinkTimeout(str(exc)) from None
         for note in notes:
             self._say(note)
         if abs(self.params.sample_time_s - self.to) > 1e-12:
@@ -687,6 +751,16 @@ class Flight:
             if reason:
                 exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
             raise exc
+
+    def _param_family(self) -> str:
+        """Probe which simulator's parameters the vehicle has (``PARAM_FAMILIES``); the probe's
+        value is kept."""
+        for family, probe in (("SIM", "SIM_THR_MAX"), ("SIH", "SIH_MASS")):
+            value = self._read_param(probe)
+            if value is not None:
+                self.vehicle_params[probe] = value
+                return family
+        return "none"
 
     def _read_param(self, name: str) -> float | None:
         assert self.target is not None
@@ -999,7 +1073,7 @@ class Flight:
         params = self.params
         x = codec.controller_state(measured, params.euler_rate_form)
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
-        out = self.controller.step(x, tracking_reference(ref_n), tracking_reference(ref_n1))
+        out = self.controller.step(x, tracking_reference(ref_n, self.controller.params.reference_lead_s2), tracking_reference(ref_n1, self.controller.params.reference_lead_s2))
         why = _diverged(measured)
         if recording:
             if why:

@@ -250,3 +250,43 @@ def comparison_figure(
             ax.legend(loc="upper right", fontsize=7, ncol=a.shape[1])
         _finish(ax, ylabel)
     return fig
+
+
+def design_figure(design: object, path: Path) -> Path:
+    """``offboard tune --plot``: the north axis's loop gain, phase and closed-loop poles, designed
+    gains against Table I's (docs/controller-design.md)."""
+    from offboard.controller.design import AxisGains, analyse_axis, axis_plants, loop_response
+    from offboard.controller.params import ControllerGains
+
+    table1 = ControllerGains()
+    to = design.sample_time_s  # type: ignore[attr-defined]
+    north, _, _ = axis_plants(design.model, to)  # type: ignore[attr-defined]
+    fig = Figure(figsize=(10.0, 4.2), dpi=DPI, layout=LAYOUT)
+    FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.13, top=0.88, wspace=0.3, hspace=0.08)
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.6, 1.0))
+    ax_mag, ax_ph, ax_z = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[:, 1])
+    cases = (("Table I", AxisGains(table1.kx1, table1.kx2), "tab:red"), ("designed", design.horizontal, "tab:blue"))  # type: ignore[attr-defined]
+    for name, gains, color in cases:
+        w, loop = loop_response(north, gains, to)
+        a = analyse_axis(north, gains, to)
+        label = (f"{name}: kx1 {float(gains.k_pos):.3g}, kx2 {float(gains.k_vel):.3g}, lead {float(gains.lead):g}, ki "
+                 f"{float(gains.integral_per_s):.2g} (GM {a.gain_margin:.2f}, PM {a.phase_margin_deg:.0f} deg)")
+        ax_mag.loglog(w, np.abs(loop), color=color, label=label)
+        ax_ph.semilogx(w, np.degrees(np.unwrap(np.angle(loop))), color=color)
+        ax_z.plot(a.poles.real, a.poles.imag, "x", color=color, label=f"{name}: |pole| max {a.spectral_radius:.3f}")
+    ax_mag.axhline(1.0, color="0.6", linewidth=0.8)
+    ax_ph.axhline(-180.0, color="0.6", linewidth=0.8)
+    ax_mag.set_ylabel("|L|")
+    ax_ph.set_ylabel("arg L [deg]")
+    ax_ph.set_xlabel("w [rad/s]")
+    ax_mag.legend(fontsize=7, loc="lower left")
+    ax_mag.tick_params(labelbottom=False)
+    theta = np.linspace(0, 2 * np.pi, 200)
+    ax_z.plot(np.cos(theta), np.sin(theta), color="0.6", linewidth=0.8)
+    ax_z.set_aspect("equal")
+    ax_z.set_xlabel("Re z")
+    ax_z.set_ylabel("Im z")
+    ax_z.legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"north axis loop broken at the tilt setpoint, To {to:g} s, latency {design.model.latency_s * 1000:.0f} ms")  # type: ignore[attr-defined]
+    return save_figure(fig, path)

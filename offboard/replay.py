@@ -1266,7 +1266,7 @@ def rerun_controller(
         t = float(t_all[k])
         x = codec.controller_state(measured, form)
         ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
-        out = controller.step(x, tracking_reference(ref_n), tracking_reference(ref_n1))
+        out = controller.step(x, tracking_reference(ref_n, controller.params.reference_lead_s2), tracking_reference(ref_n1, controller.params.reference_lead_s2))
         builder.append(**control_row(t, measured, ref_n, out))
         if not out.is_finite():
             continue
@@ -1305,6 +1305,7 @@ def flight_controller(
     scaling: object,
     *,
     model: str = "rigid-body",
+    output: str = "attitude",
     controller_file: Path | None = None,
     summary: dict | None = None,
 ) -> tuple[object, str]:
@@ -1318,7 +1319,8 @@ def flight_controller(
       values) resolved as ``offboard fly`` resolved it, then overridden by the resolved
       controller the summary records, field by field (older summaries lack some fields);
     - else ``offboard fly``'s default: the paper's file believing the vehicle's SIM_* values,
-      read back from the PARAM_VALUE messages in the log.
+      read back from the PARAM_VALUE messages in the log, with (attitude output on a rigid body)
+      the gains designed for the vehicle's inner loop from the same parameters.
 
     Returns
     -------
@@ -1332,8 +1334,12 @@ def flight_controller(
         return resolve_controller(choice, model, vehicle_params, scaling)[0], f"{controller_file} (as offboard fly --controller flies it)"
     recorded = (summary or {}).get("controller")
     flown_file = (summary or {}).get("controller_file")
-    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE))
-    file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values"
+    flown_choice = (summary or {}).get("controller_choice")
+    # offboard fly's default designs the gains where the design applies (offboard.commands.fly)
+    default_tuned = model == "rigid-body" and output == "attitude"
+    tuned = flown_choice == "tuned" or (flown_choice is None and default_tuned and not isinstance(recorded, dict))
+    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), tuned=tuned)
+    file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values" + (", gains designed for it" if choice.tuned else "")
     if isinstance(flown_file, str) and flown_file:
         if Path(flown_file).is_file():
             choice = ControllerChoice(base=load_controller(flown_file), from_file=True)
@@ -1350,11 +1356,13 @@ def flight_controller(
         return params, f"offboard fly's default ({PAPER_CONTROLLER_FILE.name}, the vehicle's SIM_* values from the log)"
     changes: dict[str, object] = {}
     for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware",
-                "integral_gain_per_s", "integral_limit_m_s"):  # fmt: skip
+                "integral_gain_per_s", "integral_limit_m_s", "tilt_lead", "linear_drag_n_s_m"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
     if "inertia_kg_m2" in recorded:
         changes["inertia_kg_m2"] = tuple(float(v) for v in recorded["inertia_kg_m2"])
+    if "reference_lead_s2" in recorded:
+        changes["reference_lead_s2"] = tuple(float(v) for v in recorded["reference_lead_s2"])
     if isinstance(recorded.get("gains"), dict):
         changes["gains"] = ControllerGains(**{k: float(v) for k, v in recorded["gains"].items()})
     if any(k in recorded for k in ("thrust_min_n", "thrust_max_n", "tilt_max_deg")):
@@ -1363,6 +1371,10 @@ def flight_controller(
             thrust_min_n=recorded.get("thrust_min_n"),
             thrust_max_n=recorded.get("thrust_max_n"),
             tilt_max_rad=None if tilt is None else math.radians(float(tilt)),
+            tilt_cone=bool(recorded.get("tilt_cone", False)),
+            speed_xy_max_m_s=recorded.get("speed_xy_max_m_s"),
+            speed_up_max_m_s=recorded.get("speed_up_max_m_s"),
+            speed_down_max_m_s=recorded.get("speed_down_max_m_s"),
         )
     return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"  # type: ignore[attr-defined]
 

@@ -22,6 +22,9 @@ from pathlib import Path
 from typing import TextIO
 
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+
+#: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
+PAPER_KEYWORD = "paper"
 from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
 from offboard.metrics import format_table, summarize
@@ -65,8 +68,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
     ctl.add_argument("--model", choices=MODELS, default="rigid-body",
                      help="what the vehicle is: a rigid body (ZYX angles, W_eta zyx) or sitl-plant --model paper (the file's W_eta)")
-    ctl.add_argument("--controller", type=Path, default=None, metavar="FILE",
-                     help="controller file (default: the paper's gains, believing the vehicle's SIM_* mass and inertia)")
+    ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper",
+                     help="controller file, or 'paper' for Table I's gains (default: with the attitude output on a "
+                          "rigid body, gains designed for the vehicle's inner loop from its parameters, believing its "
+                          "SIM_*/SIH_* mass and inertia (docs/controller-design.md); else Table I's)")
+    ctl.add_argument("--design-latency", type=float, default=None, metavar="S",
+                     help="latency the designed gains allow for (default: 0 in lockstep, one telemetry period in real time)")
     ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
     ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
@@ -173,11 +180,18 @@ def run(args: argparse.Namespace) -> int:
 
     _check(args)
     mission = load_mission(args.mission)
-    controller_file = args.controller if args.controller is not None else PAPER_CONTROLLER_FILE
-    base = load_controller(controller_file)
+    from_file = args.controller is not None and str(args.controller) != PAPER_KEYWORD
+    base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
+    latency = args.design_latency
+    if latency is None:
+        latency = 0.0 if args.lockstep or not args.telemetry_rate else 1.0 / args.telemetry_rate
     choice = ControllerChoice(
         base=base,
-        from_file=args.controller is not None,
+        from_file=from_file,
+        # the design models an autopilot's attitude loop: what the attitude output drives on a rigid
+        # body; the paper model's own inner loop and the actuator output fly the paper's gains
+        tuned=args.controller is None and args.model == "rigid-body" and args.output == "attitude",
+        latency_s=latency,
         mass_from_vehicle=args.mass_from_vehicle,
         yaw_aware=args.yaw_aware,
         tilt_max_deg=args.tilt_max_deg,
@@ -208,7 +222,8 @@ def run(args: argparse.Namespace) -> int:
     # from anywhere: the mission, and the controller file (None: the paper's gains believing the
     # vehicle's SIM_* values, offboard fly's default)
     meta = {"mission": mission.name, "mission_source": mission.source, "mission_file": str(args.mission.resolve()),
-            "controller_file": None if args.controller is None else str(args.controller.resolve()),
+            "controller_file": str(args.controller.resolve()) if from_file else None,
+            "controller_choice": "file" if from_file else ("tuned" if choice.tuned else "paper"),
             "output": args.output, "model": args.model, "lockstep": args.lockstep, "connect": args.connect}  # fmt: skip
     started = time.monotonic()
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
@@ -259,8 +274,12 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "drag_to_thrust_m": c.drag_to_thrust_m, "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
             "gains": dataclasses.asdict(c.gains),
             "integral_gain_per_s": c.integral_gain_per_s, "integral_limit_m_s": c.integral_limit_m_s,
+            "reference_lead_s2": list(c.reference_lead_s2), "tilt_lead": c.tilt_lead,
+            "linear_drag_n_s_m": c.linear_drag_n_s_m,
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
+            "tilt_cone": c.limits.tilt_cone, "speed_xy_max_m_s": c.limits.speed_xy_max_m_s,
+            "speed_up_max_m_s": c.limits.speed_up_max_m_s, "speed_down_max_m_s": c.limits.speed_down_max_m_s,
         },  # fmt: skip
         "messages": link_stats,
         "loop": result.loop.to_dict(to),

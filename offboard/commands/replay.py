@@ -284,7 +284,8 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     model = args.model or (summary_json or {}).get("model") or "rigid-body"
     if model not in codec.MODELS:
         model = "rigid-body"
-    params, origin = replay.flight_controller(params_log, scaling, model=model, controller_file=args.controller,
+    output = str(record.meta.get("commands") or "attitude")
+    params, origin = replay.flight_controller(params_log, scaling, model=model, output=output, controller_file=args.controller,
                                               summary=None if args.controller is not None else summary_json)  # fmt: skip
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model)
     label = f"controller: {origin}; model {model}"

@@ -1,0 +1,202 @@
+"""`offboard tune`: design the law's gains for a vehicle and its inner loop; write a controller file.
+
+The vehicle's parameters come from a parameter file (a JSON object of name -> value, PX4
+SITL's ``params.json`` layout, or a QGroundControl ``.params`` file), from a sitl-plant vehicle
+file, or live from a vehicle over MAVLink (``--connect``). The design is
+``offboard.controller.design`` (docs/controller-design.md); the file it writes flies with
+``offboard fly --controller FILE`` (``offboard fly`` without ``--controller`` designs the same
+gains at start-up).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from offboard.codec import Scaling
+from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.controller.design import MarginSpec
+from offboard.controller.tuning import (
+    AUTOPILOT_PARAMS,
+    PLANT_PARAMS,
+    SIH_PARAMS,
+    controller_file_text,
+    design_for_vehicle,
+    design_summary,
+    tuned_params,
+    vehicle_values,
+)
+from offboard.errors import LinkTimeout, UserError
+
+
+class TuneArgumentError(UserError, ValueError):
+    """A tune option or input file is unusable; the message names it."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "tune",
+        help="design the law's gains for a vehicle's inner loop and write a controller file",
+        description="Model the vehicle's attitude loop, rate loop, motors, sample-and-hold and latency, and "
+        "choose the law's gains kx1..kx6 for the fastest closed loop that keeps the stated margins "
+        "(docs/controller-design.md). Writes a controller file for offboard fly --controller.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--params", type=Path, metavar="FILE",
+                     help="the vehicle's parameters: JSON (name -> value, or PX4 params.json) or a QGC .params file")
+    src.add_argument("--vehicle", type=Path, metavar="FILE", help="a sitl-plant vehicle file (its SIM_* and MC_* parameters)")
+    src.add_argument("--connect", metavar="URL", help="read the parameters from a live vehicle (pymavlink connection string)")
+    parser.add_argument("--sample-time", type=float, default=0.05, metavar="S", help="To of the law")
+    parser.add_argument("--latency", type=float, default=0.0, metavar="S",
+                        help="from the measurement to the setpoint acting (telemetry age, link)")
+    parser.add_argument("--gain-margin", type=float, default=MarginSpec.gain_margin, help="at least this factor")
+    parser.add_argument("--phase-margin-deg", type=float, default=MarginSpec.phase_margin_deg, help="at least this")
+    parser.add_argument("--delay-margin", type=float, default=MarginSpec.delay_margin_s, metavar="S",
+                        help="extra latency the loop must tolerate")
+    parser.add_argument("--output", type=Path, default=None, metavar="FILE", help="controller file to write (default: stdout)")
+    parser.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                        help="the loop's frequency response and poles, designed against Table I's gains")
+    parser.set_defaults(func=run)
+
+
+def read_params_file(path: Path) -> dict[str, float]:
+    """Parameters from JSON (name -> number or {"value": number}) or a QGC .params file."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise TuneArgumentError(f"--params {path}: {exc.strerror or exc}") from None
+    out: dict[str, float] = {}
+    if text.lstrip()[:1] in ("{", "["):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise TuneArgumentError(f"--params {path}: not JSON: {exc.msg} at line {exc.lineno}") from None
+        if not isinstance(data, dict):
+            raise TuneArgumentError(f"--params {path}: expected an object of name -> value")
+        for name, value in data.items():
+            if isinstance(value, dict):
+                value = value.get("value")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise TuneArgumentError(f"--params {path}: {name}: expected a finite number, got {value!r}")
+            out[str(name)] = float(value)
+        return out
+    for lineno, line in enumerate(text.splitlines(), 1):  # QGC: vehicle, component, name, value, type
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = line.split("\t") if "\t" in line else line.split()
+        if len(fields) < 4:
+            raise TuneArgumentError(f"--params {path}:{lineno}: expected 'vehicle component name value type'")
+        try:
+            value = float(fields[3])
+        except ValueError:
+            raise TuneArgumentError(f"--params {path}:{lineno}: {fields[2]}: not a number: {fields[3]!r}") from None
+        if not math.isfinite(value):
+            raise TuneArgumentError(f"--params {path}:{lineno}: {fields[2]}: not finite")
+        out[fields[2]] = value
+    return out
+
+
+def read_vehicle_file(path: Path) -> dict[str, float]:
+    """The parameters a sitl-plant flying this vehicle file publishes."""
+    from sitl_plant.params import plant_params  # the simulator's vehicle file: only for this option
+    from sitl_plant.vehicle import load_vehicle
+
+    table = plant_params(load_vehicle(path))
+    return {name: table[name] for name in table}
+
+
+def read_live_params(url: str, timeout_s: float = 10.0) -> dict[str, float]:
+    """The parameters the design needs, read with PARAM_REQUEST_READ from a live vehicle."""
+    from pymavlink import mavutil
+
+    try:
+        conn = mavutil.mavlink_connection(url, source_system=245, source_component=191)
+    except OSError as exc:
+        raise TuneArgumentError(f"--connect {url}: {exc.strerror or exc}") from None
+    try:
+        hb = conn.wait_heartbeat(timeout=timeout_s)
+        if hb is None:
+            raise LinkTimeout(f"no vehicle heartbeat on {url} within {timeout_s:g} s")
+        out: dict[str, float] = {}
+        for name in (*PLANT_PARAMS, *SIH_PARAMS, *AUTOPILOT_PARAMS):
+            if name in SIH_PARAMS and "SIM_THR_MAX" in out or name in PLANT_PARAMS and "SIH_MASS" in out:
+                continue
+            for _ in range(2):
+                conn.mav.param_request_read_send(conn.target_system, conn.target_component, name.encode(), -1)
+                msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+                while msg is not None and msg.param_id != name:
+                    msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+                if msg is not None:
+                    value = msg.param_value
+                    if msg.param_type in (1, 2, 3, 4, 5, 6):  # integers travel bytewise in the float (PX4)
+                        import struct
+
+                        value = struct.unpack("<i", struct.pack("<f", value))[0]
+                    out[name] = float(value)
+                    break
+        return out
+    finally:
+        conn.close()
+
+
+def _check(args: argparse.Namespace) -> None:
+    for name in ("sample_time", "gain_margin"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise TuneArgumentError(f"--{name.replace('_', '-')} must be > 0, got {value}")
+    for name in ("latency", "phase_margin_deg", "delay_margin"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise TuneArgumentError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
+
+
+def run(args: argparse.Namespace) -> int:
+    from offboard.flight import ControllerChoice, resolve_controller
+
+    _check(args)
+    if args.params is not None:
+        raw, source = read_params_file(args.params), f"parameter file {args.params}"
+    elif args.vehicle is not None:
+        raw, source = read_vehicle_file(args.vehicle), f"sitl-plant vehicle file {args.vehicle}"
+    else:
+        raw, source = read_live_params(args.connect), f"the vehicle on {args.connect}"
+    values = vehicle_values(raw)
+    if "SIM_THR_MAX" not in values:
+        raise TuneArgumentError(f"{source}: no SIM_THR_MAX or SIH_T_MAX (the vehicle's thrust at normalised 1)")
+    spec = MarginSpec(args.gain_margin, args.phase_margin_deg, args.delay_margin)
+    try:
+        design = design_for_vehicle(values, sample_time_s=args.sample_time, latency_s=args.latency, spec=spec)
+    except KeyError as exc:
+        raise TuneArgumentError(f"{source}: {exc.args[0]}") from None
+    except ValueError as exc:
+        raise TuneArgumentError(str(exc)) from None
+    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), sample_time_s=args.sample_time)
+    params, _ = resolve_controller(choice, "rigid-body", values, Scaling(values["SIM_THR_MAX"]))
+    params = tuned_params(params, design, values)
+    text = controller_file_text(params, design, source=source)
+    if args.output is not None:
+        try:
+            args.output.write_text(text)
+        except OSError as exc:
+            raise TuneArgumentError(f"--output {args.output}: {exc.strerror or exc}") from None
+    for line in design_summary(design):
+        print(line, file=sys.stderr)
+    if args.output is None:
+        sys.stdout.write(text)
+    else:
+        print(f"controller file {args.output}", file=sys.stderr)
+    if args.plot is not None:
+        from offboard.plots import design_figure
+
+        try:
+            design_figure(design, args.plot)
+        except OSError as exc:
+            raise TuneArgumentError(f"--plot {args.plot}: {exc.strerror or exc}") from None
+        print(f"figure {args.plot}", file=sys.stderr)
+    return 0

@@ -1,0 +1,695 @@
+"""Gains for the law from a model of what it really drives (docs/controller-design.md).
+
+Flown through an autopilot, the law's angle references (x7ez, x9ez of eq. 28-29) are not reached
+within one sample, as eq. 23 assumes: an attitude P loop, a rate PID and the motors reach them
+after 100-200 ms, and the link adds its latency. This module models that chain, linearised about
+hover, one axis at a time, and designs the law's per-sample gains for it:
+
+- **The inner loop** (``TiltLoop``), continuous time, input the tilt setpoint, per axis::
+
+      omega_sp = P_att (theta_sp - theta)                       (MC_ROLL_P)
+      tau_c    = T1 (Kp (omega_sp - omega) + Ki int(omega_sp - omega) - Kd omega_dot)
+      tau_dot  = (tau_c - tau) / tau_m                          (motor lag, SIM_MOT_TAU / SIH_T_TAU)
+      omega_dot = tau / I,  theta_dot = omega,  v_dot = g theta, p_dot = v
+
+  with T1 the body torque at normalised torque 1; the vertical axis is ``a_dot = (a_c - a) /
+  tau_m``, ``v_dot = a``, ``p_dot = v``. The law's acceleration command ``dv / To`` (eq. 34,
+  with tan(theta) = dv / (dv6 + g To) of eq. 28-29, ~ a_c / g) is held for a sample
+  (zero-order hold) and applied ``latency_s`` after the measurement it was computed from.
+- **The law on one axis** (eq. 32-34), linear: with memory ``vd(n)`` (x2d of the last sample)::
+
+      vd(n+1) = (r(n+1) - k_pos r(n)) / To + (k_pos - 1) / To  p(n)          (eq. 32)
+      a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To             (eq. 33-34)
+
+  (k_pos, k_vel) are (kx1, kx2) for north, (kx3, kx4) for east, (kx5, kx6) for up.
+- **The closed loop** is then one linear discrete system: its poles (``spectral_radius``), the
+  loop's gain, phase and delay margins broken at the plant input, and the transfer from the
+  reference to the position: the law's eq. 32 hands the reference's velocity on exactly, so at
+  low frequency ``T = 1 + c2 s^2``; handing the law ``r - c2 r''`` (``[law]
+  reference_lead_s2``, from the trajectory's own acceleration) cancels what the lag leaves of
+  a smooth reference's error, to second order.
+
+``design_gains`` searches (k_pos, k_vel) for the fastest closed loop (smallest spectral radius)
+that keeps stated margins. Everything here is pure numpy: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+GRAVITY_M_S2 = 9.81
+
+
+@dataclass(frozen=True)
+class TiltLoop:
+    """One tilt axis of the autopilot's attitude and rate controllers (PX4's shape), linearised.
+
+    Attributes
+    ----------
+    attitude_p_per_s : float
+        MC_ROLL_P / MC_PITCH_P: body-rate setpoint per radian of attitude error (1/s).
+    rate_p, rate_i, rate_d : float
+        MC_ROLLRATE_P/I/D: normalised torque per rad/s, per rad (integral), per rad/s^2.
+    torque_per_unit_nm : float
+        Body torque at normalised torque 1 (N m).
+    inertia_kg_m2 : float
+        Moment of inertia about the axis (kg m^2).
+    motor_time_constant_s : float
+        First-order lag of the rotors' thrust (s); 0 for none.
+    """
+
+    attitude_p_per_s: float = 6.5
+    rate_p: float = 0.15
+    rate_i: float = 0.2
+    rate_d: float = 0.003
+    torque_per_unit_nm: float = 1.0
+    inertia_kg_m2: float = 3.8e-3
+    motor_time_constant_s: float = 0.02
+
+    def __post_init__(self) -> None:
+        for name in ("attitude_p_per_s", "rate_p", "torque_per_unit_nm", "inertia_kg_m2"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
+        for name in ("rate_i", "rate_d", "motor_time_constant_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class InnerLoopModel:
+    """What the law's setpoints drive: both tilt axes, the collective thrust's lag and the latency.
+
+    Attributes
+    ----------
+    roll, pitch : TiltLoop
+        Roll moves the vehicle east (paper y, kx3/kx4), pitch north (paper x, kx1/kx2).
+    thrust_time_constant_s : float
+        Lag of the collective thrust (s): the vertical axis.
+    latency_s : float
+        From the measurement a sample uses to the moment its setpoint acts (s): telemetry age,
+        link and processing.
+    source : str
+        Where the numbers came from, for the controller file's comments.
+    """
+
+    roll: TiltLoop
+    pitch: TiltLoop
+    thrust_time_constant_s: float = 0.02
+    latency_s: float = 0.0
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("thrust_time_constant_s", "latency_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+
+
+def _param(params: Mapping[str, float], *names: str, default: float | None = None) -> float:
+    for name in names:
+        if name in params:
+            return float(params[name])
+    if default is None:
+        raise KeyError(f"the vehicle publishes none of {', '.join(names)}")
+    return default
+
+
+#: PX4's control allocation normalises a quad X's roll and pitch columns so that each rotor takes
+#: 1/sqrt(2) of a unit roll or pitch command (ControlAllocationPseudoInverse:
+#: normalizeControlAllocationMatrix); SIH then makes ``L_ROLL * T_MAX`` of torque per unit of rotor
+#: thrust difference on each of its 4 rotors.
+SIH_TORQUE_PER_UNIT_FACTOR = 4.0 / math.sqrt(2.0)
+
+
+def inner_loop_from_params(params: Mapping[str, float], latency_s: float = 0.0) -> InnerLoopModel:
+    """The inner-loop model of a vehicle from its published parameters.
+
+    ``sitl-plant`` publishes ``SIM_*`` (torque at normalised 1 ``SIM_TQ_RP_MAX``, inertia
+    ``SIM_I**``, motor lag ``SIM_MOT_TAU``); PX4's SIH ``SIH_*`` (``SIH_T_MAX`` per rotor,
+    ``SIH_L_ROLL``/``SIH_L_PITCH``, ``SIH_I**``, ``SIH_T_TAU``). Both publish PX4's ``MC_*``
+    gains; where one is missing PX4's default is taken.
+
+    Raises
+    ------
+    KeyError
+        Neither the plant's nor SIH's inertia and torque scale are published (a real airframe:
+        give them in a vehicle file).
+    """
+
+    def axis(name: str, rate: str, inertia: tuple[str, ...], arm: str) -> TiltLoop:
+        if "SIM_TQ_RP_MAX" in params:
+            torque = float(params["SIM_TQ_RP_MAX"])
+        elif "SIH_T_MAX" in params:
+            torque = _param(params, "SIH_T_MAX") * _param(params, arm, "SIH_L_ROLL") * SIH_TORQUE_PER_UNIT_FACTOR
+        else:
+            raise KeyError("the vehicle publishes neither SIM_TQ_RP_MAX nor SIH_T_MAX (torque at normalised 1)")
+        return TiltLoop(
+            attitude_p_per_s=_param(params, f"MC_{name}_P", default=6.5),
+            rate_p=_param(params, f"MC_{rate}RATE_P", default=0.15),
+            rate_i=_param(params, f"MC_{rate}RATE_I", default=0.2),
+            rate_d=_param(params, f"MC_{rate}RATE_D", default=0.003),
+            torque_per_unit_nm=torque,
+            inertia_kg_m2=_param(params, *inertia),
+            motor_time_constant_s=_param(params, "SIM_MOT_TAU", "SIH_T_TAU", default=0.0),
+        )
+
+    roll = axis("ROLL", "ROLL", ("SIM_IXX", "SIH_IXX"), "SIH_L_ROLL")
+    pitch = axis("PITCH", "PITCH", ("SIM_IYY", "SIH_IYY"), "SIH_L_PITCH")
+    source = "sitl-plant SIM_*" if "SIM_TQ_RP_MAX" in params else "PX4 SIH_*"
+    return InnerLoopModel(roll, pitch, roll.motor_time_constant_s, latency_s, f"{source} and MC_* parameters")
+
+
+# --- linear models -------------------------------------------------------------------------------
+
+
+def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of one horizontal axis, states (p, v, theta, omega, rate integral, torque).
+
+    Input: the acceleration command a_c (m/s^2), flown as the tilt setpoint a_c / g.
+    """
+    g = gravity_m_s2
+    tm = max(loop.motor_time_constant_s, 1e-4)  # no lag: a lag far above every other pole
+    i = loop.inertia_kg_m2
+    t1 = loop.torque_per_unit_nm
+    kp, ki, kd, patt = loop.rate_p, loop.rate_i, loop.rate_d, loop.attitude_p_per_s
+    a = np.zeros((6, 6))
+    b = np.zeros((6, 1))
+    a[0, 1] = 1.0
+    a[1, 2] = g
+    a[2, 3] = 1.0
+    a[3, 5] = 1.0 / i
+    # omega_sp - omega = patt (theta_sp - theta) - omega, theta_sp = a_c / g
+    a[4, 2], a[4, 3], b[4, 0] = -patt, -1.0, patt / g
+    # tau_c = t1 (kp (omega_sp - omega) + ki int - kd tau / I)
+    a[5, 2] = t1 * kp * (-patt) / tm
+    a[5, 3] = t1 * kp * (-1.0) / tm
+    a[5, 4] = t1 * ki / tm
+    a[5, 5] = (-t1 * kd / i - 1.0) / tm
+    b[5, 0] = t1 * kp * patt / g / tm
+    return a, b
+
+
+def vertical_plant(thrust_time_constant_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the vertical axis, states (p, v, a); input the acceleration command (m/s^2)."""
+    tm = max(thrust_time_constant_s, 1e-4)
+    a = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tm]])
+    b = np.array([[0.0], [0.0], [1.0 / tm]])
+    return a, b
+
+
+def _expm(m: np.ndarray) -> np.ndarray:
+    """Matrix exponential by scaling and squaring of a Taylor series (small, well-scaled matrices)."""
+    norm = float(np.max(np.sum(np.abs(m), axis=1)))
+    squarings = max(0, int(math.ceil(math.log2(norm))) + 1) if norm > 0.5 else 0
+    x = m / (2.0**squarings)
+    result = np.eye(m.shape[0])
+    term = np.eye(m.shape[0])
+    for k in range(1, 20):
+        term = term @ x / k
+        result = result + term
+    for _ in range(squarings):
+        result = result @ result
+    return result
+
+
+def _zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{Ah}, int_0^h e^{As} ds B)."""
+    n, m = b.shape
+    big = np.zeros((n + m, n + m))
+    big[:n, :n], big[:n, n:] = a, b
+    e = _expm(big * h)
+    return e[:n, :n], e[:n, n:]
+
+
+@dataclass(frozen=True)
+class DiscretePlant:
+    """x(n+1) = phi x(n) + gamma u(n), y(n) = (p(n), v(n), tilt(n)) = c x(n); the delay line is in x.
+
+    The vertical axis has no tilt: its third row is zero."""
+
+    phi: np.ndarray
+    gamma: np.ndarray
+    c: np.ndarray
+
+
+def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, tilt_state: int | None = None) -> DiscretePlant:
+    """Zero-order hold at ``sample_time_s`` with the input acting ``latency_s`` after the sample.
+
+    With latency ``d = m To + delta`` the input over [n To, n To + delta) is u(n - m - 1) and
+    over [n To + delta, (n+1) To) u(n - m); the m + 1 past inputs are extra states.
+    """
+    to = sample_time_s
+    m = int(latency_s // to)
+    delta = latency_s - m * to
+    n = a.shape[0]
+    phi, _ = _zoh(a, b, to)
+    phi_late, gamma_late = _zoh(a, b, to - delta)  # the part after the switch
+    _, gamma_early = _zoh(a, b, delta)  # the part before it, then carried over the rest
+    gamma_early = phi_late @ gamma_early
+    lags = m + 1  # u(n-1) ... u(n-m-1)
+    size = n + lags
+    big_phi = np.zeros((size, size))
+    big_gamma = np.zeros((size, 1))
+    big_phi[:n, :n] = phi
+    # the input that acts first in the sample is u(n-m-1) (state n + m), then u(n-m)
+    if m == 0:
+        big_phi[:n, n] = gamma_early[:, 0]
+        big_gamma[:n, 0] = gamma_late[:, 0]
+    else:
+        big_phi[:n, n + m] = gamma_early[:, 0]
+        big_phi[:n, n + m - 1] = gamma_late[:, 0]
+    # delay line: u(n) -> slot 0, slot k -> slot k+1
+    big_gamma[n, 0] = 1.0
+    for k in range(1, lags):
+        big_phi[n + k, n + k - 1] = 1.0
+    c = np.zeros((3, size))
+    c[0, 0] = c[1, 1] = 1.0
+    if tilt_state is not None:
+        c[2, tilt_state] = 1.0
+    return DiscretePlant(big_phi, big_gamma, c)
+
+
+# --- the law on one axis, closed loop --------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AxisGains:
+    """The law's parameters on one axis (scalars, or arrays of one shape for a search).
+
+    Attributes
+    ----------
+    k_pos, k_vel : float or ndarray
+        (kx1, kx2) north, (kx3, kx4) east, (kx5, kx6) up.
+    lead : float or ndarray
+        The tilt lead (``[law] tilt_lead``; 0 on the vertical axis).
+    integral_per_s : float or ndarray
+        ki of the integral action (``[law] integral_gain_per_s``), 1/s; 0 for none. In a search
+        every entry is 0 or every entry is > 0 (the integral is then a state of the law).
+    """
+
+    k_pos: float | np.ndarray
+    k_vel: float | np.ndarray
+    lead: float | np.ndarray = 0.0
+    integral_per_s: float | np.ndarray = 0.0
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
+                                          (self.k_pos, self.k_vel, self.lead, self.integral_per_s))))  # type: ignore[return-value]
+
+
+def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float = GRAVITY_M_S2) -> dict[str, np.ndarray]:
+    """The law on one axis as a discrete state space (module docstring), batch axes first.
+
+    States (vd(n), and the integral i(n) when ``integral_per_s`` > 0); inputs y = (p, v, tilt)
+    and the reference terms (w, r) with ``w = (r(n+1) - k_pos r(n)) / To``; output the
+    acceleration setpoint a_sp = (1 + lead) a_c - lead g tilt::
+
+        i(n+1)  = i(n) + ki To (r(n) - p(n))                         (optional integral action)
+        vd(n+1) = w + (k_pos - 1) / To p(n) + i(n+1)                 (eq. 32)
+        a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To    (eq. 33-34)
+
+    Returns a dict of ``a`` (.., nk, nk), ``b`` (.., nk, 3), ``br`` (.., nk, 2), ``c`` (.., 1, nk),
+    ``d`` (.., 1, 3), ``dr`` (.., 1, 2).
+    """
+    to, g = sample_time_s, gravity_m_s2
+    kp, kv, lead, ki = gains.arrays()
+    integral = bool(np.any(ki > 0.0))
+    nk = 2 if integral else 1
+    f = 1.0 + lead
+    zero = np.zeros_like(kp)
+    kit = ki * to
+    cp = (kp - 1.0) / to - kit  # vd(n+1) per metre of p(n)
+    shape = kp.shape
+    a = np.zeros((*shape, nk, nk))
+    b = np.zeros((*shape, nk, 3))
+    br = np.zeros((*shape, nk, 2))
+    c = np.zeros((*shape, 1, nk))
+    b[..., 0, 0] = cp
+    br[..., 0, 0] = 1.0
+    br[..., 0, 1] = kit
+    c[..., 0, 0] = -f * kv / to
+    if integral:
+        a[..., 0, 1] = 1.0
+        a[..., 1, 1] = 1.0
+        b[..., 1, 0] = -kit
+        br[..., 1, 1] = kit
+        c[..., 0, 1] = f / to
+    d = np.stack([f * cp / to, f * (kv - 1.0) / to, -lead * g + zero], axis=-1)[..., None, :]
+    dr = np.stack([f / to + zero, f * kit / to], axis=-1)[..., None, :]
+    return {"a": a, "b": b, "br": br, "c": c, "d": d, "dr": dr}
+
+
+def closed_loop(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(M, Br): the closed loop's state matrix (plant states, then the law's) and its reference
+    input matrix for (w, r), batch axes first."""
+    law = law_state_space(gains, sample_time_s)
+    n = plant.phi.shape[0]
+    nk = law["a"].shape[-1]
+    shape = law["a"].shape[:-2]
+    gam = plant.gamma  # (n, 1)
+    m = np.zeros((*shape, n + nk, n + nk))
+    m[..., :n, :n] = plant.phi + gam @ law["d"] @ plant.c
+    m[..., :n, n:] = gam @ law["c"]
+    m[..., n:, :n] = law["b"] @ plant.c
+    m[..., n:, n:] = law["a"]
+    br = np.concatenate([np.broadcast_to(gam @ law["dr"], (*shape, n, 2)), law["br"]], axis=-2)
+    return m, br
+
+
+def closed_loop_matrix(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> np.ndarray:
+    """The closed loop's state matrix (``closed_loop``)."""
+    return closed_loop(plant, gains, sample_time_s)[0]
+
+
+def _plant_response(plant: DiscretePlant, z: np.ndarray) -> np.ndarray:
+    """G(z) = C (zI - phi)^-1 gamma for each z: shape (len(z), 3)."""
+    n = plant.phi.shape[0]
+    eye = np.eye(n)
+    mats = z[:, None, None] * eye[None] - plant.phi[None]
+    rhs = np.broadcast_to(plant.gamma, (len(z), n, 1))
+    x = np.linalg.solve(mats, rhs)[..., 0]
+    return x @ plant.c.T
+
+
+def _law_response(gains: AxisGains, z: np.ndarray, to: float) -> np.ndarray:
+    """K(z) = C (zI - A)^-1 B + D from (p, v, tilt) to the setpoint: shape (..., len(z), 3).
+
+    In closed form: (zI - A)^-1 is 1/z for vd alone, and [[z - 1, 1], [0, z]] / (z (z - 1)) with
+    the integral (``law_state_space``)."""
+    law = law_state_space(gains, to)
+    a_nk = law["a"].shape[-1]
+    zz = z.reshape((1,) * (law["a"].ndim - 2) + (-1, 1))  # (..., len(z), 1)
+    b = law["b"][..., None, :, :]  # (..., 1, nk, 3)
+    c = law["c"][..., None, 0, :]  # (..., 1, nk)
+    if a_nk == 1:
+        k = c[..., 0:1] * b[..., 0, :] / zz
+    else:
+        den = zz * (zz - 1.0)
+        row0 = (c[..., 0:1] * (zz - 1.0)) / den  # C (zI - A)^-1, first column
+        row1 = (c[..., 0:1] + c[..., 1:2] * zz) / den
+        k = row0 * b[..., 0, :] + row1 * b[..., 1, :]
+    return k + law["d"][..., None, 0, :]
+
+
+@dataclass(frozen=True)
+class AxisAnalysis:
+    """One axis of the closed loop with given gains.
+
+    Attributes
+    ----------
+    gains : AxisGains
+        The law's parameters on the axis.
+    spectral_radius : float
+        Largest |pole|: < 1 is stable; errors decay as spectral_radius^n.
+    settling_time_s : float
+        Time for the slowest mode to fall to 2 % (inf when unstable).
+    gain_margin : float
+        Factor on the loop gain at the plant input before instability (inf: none found).
+    phase_margin_deg : float
+        Phase margin at the loop's gain crossover(s), the smallest.
+    delay_margin_s : float
+        Extra latency the loop tolerates (phase margin / crossover frequency), the smallest.
+    reference_lead_s2 : float
+        c2 of the reference response (``tracking_lead_s2``).
+    poles : ndarray
+        Every closed-loop pole (z-plane).
+    """
+
+    gains: AxisGains
+    spectral_radius: float
+    settling_time_s: float
+    gain_margin: float
+    phase_margin_deg: float
+    delay_margin_s: float
+    reference_lead_s2: float
+    poles: np.ndarray
+
+    def meets(self, spec: MarginSpec) -> bool:
+        return (self.spectral_radius < 1.0 and self.gain_margin >= spec.gain_margin
+                and self.phase_margin_deg >= spec.phase_margin_deg and self.delay_margin_s >= spec.delay_margin_s)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MarginSpec:
+    """What the design must keep (the usual robustness targets of a cascaded flight loop).
+
+    Attributes
+    ----------
+    gain_margin : float
+        At least this factor (2 = 6 dB).
+    phase_margin_deg : float
+    delay_margin_s : float
+        Extra latency the loop must tolerate on top of the modelled one (s).
+    """
+
+    gain_margin: float = 2.0
+    phase_margin_deg: float = 45.0
+    delay_margin_s: float = 0.05
+
+
+def _frequencies(to: float, count: int = 1500) -> np.ndarray:
+    return np.geomspace(1e-3, math.pi / to * 0.9999, count)
+
+
+def _margins(loop: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(gain margin, phase margin deg, delay margin s) of L(e^{jw To}) along the last axis.
+
+    Gain margin: 1 / |L| where L crosses the negative real axis inside the unit circle (the
+    smallest; inf if it never does). Phase margin: 180 deg + arg L where |L| crosses 1 (the smallest; 180 if |L| never
+    reaches 1). Delay margin: phase margin / crossover frequency (the smallest).
+    """
+    mag = np.abs(loop)
+    phase = np.angle(loop)  # in (-pi, pi]
+    im = loop.imag
+    # crossings of the negative real axis inside the unit circle (with an integral the loop also
+    # crosses it far outside at low frequency: a lower gain margin, which a gain rise never reaches)
+    cross_180 = (np.sign(im[..., :-1]) != np.sign(im[..., 1:])) & (loop.real[..., :-1] < 0) & (mag[..., :-1] < 1.0)
+    gm = np.min(np.where(cross_180, 1.0 / np.maximum(mag[..., :-1], 1e-300), np.inf), axis=-1)
+    cross_1 = (mag[..., :-1] - 1.0) * (mag[..., 1:] - 1.0) <= 0
+    margins = np.degrees(np.pi + phase[..., :-1])
+    margins = np.where(margins > 180.0, margins - 360.0, margins)
+    pm = np.min(np.where(cross_1, margins, 180.0), axis=-1)
+    dm = np.min(np.where(cross_1, np.radians(np.maximum(margins, 0.0)) / w[:-1], np.inf), axis=-1)
+    return gm, pm, dm
+
+
+def loop_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(w rad/s, L(e^{jw To})): the loop broken at the plant input (negative feedback form)."""
+    w = _frequencies(sample_time_s)
+    z = np.exp(1j * w * sample_time_s)
+    return w, -np.sum(_law_response(gains, z, sample_time_s) * _plant_response(plant, z), axis=-1)
+
+
+def reference_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float, w: np.ndarray) -> np.ndarray:
+    """T(e^{jw To}): position over reference at angular frequencies ``w`` (rad/s).
+
+    The reference enters eq. 32 as ``w = (r(n+1) - k_pos r(n)) / To`` and the integral as r(n).
+    """
+    to = sample_time_s
+    m, br = closed_loop(plant, gains, to)
+    z = np.exp(1j * np.asarray(w, dtype=float) * to)
+    size = m.shape[-1]
+    k_pos = float(np.asarray(gains.k_pos))
+    u = np.stack([(z - k_pos) / to, np.ones_like(z)], axis=-1)  # (w, r) per unit of r
+    rhs = (br[None] @ u[:, :, None])  # (len(z), size, 1)
+    x = np.linalg.solve(z[:, None, None] * np.eye(size)[None] - m[None], rhs)[..., 0]
+    return x[:, 0]
+
+
+def tracking_lead_s2(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> float:
+    """c2 of the reference response T = 1 + c2 s^2 + ... at low frequency (s^2).
+
+    The law's eq. 32 hands the velocity on exactly (T'(0) = 0), so what is left of a smooth,
+    slow reference's tracking error is c2 times its acceleration: handing the law
+    ``r - c2 r''`` instead of ``r`` cancels it to second order (``[law] reference_lead_s2``).
+    """
+    w = 0.01
+    t = reference_response(plant, gains, sample_time_s, np.array([w]))[0]
+    return float(((t - 1.0) / (1j * w) ** 2).real)
+
+
+def analyse_axis(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> AxisAnalysis:
+    """Poles, margins and reference response of one axis with the law's gains (module docstring)."""
+    to = sample_time_s
+    poles = np.linalg.eigvals(closed_loop_matrix(plant, gains, to))
+    rho = float(np.max(np.abs(poles)))
+    settle = to * math.log(0.02) / math.log(rho) if rho < 1.0 else math.inf
+    w, loop = loop_response(plant, gains, to)
+    gm, pm, dm = _margins(loop[None], w)
+    return AxisAnalysis(gains, rho, settle, float(gm[0]), float(pm[0]), float(dm[0]),
+                        tracking_lead_s2(plant, gains, to), poles)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Design:
+    """Gains for every axis of the law, with the analysis that chose them.
+
+    Attributes
+    ----------
+    sample_time_s : float
+    north, east, up : AxisAnalysis
+        North with the pitch loop, east with the roll loop, up with the thrust lag.
+    reference_lead_s2 : (float, float)
+        c2 of the horizontal and vertical reference responses (``tracking_lead_s2``).
+    spec : MarginSpec
+    model : InnerLoopModel
+    """
+
+    sample_time_s: float
+    north: AxisAnalysis
+    east: AxisAnalysis
+    up: AxisAnalysis
+    reference_lead_s2: tuple[float, float]
+    spec: MarginSpec
+    model: InnerLoopModel
+
+    @property
+    def horizontal(self) -> AxisGains:
+        return self.north.gains
+
+    @property
+    def vertical(self) -> AxisGains:
+        return self.up.gains
+
+
+def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant, DiscretePlant]:
+    """(north, east, up) discrete plants of a model at a sample time."""
+    north = discretise(*tilt_axis_plant(model.pitch), sample_time_s, model.latency_s, tilt_state=2)
+    east = discretise(*tilt_axis_plant(model.roll), sample_time_s, model.latency_s, tilt_state=2)
+    up = discretise(*vertical_plant(model.thrust_time_constant_s), sample_time_s, model.latency_s)
+    return north, east, up
+
+
+def _search(plants: tuple[DiscretePlant, ...], gains: AxisGains, to: float, spec: MarginSpec) -> np.ndarray:
+    """The spectral radius of each candidate (1-D arrays in ``gains``), inf where ``spec`` is not
+    met on every plant."""
+    kp, kv, lead, ki = gains.arrays()
+    if kp.size > 1024:  # in chunks: the frequency responses are (candidates, frequencies, 3) complex
+        return np.concatenate([_search(plants, AxisGains(kp[i:i + 1024], kv[i:i + 1024], lead[i:i + 1024], ki[i:i + 1024]),
+                                       to, spec) for i in range(0, kp.size, 1024)])  # fmt: skip
+    w = _frequencies(to, 600)
+    z = np.exp(1j * w * to)
+    ok = np.ones(kp.shape, dtype=bool)
+    rho = np.zeros(kp.shape)
+    law = _law_response(gains, z, to)  # (candidates, w, 3)
+    for plant in plants:
+        loop = -np.sum(law * _plant_response(plant, z)[None], axis=-1)
+        gm, pm, dm = _margins(loop, w)
+        ok &= (gm >= spec.gain_margin) & (pm >= spec.phase_margin_deg) & (dm >= spec.delay_margin_s)
+        rho = np.maximum(rho, np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(plant, gains, to))), axis=-1))
+    return np.where(ok & (rho < 1.0), rho, np.inf)
+
+
+#: The closed-loop rates searched for each of k_pos and k_vel (1/s): k = exp(-rate To), so the
+#: search means the same at any sample time (Table I's kx1 0.78 at 50 ms is 5.0 /s).
+RATE_GRID_PER_S = np.geomspace(0.2, 40.0, 24)
+#: The tilt leads searched (``[law] tilt_lead``) on the horizontal axes.
+LEAD_GRID = np.round(np.arange(0.0, 3.01, 0.5), 2)
+#: The integral gains searched (``[law] integral_gain_per_s``, 1/s), as fractions of the
+#: position loop's own rate (1 - k_pos) / To: an integral that slow leaves the margins nearly as
+#: they were and removes the steady error of a constant disturbance (wind, an estimator's tilt
+#: bias, a mass error).
+INTEGRAL_FRACTIONS = (0.1, 0.2, 0.3)
+
+
+def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: MarginSpec, *,
+                 leads: np.ndarray = LEAD_GRID, integral: bool = False,
+                 rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
+    """The fastest law that meets ``spec`` on every plant given (one set shared by the axes).
+
+    "Fastest": the smallest spectral radius of the loop without its integral (the integral,
+    slow by design, would otherwise set the radius); with ``integral``, the largest integral
+    fraction (``INTEGRAL_FRACTIONS``) that keeps ``spec`` too. A grid of rates and leads, then a
+    finer grid of rates around the best.
+
+    Raises
+    ------
+    ValueError
+        No candidate meets the margins (the inner loop is too slow for these margins).
+    """
+    to = sample_time_s
+    rates = np.asarray(rates_per_s, dtype=float)
+    leads = np.asarray(leads, dtype=float)
+    fractions = sorted(INTEGRAL_FRACTIONS, reverse=True) if integral else []
+
+    def pick(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> AxisGains | None:
+        kp, kv = np.exp(-a * to), np.exp(-b * to)
+        rho = _search(plants, AxisGains(kp, kv, c), to, spec)
+        order = [i for i in np.argsort(rho) if np.isfinite(rho[i])][:64]
+        if not order:
+            return None
+        if not fractions:
+            i = order[0]
+            return AxisGains(kp[i], kv[i], c[i])
+        # the fastest candidate that keeps the margins with an integral, and its largest integral
+        idx = np.repeat(np.array(order), len(fractions))
+        q = np.tile(np.array(fractions), len(order))
+        ki = q * (1.0 - kp[idx]) / to
+        ok = np.isfinite(_search(plants, AxisGains(kp[idx], kv[idx], c[idx], ki), to, spec))
+        if not ok.any():
+            return None
+        j = int(np.argmax(ok))  # candidates in speed order, fractions from the largest
+        return AxisGains(kp[idx[j]], kv[idx[j]], c[idx[j]], ki[j])
+
+    a, b, c = (g.ravel() for g in np.meshgrid(rates, rates, leads, indexing="ij"))
+    coarse = pick(a, b, c)
+    if coarse is None:
+        raise ValueError(
+            f"no gains with closed-loop rates in ({rates[0]:g}, {rates[-1]:g}) /s keep gain margin {spec.gain_margin:g}, "
+            f"phase margin {spec.phase_margin_deg:g} deg and delay margin {spec.delay_margin_s:g} s at To {to:g} s"
+        )
+    step = float(np.log(rates[1] / rates[0]))
+    fine = np.exp(np.linspace(-step, step, 7))
+    lead_step = float(leads[1] - leads[0]) / 2 if leads.size > 1 else 0.0
+    fine_leads = np.unique(np.maximum(float(coarse.lead) + np.array([-lead_step, 0.0, lead_step]), 0.0))
+    ra, rb = -math.log(float(coarse.k_pos)) / to, -math.log(float(coarse.k_vel)) / to
+    a2, b2, c2 = (g.ravel() for g in np.meshgrid(ra * fine, rb * fine, fine_leads, indexing="ij"))
+    best = pick(a2, b2, c2) or coarse
+    # as written in a controller file: 4 decimals
+    return AxisGains(round(float(best.k_pos), 4), round(float(best.k_vel), 4), float(best.lead),
+                     round(float(best.integral_per_s), 4))  # fmt: skip
+
+
+def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: MarginSpec | None = None, *,
+                 tilt_lead: bool = True, integral: bool = False) -> Design:  # fmt: skip
+    """The fastest law (gains, and the tilt lead and integral action where allowed) that keeps
+    ``spec`` on every axis of ``model`` (module docstring).
+
+    The law has one integral gain for all axes (``[law] integral_gain_per_s``): the vertical
+    axis is designed with the one the horizontal design chose. ``integral`` is off by default:
+    the law's integral has no anti-windup, and in flight it winds up during the steps and
+    speed-limited legs the linear analysis does not see (docs/controller-design.md).
+    """
+    spec = spec or MarginSpec()
+    to = sample_time_s
+    north_plant, east_plant, up_plant = axis_plants(model, to)
+    h = search_gains((north_plant, east_plant), to, spec, leads=LEAD_GRID if tilt_lead else np.zeros(1), integral=integral)
+    v = _search_vertical(up_plant, to, spec, float(h.integral_per_s))
+    north, east, up = analyse_axis(north_plant, h, to), analyse_axis(east_plant, h, to), analyse_axis(up_plant, v, to)
+    reference_lead = (0.5 * (north.reference_lead_s2 + east.reference_lead_s2), up.reference_lead_s2)
+    return Design(to, north, east, up, reference_lead, spec, model)
+
+
+def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float,
+                     rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
+    """The vertical axis's (k_pos, k_vel) with the integral gain ``ki`` fixed (shared with the
+    horizontal axes)."""
+    rates = np.asarray(rates_per_s, dtype=float)
+    a, b = (g.ravel() for g in np.meshgrid(rates, rates, indexing="ij"))
+    cand = AxisGains(np.exp(-a * to), np.exp(-b * to), 0.0, ki)
+    rho = _search((plant,), cand, to, spec)
+    if not np.isfinite(rho).any():
+        raise ValueError(f"no vertical gains keep the margins at To {to:g} s with integral gain {ki:g} /s")
+    best = int(np.argmin(rho))
+    step = float(np.log(rates[1] / rates[0]))
+    fine = np.exp(np.linspace(-step, step, 7))
+    a2, b2 = (g.ravel() for g in np.meshgrid(a[best] * fine, b[best] * fine, indexing="ij"))
+    cand2 = AxisGains(np.exp(-a2 * to), np.exp(-b2 * to), 0.0, ki)
+    best2 = int(np.argmin(_search((plant,), cand2, to, spec)))
+    return AxisGains(round(float(cand2.k_pos[best2]), 4), round(float(cand2.k_vel[best2]), 4), 0.0, ki)

@@ -1,0 +1,175 @@
+"""The law's gains designed for a vehicle from its published parameters, as a controller file.
+
+``design.py`` does the analysis; this module reads what it needs from a vehicle's parameters
+(sitl-plant's ``SIM_*`` or PX4 SIH's ``SIH_*``, and PX4's ``MC_*``/``MPC_*``), puts the designed
+gains and the bounds the design assumes into ``ControllerParams``, and writes them as a
+controller file (``offboard tune``; ``offboard fly`` without ``--controller`` does the same at
+start-up). Pure: no I/O beyond returning text.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import replace
+
+from offboard.controller.design import Design, InnerLoopModel, MarginSpec, design_gains, inner_loop_from_params
+from offboard.controller.params import ControllerParams
+
+#: PX4's attitude/rate gains and speed limits the design reads (PX4's defaults where missing).
+AUTOPILOT_PARAMS = (
+    "MC_ROLL_P", "MC_PITCH_P", "MC_ROLLRATE_P", "MC_ROLLRATE_I", "MC_ROLLRATE_D",
+    "MC_PITCHRATE_P", "MC_PITCHRATE_I", "MC_PITCHRATE_D",
+    "MPC_XY_VEL_MAX", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN",
+)  # fmt: skip
+#: sitl-plant's physical values.
+PLANT_PARAMS = ("SIM_THR_MAX", "SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX", "SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY",
+                "SIM_IZZ", "SIM_KM_KF", "SIM_MOT_TAU")  # fmt: skip
+#: PX4 SIH's (its README: SIH_T_MAX is per rotor, CA_ROTOR_COUNT rotors).
+SIH_PARAMS = ("SIH_MASS", "SIH_T_MAX", "SIH_Q_MAX", "SIH_IXX", "SIH_IYY", "SIH_IZZ", "SIH_L_ROLL", "SIH_L_PITCH",
+              "SIH_T_TAU", "SIH_KDV", "CA_ROTOR_COUNT")  # fmt: skip
+
+#: PX4's defaults of the speed limits (mc_pos_control params).
+PX4_SPEED_DEFAULTS = {"MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5}
+
+
+def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
+    """The vehicle's physical values under sitl-plant's names, from SIM_* or PX4 SIH's SIH_*.
+
+    SIH: ``SIM_MASS = SIH_MASS``, ``SIM_I** = SIH_I**``, ``SIM_ARM_LEN = SIH_L_ROLL``,
+    ``SIM_THR_MAX = SIH_T_MAX * CA_ROTOR_COUNT`` (4 when not published), ``SIM_MOT_TAU =
+    SIH_T_TAU``, ``SIM_KDV = SIH_KDV`` (linear drag, N s/m). Values already under SIM_* names win.
+    """
+    out = {k: float(v) for k, v in params.items()}
+    if "SIH_MASS" in params:
+        rotors = float(params.get("CA_ROTOR_COUNT", 4))
+        mapping = {"SIM_MASS": "SIH_MASS", "SIM_IXX": "SIH_IXX", "SIM_IYY": "SIH_IYY", "SIM_IZZ": "SIH_IZZ",
+                   "SIM_ARM_LEN": "SIH_L_ROLL", "SIM_MOT_TAU": "SIH_T_TAU", "SIM_KDV": "SIH_KDV"}  # fmt: skip
+        for sim, sih in mapping.items():
+            if sih in params and sim not in out:
+                out[sim] = float(params[sih])
+        if "SIH_T_MAX" in params and "SIM_THR_MAX" not in out:
+            out["SIM_THR_MAX"] = float(params["SIH_T_MAX"]) * rotors
+    return out
+
+
+def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, latency_s: float = 0.0,
+                       spec: MarginSpec | None = None) -> Design:  # fmt: skip
+    """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``).
+
+    Raises
+    ------
+    KeyError
+        The parameters lack the inertia or torque scale (a real airframe: use a vehicle file).
+    ValueError
+        No gains meet the margins.
+    """
+    model: InnerLoopModel = inner_loop_from_params(params, latency_s)
+    return design_gains(model, sample_time_s, spec)
+
+
+def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, float]) -> ControllerParams:
+    """``base`` with the designed gains (kx1..kx6) and the bounds the design assumes.
+
+    The integral action and the tilt lead are the design's. The bounds: the thrust axis's tilt as a cone (``ActionLimits.tilt_cone``) and the desired
+    speeds bounded by the autopilot's own MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN
+    (PX4's defaults when not published), so that a step in the reference is flown in the range
+    the linear design holds for. The angle gains kx7..kx12 stay: through an attitude setpoint
+    the autopilot closes the attitude loop, and they act only with the paper's own inner loop.
+    """
+    h, v = design.horizontal, design.vertical
+    gains = replace(base.gains, kx1=float(h.k_pos), kx2=float(h.k_vel), kx3=float(h.k_pos), kx4=float(h.k_vel),
+                    kx5=float(v.k_pos), kx6=float(v.k_vel))  # fmt: skip
+    speed = {k: float(params.get(k, v)) for k, v in PX4_SPEED_DEFAULTS.items()}
+    limits = replace(
+        base.limits,
+        tilt_cone=True,
+        speed_xy_max_m_s=speed["MPC_XY_VEL_MAX"],
+        speed_up_max_m_s=speed["MPC_Z_VEL_MAX_UP"],
+        speed_down_max_m_s=speed["MPC_Z_VEL_MAX_DN"],
+    )
+    return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
+                             integral_gain_per_s=float(h.integral_per_s),
+                             reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2))
+
+
+def design_summary(design: Design) -> list[str]:
+    """One line per axis: gains, poles, margins (what ``offboard tune`` prints)."""
+    lines = []
+    for name, a in (("north (pitch)", design.north), ("east (roll)", design.east), ("up (thrust)", design.up)):
+        g = a.gains
+        lines.append(
+            f"{name:14s} k_pos {float(g.k_pos):.4g} k_vel {float(g.k_vel):.4g} tilt lead {float(g.lead):g} integral "
+            f"{float(g.integral_per_s):.3g}/s: |pole| max {a.spectral_radius:.3f} "
+            f"(2 % in {a.settling_time_s:.2f} s), gain margin {a.gain_margin:.2f}, phase margin "
+            f"{a.phase_margin_deg:.1f} deg, delay margin {a.delay_margin_s * 1000:.0f} ms"
+        )
+    return lines
+
+
+def _fmt(value: float) -> str:
+    return repr(float(value)) if math.isfinite(value) else "nan"
+
+
+def controller_file_text(params: ControllerParams, design: Design, *, source: str) -> str:
+    """A controller file (the layout of ``paper.toml``) with the design's figures as comments."""
+    g, lim = params.gains, params.limits
+    m = design.model
+    lines = [
+        "# The law's gains designed by `offboard tune` for a vehicle and its inner loop",
+        f"# (docs/controller-design.md), from {source}.",
+        f"# Model: {m.source}; latency {m.latency_s * 1000:.0f} ms; roll P {m.roll.attitude_p_per_s:g}/s, rate P/I/D "
+        f"{m.roll.rate_p:g}/{m.roll.rate_i:g}/{m.roll.rate_d:g}, {m.roll.torque_per_unit_nm:.4g} N m at torque 1, "
+        f"Ixx {m.roll.inertia_kg_m2:.4g} kg m^2, motor lag {m.roll.motor_time_constant_s * 1000:.0f} ms.",
+        f"# Required: gain margin {design.spec.gain_margin:g}, phase margin {design.spec.phase_margin_deg:g} deg, "
+        f"delay margin {design.spec.delay_margin_s * 1000:.0f} ms. Achieved:",
+        *(f"#   {line}" for line in design_summary(design)),
+        "",
+        "[law]",
+        f"sample_time_s = {_fmt(params.sample_time_s)}",
+        f"yaw_aware = {'true' if params.yaw_aware else 'false'}",
+        f"integral_gain_per_s = {_fmt(params.integral_gain_per_s)}",
+        f"integral_limit_m_s = {_fmt(params.integral_limit_m_s)}",
+        "# the attitude setpoint is x7ez, x9ez led past the measured angles by this factor",
+        f"tilt_lead = {_fmt(params.tilt_lead)}",
+        "# c2 of the closed loop's reference response T = 1 + c2 s^2: the law is handed r - c2 r''",
+        f"reference_lead_s2 = [{_fmt(params.reference_lead_s2[0])}, {_fmt(params.reference_lead_s2[1])}]",
+        "",
+        "[model]                # the vehicle as the controller believes it",
+        f"mass_kg = {_fmt(params.mass_kg)}",
+        f"arm_length_m = {_fmt(params.arm_length_m)}",
+        f"inertia_kg_m2 = [{', '.join(_fmt(v) for v in params.inertia_kg_m2)}]",
+        f"gravity_m_s2 = {_fmt(params.gravity_m_s2)}",
+        f'euler_rate_form = "{params.euler_rate_form}"',
+        f"drag_to_thrust_m = {_fmt(params.drag_to_thrust_m)}",
+        f"linear_drag_n_s_m = {_fmt(params.linear_drag_n_s_m)}",
+        "",
+        "[gains]                # kx1..kx6 designed; kx7..kx12 Table I's (the autopilot closes the attitude loop)",
+        *(f"kx{i} = {_fmt(getattr(g, f'kx{i}'))}" for i in range(1, 13)),
+        "",
+        "[limits]               # the range the linear design holds for",
+    ]
+    if lim.thrust_min_n is not None:
+        lines.append(f"thrust_min_n = {_fmt(lim.thrust_min_n)}")
+    if lim.thrust_max_n is not None:
+        lines.append(f"thrust_max_n = {_fmt(lim.thrust_max_n)}")
+    if lim.tilt_max_rad is not None:
+        lines.append(f"tilt_max_deg = {_fmt(round(math.degrees(lim.tilt_max_rad), 6))}")
+    lines.append(f"tilt_cone = {'true' if lim.tilt_cone else 'false'}")
+    for name in ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s"):
+        value = getattr(lim, name)
+        if value is not None:
+            lines.append(f"{name} = {_fmt(value)}")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = [
+    "AUTOPILOT_PARAMS",
+    "PLANT_PARAMS",
+    "SIH_PARAMS",
+    "controller_file_text",
+    "design_for_vehicle",
+    "design_summary",
+    "tuned_params",
+    "vehicle_values",
+]
