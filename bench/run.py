@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python bench/run.py` from anywhere
     sys.path.insert(0, str(ROOT))
 
-PARTS = ("speed", "loop", "tracking")
+PARTS = ("speed", "loop", "tracking", "design")
 
 # sizes of every measurement: (full, quick)
 SIZES = {
@@ -130,6 +130,13 @@ def measure_tracking(quick: bool, workers: int, img_dir: Path) -> dict:
     img_dir.mkdir(parents=True, exist_ok=True)
     plots = tracking.plots(results, img_dir, tracking.CONTROLLERS)
     return {"flights": results, "plots": [p.name for p in plots]}
+
+
+def measure_design(quick: bool) -> dict:
+    from bench import design
+
+    _say("design: the law over MAVLink through the attitude loop, Table I against the designed gains")
+    return design.run(quick=quick, say=_say)
 
 
 # --- writing ---------------------------------------------------------------------------------------
@@ -244,6 +251,10 @@ def write(results: dict, output: Path, command: str) -> None:
         body += [loop.markdown(results["loop"]), ""]
     if "tracking" in results:
         body += ["## Tracking", "", tracking_markdown(results["tracking"]), ""]
+    if "design" in results:
+        from bench import design
+
+        body += [design.markdown(results["design"]), ""]
     output.write_text("\n".join(head + body).rstrip() + "\n")
 
 
@@ -271,6 +282,8 @@ def main(argv: list[str] | None = None) -> int:
         results["loop"] = measure_loop(args.quick)
     if "tracking" in parts:
         results["tracking"] = measure_tracking(args.quick, args.workers, output.parent / "img")
+    if "design" in parts:
+        results["design"] = measure_design(args.quick)
     results["wall_s"] = time.perf_counter() - start
     command = "make bench" if output == (ROOT / "bench" / "RESULTS.md") and not args.quick and len(parts) == len(PARTS) \
         else "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:])  # fmt: skip

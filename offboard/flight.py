@@ -34,7 +34,7 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -171,14 +171,15 @@ class ControllerChoice:
     tuned : bool
         Design kx1..kx6 for the vehicle's inner loop from its parameters (``offboard fly``
         without ``--controller``; docs/controller-design.md) instead of flying the base's gains.
-    latency_s : float
-        The latency the design assumes (s).
+    latency_s : float or None
+        The latency the design assumes (s); None: measured at start-up, the TIMESYNC round trip
+        plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
     """
 
     base: ControllerParams
     from_file: bool = False
     tuned: bool = False
-    latency_s: float = 0.0
+    latency_s: float | None = None
     mass_from_vehicle: bool = False
     yaw_aware: bool | None = None
     tilt_max_deg: float | None = None
@@ -305,13 +306,13 @@ def resolve_controller(
     params = base.with_changes(**changes)
     if choice.tuned:
         try:
-            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s)
+            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0)
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None
         params = tuned_params(params, design, vehicle)
         notes.append(f"gains designed for the vehicle's inner loop ({design.model.source}, latency "
-                     f"{choice.latency_s * 1000:.0f} ms; docs/controller-design.md):")
+                     f"{(choice.latency_s or 0.0) * 1000:.0f} ms; docs/controller-design.md):")
         notes.extend(f"  {line}" for line in design_summary(design))
     tilt_text = "none" if tilt is None else f"{math.degrees(tilt):.0f} deg"
     notes.append(
@@ -625,6 +626,15 @@ class Flight:
             )
         except ValueError as exc:
             raise LinkTimeout(f"the vehicle's scaling is unusable: {exc}") from None
+        # the latency the design allows for: measured (TIMESYNC) before designing, unless given
+        measure_latency = choice.tuned and choice.latency_s is None and not cfg.lockstep
+        if measure_latency:
+            self._do_timesync()
+            rtt_s = self.timesync["rtt_ms"] / 1000.0 if self.timesync else 0.0
+            period_s = 1.0 / cfg.telemetry_rate_hz if cfg.telemetry_rate_hz else 0.0
+            choice = replace(choice, latency_s=rtt_s + period_s)
+            self._say(f"latency {choice.latency_s * 1000:.0f} ms for the design: TIMESYNC round trip "
+                      f"{rtt_s * 1000:.1f} ms + one telemetry period {period_s * 1000:.0f} ms")
         try:
             if choice.tuned and not cfg.lockstep:
                 # the design takes most of a second: keep streaming meanwhile (PX4 leaves OFFBOARD
@@ -650,7 +660,8 @@ class Flight:
                       f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
         self.controller = RosalesController(self.params)
         self._mission_samples = int(round(self.trajectory.duration_s / self.to))
-        self._do_timesync()
+        if not measure_latency:
+            self._do_timesync()
         if self.mission_home is not None:
             self._align_mission()
         if cfg.telemetry_rate_hz is not None:

@@ -39,7 +39,7 @@ def test_report_has_every_section(quick_run):
     text = out.read_text()
     for heading in ("# Benchmarks", "## Speed", "### Controller step", "### Physics: one vehicle",
                     "### Physics: many vehicles", "### MAVLink lockstep loop", "### Real-time loop",
-                    "### Memory", "## Tracking", "#### helix"):  # fmt: skip
+                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop"):  # fmt: skip
         assert heading in text, heading
     assert "Machine:" in text and "python bench/run.py --quick" in text
     assert (out.parent / "img" / "tracking-helix.png").stat().st_size > 1000

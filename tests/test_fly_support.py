@@ -14,7 +14,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
+from bench.linkdelay import DelayedLink
 from offboard.demo import free_udp_ports, stop_process
 
 PY = sys.executable
@@ -86,59 +86,16 @@ class Flown:
         return str(self.summary.get("status", ""))
 
 
-class UdpProxy:
-    """Forwards datagrams between the plant and ``offboard fly``; ``drop`` cuts both ways.
+class UdpProxy(DelayedLink):
+    """Forwards datagrams between the plant and ``offboard fly`` at once; ``drop`` cuts both ways.
 
-    The plant sends to ``plant_side`` (its ``--api-remote``), which forwards to the offboard's
-    port from ``offboard_side``; whatever the offboard answers goes back to the plant from
-    ``plant_side``, so each process sees one peer, as without the proxy.
+    The plant sends to ``port`` (its ``--api-remote``), which forwards to the offboard's port;
+    whatever the offboard answers goes back to the plant, so each process sees one peer, as
+    without the proxy (``bench/linkdelay.py`` with no delay).
     """
 
     def __init__(self, plant_port: int, offboard_port: int) -> None:
-        self.plant_addr = ("127.0.0.1", plant_port)
-        self.offboard_addr = ("127.0.0.1", offboard_port)
-        self.plant_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.plant_side.bind(("127.0.0.1", 0))
-        self.offboard_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.offboard_side.bind(("127.0.0.1", 0))
-        for s in (self.plant_side, self.offboard_side):
-            s.settimeout(0.05)
-        self.port = self.plant_side.getsockname()[1]
-        self.drop = False
-        self.forwarded = 0
-        self.dropped = 0
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._pump, args=(self.plant_side, self.offboard_side, self.offboard_addr), daemon=True),
-                         threading.Thread(target=self._pump, args=(self.offboard_side, self.plant_side, self.plant_addr), daemon=True)]
-
-    def _pump(self, src: socket.socket, dst: socket.socket, addr: tuple[str, int]) -> None:
-        while not self._stop.is_set():
-            try:
-                data, _ = src.recvfrom(65535)
-            except (TimeoutError, socket.timeout):
-                continue
-            except OSError:
-                return
-            if self.drop:
-                self.dropped += 1
-                continue
-            try:
-                dst.sendto(data, addr)
-                self.forwarded += 1
-            except OSError:
-                pass
-
-    def __enter__(self) -> UdpProxy:
-        for t in self._threads:
-            t.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        for t in self._threads:
-            t.join(timeout=2)
-        self.plant_side.close()
-        self.offboard_side.close()
+        super().__init__(plant_port, offboard_port, delay_s=0.0)
 
 
 def fly(

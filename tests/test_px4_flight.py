@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from offboard.missions import MISSIONS_DIR
-from px4_sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
 from test_fly_support import ENV, PY
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,

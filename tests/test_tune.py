@@ -44,7 +44,10 @@ def test_tune_a_vehicle_file_writes_the_designed_controller(tmp_path, capsys):
     assert params.limits.tilt_cone and params.limits.speed_down_max_m_s == 1.5
     assert params.mass_kg == 0.5 and params.euler_rate_form == "zyx" and params.yaw_aware
     # what it achieved is printed, one line per axis, and kept in the file's comments
-    assert err.count("gain margin") == 3 and "phase margin" in out.read_text()
+    lines = err.strip().splitlines()
+    assert [line.split()[0] for line in lines[:3]] == ["north", "east", "up"] and all("gain margin" in x for x in lines[:3])
+    assert lines[3].startswith("Table I (kx1 0.78, kx2 0.8) on this loop: |pole| max 0.98")  # barely stable
+    assert "phase margin" in out.read_text()
 
 
 def test_tune_from_a_parameter_file_equals_tune_from_the_vehicle_file(tmp_path, capsys):
@@ -128,3 +131,23 @@ def test_tune_reads_a_live_vehicle(tmp_path, capsys):
 
 def test_margin_spec_defaults_are_the_documented_ones():
     assert MarginSpec() == MarginSpec(gain_margin=2.0, phase_margin_deg=45.0, delay_margin_s=0.05)
+
+
+DOC = PAPER_VEHICLE_FILE.parents[2] / "docs" / "controller-design.md"
+PX4_PARAMS_JSON = PAPER_VEHICLE_FILE.parents[3] / "shared" / "px4-sitl" / "params.json"
+
+
+def doc_blocks() -> list[str]:
+    parts = DOC.read_text().split("```")
+    return [parts[i].strip() for i in range(1, len(parts), 2)]
+
+
+def test_the_design_doc_quotes_what_offboard_tune_prints_for_the_plant(capsys):
+    code, _, err = tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE))
+    assert code == 0 and err.strip() == doc_blocks()[0]
+
+
+@pytest.mark.skipif(not PX4_PARAMS_JSON.is_file(), reason="no ../shared/px4-sitl/params.json (PX4 SITL's parameters)")
+def test_the_design_doc_quotes_what_offboard_tune_prints_for_px4(capsys):
+    code, _, err = tune(capsys, "--params", str(PX4_PARAMS_JSON), "--latency", "0.01")
+    assert code == 0 and err.strip() == doc_blocks()[1]

@@ -73,7 +73,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "rigid body, gains designed for the vehicle's inner loop from its parameters, believing its "
                           "SIM_*/SIH_* mass and inertia (docs/controller-design.md); else Table I's)")
     ctl.add_argument("--design-latency", type=float, default=None, metavar="S",
-                     help="latency the designed gains allow for (default: 0 in lockstep, one telemetry period in real time)")
+                     help="latency the designed gains allow for (default: 0 in lockstep; in real time measured, the "
+                          "TIMESYNC round trip plus one telemetry period)")
     ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
     ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
@@ -104,6 +105,8 @@ def _check(args: argparse.Namespace) -> None:
         positive(name, getattr(args, name.replace("-", "_")))
     if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
+    if args.design_latency is not None and not (math.isfinite(args.design_latency) and 0 <= args.design_latency < 10):
+        raise FlyArgumentError(f"--design-latency: must be a latency in [0, 10) s, got {args.design_latency}")
     if args.thrust_min is not None and not (math.isfinite(args.thrust_min) and 0 <= args.thrust_min < 1):
         raise FlyArgumentError(f"--thrust-min: must be a fraction in [0, 1), got {args.thrust_min}")
     if args.tilt_max_deg is not None and not (math.isfinite(args.tilt_max_deg) and args.tilt_max_deg > 0):
@@ -182,9 +185,7 @@ def run(args: argparse.Namespace) -> int:
     mission = load_mission(args.mission)
     from_file = args.controller is not None and str(args.controller) != PAPER_KEYWORD
     base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
-    latency = args.design_latency
-    if latency is None:
-        latency = 0.0 if args.lockstep or not args.telemetry_rate else 1.0 / args.telemetry_rate
+    latency = 0.0 if args.lockstep and args.design_latency is None else args.design_latency
     choice = ControllerChoice(
         base=base,
         from_file=from_file,

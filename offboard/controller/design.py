@@ -29,8 +29,11 @@ hover, one axis at a time, and designs the law's per-sample gains for it:
   reference_lead_s2``, from the trajectory's own acceleration) cancels what the lag leaves of
   a smooth reference's error, to second order.
 
-``design_gains`` searches (k_pos, k_vel) for the fastest closed loop (smallest spectral radius)
-that keeps stated margins. Everything here is pure numpy: no I/O.
+The law's extensions enter the same state space (``law_state_space``): the tilt lead (the
+attitude setpoint led past the measured angle, ``[law] tilt_lead``) and the optional integral
+action. ``design_gains`` searches (k_pos, k_vel) and the lead for the fastest closed loop
+(smallest spectral radius) that keeps stated margins (``MarginSpec``). Everything here is pure
+numpy: no I/O.
 """
 
 from __future__ import annotations

@@ -107,6 +107,20 @@ def design_summary(design: Design) -> list[str]:
     return lines
 
 
+def paper_gains_summary(design: Design) -> str:
+    """One line: Table I's horizontal gains on the same model, for comparison."""
+    from offboard.controller.design import AxisGains, analyse_axis, axis_plants
+    from offboard.controller.params import ControllerGains
+
+    table1 = ControllerGains()
+    north, _, _ = axis_plants(design.model, design.sample_time_s)
+    a = analyse_axis(north, AxisGains(table1.kx1, table1.kx2), design.sample_time_s)
+    head = f"Table I (kx1 {table1.kx1:g}, kx2 {table1.kx2:g}) on this loop:"
+    if a.spectral_radius >= 1.0:
+        return f"{head} UNSTABLE, |pole| max {a.spectral_radius:.3f}"
+    return f"{head} |pole| max {a.spectral_radius:.3f}, gain margin {a.gain_margin:.2f}, phase margin {a.phase_margin_deg:.1f} deg"
+
+
 def _fmt(value: float) -> str:
     return repr(float(value)) if math.isfinite(value) else "nan"
 

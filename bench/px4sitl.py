@@ -1,4 +1,4 @@
-"""A real PX4 SITL for the tests that are about PX4 (marker ``px4``).
+"""A real PX4 SITL for the tests that are about PX4 (marker ``px4``) and the benchmarks.
 
 The launcher is ``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl`` beside the project (a PX4 v1.16
 SITL with its SIH quadrotor; its README). Tests without one are skipped with the one line
@@ -13,6 +13,7 @@ original is never written to.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import random
 import subprocess
@@ -49,7 +50,8 @@ def runnable_launcher(launcher: Path) -> Path:
     home = launcher.parent
     if not _flattened_links(home / "bin"):
         return launcher
-    mirror = Path(tempfile.gettempdir()) / f"px4-sitl-mirror-{os.getuid()}-{abs(hash(str(home))) % 10**8}"
+    digest = hashlib.sha1(str(home).encode()).hexdigest()[:10]
+    mirror = Path(tempfile.gettempdir()) / f"px4-sitl-mirror-{os.getuid()}-{digest}"
     if not (mirror / launcher.name).is_file():
         tmp = Path(tempfile.mkdtemp(prefix="px4-sitl-mirror-"))
         (tmp / "bin").mkdir()

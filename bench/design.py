@@ -1,0 +1,196 @@
+"""``make bench``, part ``design``: the law flown over MAVLink through an autopilot's attitude loop.
+
+Every flight is two real processes (or ``offboard fly`` and a real PX4 SITL), exactly as a user
+flies them, with the attitude output: Table I's gains (``--controller paper``) against the gains
+``offboard fly`` designs for the vehicle's inner loop (no ``--controller``; docs/controller-design.md).
+
+- ``sitl-plant`` in lockstep: every bundled mission, both controllers;
+- ``sitl-plant`` in real time (``make demo``'s setting): the paper helix, both controllers, with
+  and without 50 +- 20 ms of delay each way (``bench/linkdelay.py``); with the delay, the design
+  allowing for the latency it measured (TIMESYNC) and for a wrong 10 ms (``--design-latency``);
+- a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
+  mission with the designed gains, and the helix with Table I's.
+
+Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
+5 s, without each phase's last 0.1 s: on the helix, 5-11.9 s); the largest tilt in the second
+half of every hold, in the air (over 0.5 m above the start: a hold at ground level is partly
+flown standing on the ground); the hold's RMS error there; the peak tilt of the flight.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+MISSIONS = ROOT / "missions"
+#: The bundled missions ``offboard fly`` flies (the paper-sim* files are in-process scenarios).
+FLY_MISSIONS = ("paper-helix.toml", "paper-square.toml", "figure-eight.toml", "all-segments.toml",
+                "px4-sitl-box.waypoints", "px4-sitl-survey.plan")  # fmt: skip
+DELAY_S, JITTER_S = 0.05, 0.02
+
+
+def figures(run_dir: Path) -> dict:
+    """The flight's figures from its summary.json and series.csv (module docstring)."""
+    summary = json.loads((run_dir / "summary.json").read_text())
+    out = {"status": summary.get("status"), "exit_code": summary.get("exit_code")}
+    series = run_dir / "series.csv"
+    if not series.is_file():
+        return out
+    d = np.genfromtxt(series, delimiter=",", names=True)
+    if d.size < 2:
+        return out
+    t = d["t_s"]
+    err = np.linalg.norm(np.stack([d[f"pos_ned_m_{i}"] - d[f"ref_pos_ned_m_{i}"] for i in range(3)], 1), axis=1)
+    tilt = np.degrees(np.arccos(np.clip(np.cos(d["euler_rad_0"]) * np.cos(d["euler_rad_1"]), -1, 1)))
+    # in the air: over half a metre above where the flight started (a hold whose reference is the
+    # ground is flown partly standing on it, where the tilt says nothing of the loop)
+    up = -d["pos_ned_m_2"]
+    airborne = up > up[0] + 0.5
+    phases = [p for p in summary.get("phases", []) if p["name"] not in ("whole flight", "after 5 s")]
+    moving = np.zeros(t.shape, bool)
+    hold = np.zeros(t.shape, bool)
+    for p in phases:
+        start, end = p["start_s"], p["end_s"]
+        if p.get("steady_state_m") is not None:  # a hold: its second half, in the air
+            hold |= (t >= start + (end - start) / 2) & (t < end) & airborne
+        else:
+            moving |= (t >= max(start, 5.0)) & (t < end - 0.1)
+    rms = lambda m: float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None  # noqa: E731
+    out.update(moving_rms_m=rms(moving), hold_rms_m=rms(hold),
+               hold_tilt_max_deg=float(tilt[hold].max()) if hold.any() else None,
+               peak_tilt_deg=float(tilt.max()), duration_s=float(t[-1]))  # fmt: skip
+    return out
+
+
+def _fly(mission: Path, run_dir: Path, connect_port: int, extra: tuple[str, ...]) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "offboard.cli", "fly", str(mission), "--connect",
+                             f"udpin:127.0.0.1:{connect_port}", "--run-dir", str(run_dir), "--no-plots", "--quiet", *extra],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+
+
+def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep: bool, delay: bool = False,
+              design_latency: float | None = None) -> dict:  # fmt: skip
+    """One flight against ``sitl-plant`` (two real processes on free loopback ports)."""
+    from bench.linkdelay import DelayedLink
+    from offboard.demo import free_udp_ports, stop_process
+
+    plant_port, offboard_port = free_udp_ports(2)
+    extra: list[str] = [] if controller is None else ["--controller", controller]
+    if lockstep:
+        extra.append("--lockstep")
+    if design_latency is not None:
+        extra += ["--design-latency", f"{design_latency:g}"]
+    link = DelayedLink(plant_port, offboard_port, delay_s=DELAY_S, jitter_s=JITTER_S) if delay else None
+    remote = link.port if link is not None else offboard_port
+    plant_cmd = [sys.executable, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote",
+                 f"127.0.0.1:{remote}", "--gcs-bind", "none", "--quiet", *(["--lockstep"] if lockstep else [])]  # fmt: skip
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fly = plant = None
+    try:
+        if link is not None:
+            link.__enter__()
+        fly = _fly(mission, run_dir, offboard_port, tuple(extra))
+        plant = subprocess.Popen(plant_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        _, err = fly.communicate(timeout=600)
+    finally:
+        if fly is not None and fly.poll() is None:
+            stop_process(fly)
+        if plant is not None:
+            stop_process(plant)
+        if link is not None:
+            link.__exit__(None, None, None)
+    result = figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
+    return result
+
+
+def fly_px4(mission: Path, run_dir: Path, *, controller: str | None) -> dict:
+    """One flight against a real PX4 SITL, real time (``bench/px4sitl.py``)."""
+    from bench.px4sitl import running_px4
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with running_px4(run_dir / "px4") as px4:
+        fly = _fly(mission, run_dir, px4.api_listen_port, () if controller is None else ("--controller", controller))
+        try:
+            _, err = fly.communicate(timeout=600)
+        finally:
+            if fly.poll() is None:
+                fly.kill()
+                fly.wait()
+    return figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
+
+
+def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # noqa: ANN001
+    """Every flight of the module docstring (``quick``: one lockstep hover-length flight)."""
+    from bench.px4sitl import px4_launcher
+
+    work = Path(tempfile.mkdtemp(prefix="bench-design-"))
+    flights: list[dict] = []
+
+    def record(where: str, mission: str, controller: str | None, condition: str, result: dict) -> None:
+        flights.append({"vehicle": where, "mission": mission, "controller": controller or "designed",
+                        "condition": condition, **result})  # fmt: skip
+        say(f"design: {where} {mission} {controller or 'designed'} {condition}: {result.get('status')}, moving RMS "
+            f"{result.get('moving_rms_m')}, hold tilt {result.get('hold_tilt_max_deg')}")
+
+    missions = FLY_MISSIONS[:1] if quick else FLY_MISSIONS
+    k = 0
+    for name in missions:
+        for controller in ("paper", None):
+            k += 1
+            record("sitl-plant", name, controller, "lockstep",
+                   fly_plant(MISSIONS / name, work / f"f{k}", controller=controller, lockstep=True))  # fmt: skip
+    if not quick:
+        helix = MISSIONS / "paper-helix.toml"
+        for controller, delay, latency, condition in (
+            ("paper", False, None, "real time"),
+            (None, False, None, "real time"),
+            ("paper", True, None, "real time, 50 +- 20 ms delay"),
+            (None, True, None, "real time, 50 +- 20 ms delay (latency measured)"),
+            (None, True, 0.01, "real time, 50 +- 20 ms delay, designed for 10 ms"),
+        ):
+            k += 1
+            record("sitl-plant", helix.name, controller, condition,
+                   fly_plant(helix, work / f"f{k}", controller=controller, lockstep=False, delay=delay, design_latency=latency))  # fmt: skip
+        if px4 is None:
+            px4 = px4_launcher() is not None
+        if px4:
+            for name in FLY_MISSIONS:
+                k += 1
+                record("real PX4", name, None, "real time", fly_px4(MISSIONS / name, work / f"f{k}", controller=None))
+            k += 1
+            record("real PX4", helix.name, "paper", "real time", fly_px4(helix, work / f"f{k}", controller="paper"))
+    return {"flights": flights, "px4": bool(px4), "work_dir": str(work)}
+
+
+def _f(value, fmt: str) -> str:  # noqa: ANN001
+    return "n/a" if value is None else format(value, fmt)
+
+
+def markdown(result: dict) -> str:
+    """The part's section of bench/RESULTS.md."""
+    lines = [
+        "## The law through an autopilot's attitude loop, over MAVLink",
+        "",
+        "Each flight: `offboard fly` (attitude output) against `sitl-plant` or a real PX4 SITL, as a user flies it;",
+        "`paper` is Table I's gains (`--controller paper`), `designed` the default, gains designed for the vehicle's",
+        "inner loop (docs/controller-design.md). Moving RMS: 3D error while the reference moves, after 5 s",
+        "(helix: 5-11.9 s); hold tilt and hold RMS: the second half of every hold, over 0.5 m above the start.",
+        "",
+        "| vehicle | mission | controller | condition | status | moving RMS m | hold tilt max ° | hold RMS m | peak tilt ° |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for f in result["flights"]:
+        lines.append(
+            f"| {f['vehicle']} | {f['mission']} | {f['controller']} | {f['condition']} | {f.get('status')} | "
+            f"{_f(f.get('moving_rms_m'), '.3f')} | {_f(f.get('hold_tilt_max_deg'), '.1f')} | {_f(f.get('hold_rms_m'), '.3f')} | "
+            f"{_f(f.get('peak_tilt_deg'), '.1f')} |"
+        )
+    if not result["px4"]:
+        lines += ["", "No PX4 SITL was found (set `PX4_SITL=/path/to/px4-sitl`): no real-PX4 rows."]
+    return "\n".join(lines)
