@@ -61,8 +61,10 @@ PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Ret
 
 #: The vehicle models the offboard process knows how to talk to (``--model``).
 MODELS = ("rigid-body", "paper")
-#: The setpoint messages the law's output can travel in (``--output``; ``law_setpoint``).
-OUTPUTS = ("attitude", "actuator")
+#: The setpoint messages the law's output can travel in (``--output``; ``law_setpoint``): an
+#: attitude and thrust, body rates and thrust (both SET_ATTITUDE_TARGET, as PX4 takes them), or
+#: SET_ACTUATOR_CONTROL_TARGET torques.
+OUTPUTS = ("attitude", "rates", "actuator")
 
 FORCE_ARM_MAGIC = 21196  # PX4: param2 of ARM_DISARM that skips the checks (not used by default)
 
@@ -328,8 +330,9 @@ def law_setpoint(
     scaling : Scaling
         The vehicle's normalisation (``SIM_THR_MAX``; the torque maxima for ``actuator``).
     output : str
-        ``attitude`` (SET_ATTITUDE_TARGET, ``attitude_setpoint``) or ``actuator``
-        (SET_ACTUATOR_CONTROL_TARGET, ``actuator_setpoint``).
+        ``attitude`` (SET_ATTITUDE_TARGET, ``attitude_setpoint``), ``rates`` (SET_ATTITUDE_TARGET
+        body rates, ``rates_setpoint``) or ``actuator`` (SET_ACTUATOR_CONTROL_TARGET,
+        ``actuator_setpoint``).
     model : str
         ``rigid-body`` or ``paper``: what the vehicle is (module docstring).
 
@@ -344,7 +347,28 @@ def law_setpoint(
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
     if output == "actuator":
         return actuator_setpoint(out, euler_rad, model, params.euler_rate_form, scaling)
+    if output == "rates":
+        return rates_setpoint(out, euler_rad, params.euler_rate_form, scaling)
     return attitude_setpoint(out, euler_rad, params.euler_rate_form, scaling, model=model, yaw_aware=params.yaw_aware)
+
+
+def rates_setpoint(out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling) -> AttitudeSetpoint:
+    """The ``rates`` output: body rates ``W_eta(eta(n)) (x8ref, x10ref, x12ref)`` (eq. 3) and u.
+
+    A rate setpoint (type_mask 128, attitude ignored; q carries the law's angle references for the
+    log), as PX4 flies it in OFFBOARD with its rate controller: the law's own angle loop (eq.
+    31-33 for x7-x12, kx7-kx12) closes the attitude at To, instead of the autopilot's attitude P.
+    On the paper model this is the ``attitude`` output's encoding.
+    """
+    law = out.law
+    q = quat_from_euler(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad)
+    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
+    return AttitudeSetpoint(
+        q_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+        body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
+        thrust_norm=thrust_norm(law.thrust_n, scaling),
+        type_mask=PAPER_TYPE_MASK,
+    )
 
 
 def setpoint_fields(sp: AttitudeSetpoint | ActuatorSetpoint) -> tuple[float, ...]:

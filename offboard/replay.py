@@ -1213,8 +1213,12 @@ def rerun_controller(
     trajectory: Trajectory,
     scaling: object,
     model: str = "rigid-body",
+    encoding: str | None = None,
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
+
+    ``encoding``: the ``offboard fly --output`` that was flown when the message alone does not say
+    (``rates`` travels in SET_ATTITUDE_TARGET like ``attitude``); None: the message's kind.
 
     Each sample: the ATTITUDE and LOCAL_POSITION_NED the logged command answered become the
     controller's state by ``offboard.codec`` (``measured_state``, ``controller_state``), the
@@ -1270,12 +1274,13 @@ def rerun_controller(
         builder.append(**control_row(t, measured, ref_n, out))
         if not out.is_finite():
             continue
-        sp = codec.law_setpoint(out, measured.euler_rad, params, scaling, output=output, model=model)  # type: ignore[arg-type]
+        sp = codec.law_setpoint(out, measured.euler_rad, params, scaling, output=encoding or output, model=model)  # type: ignore[arg-type]
         rerun[k] = np.array(codec.setpoint_fields(sp), dtype=np.float32)
     steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
     gaps = int(np.sum(np.maximum(steps - 1, 0)))
     rerun_record = builder.build(phases=record.phases, meta={**record.meta, "rerun": True})
-    return RerunResult(output, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun, rerun_record, gaps)
+    return RerunResult(encoding or output, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
+                       rerun_record, gaps)  # fmt: skip
 
 
 def format_rerun(result: RerunResult, label: str) -> str:
@@ -1387,7 +1392,7 @@ def rerun_panels(result: RerunResult, thrust_max_n: float) -> list[tuple[str, np
     scale = thrust_max_n if math.isfinite(thrust_max_n) else 1.0
     thrust_label = "u [N]" if math.isfinite(thrust_max_n) else "thrust (normalised)"
     logged, rerun = result.logged.astype(float), result.rerun.astype(float)
-    if result.output == "attitude":
+    if result.output in ("attitude", "rates"):  # both SET_ATTITUDE_TARGET
         a, b = euler_deg(logged), euler_deg(rerun)
         return [
             ("x7ez roll ref [deg]", a[:, 0], b[:, 0], ("roll",)),

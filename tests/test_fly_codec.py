@@ -269,3 +269,16 @@ def test_law_setpoint_refuses_an_unknown_output_or_model():
         codec.law_setpoint(out, m.euler_rad, params, SCALING, output="position", model="rigid-body")
     with pytest.raises(ValueError, match="model must be one of"):
         codec.law_setpoint(out, m.euler_rad, params, SCALING, output="attitude", model="blimp")
+
+
+def test_rates_output_is_a_body_rate_setpoint_from_the_laws_euler_rate_references():
+    out, m = control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True)
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form="zyx", yaw_aware=True)
+    sp = codec.law_setpoint(out, m.euler_rad, params, SCALING, output="rates", model="rigid-body")
+    assert sp.type_mask == mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE  # PX4 flies the rates
+    decoded = plant_codec.decode_attitude_target(wire(codec.set_attitude_target(m.time_boot_ms, sp, 1, 1)))
+    assert decoded.flies_rates and decoded.q_wxyz is None
+    # eq. 3 with the rigid body's W_eta at the measured attitude: back to the law's Euler-rate references
+    eta_dot = euler_rates_from_body_rates(m.euler_rad, np.array(decoded.body_rates_frd_rad_s), "zyx")
+    assert_allclose(eta_dot, out.law.euler_rate_ref_rad_s, rtol=1e-5, atol=1e-5)
+    assert decoded.thrust_norm == pytest.approx(min(max(out.law.thrust_n / 19.6, 0.0), 1.0), abs=1e-6)

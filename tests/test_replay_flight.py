@@ -106,7 +106,7 @@ def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, 
     return Flown(run_dir, mission, run_dir / "flight.tlog", folder / "plant.tlog", summary, output)
 
 
-@pytest.fixture(scope="module", params=["attitude", "actuator"])
+@pytest.fixture(scope="module", params=["attitude", "rates", "actuator"])
 def flown(request, tmp_path_factory) -> Flown:
     return fly(tmp_path_factory.mktemp(f"flight-{request.param}"), request.param)
 
@@ -302,7 +302,7 @@ def test_report_matches_the_flights_own_summary(flown, tmp_path, capsys):
 
 def test_report_without_rerun_takes_commands_from_the_messages(flown, tmp_path, capsys):
     code, payload = replay_json(capsys, str(flown.flight_log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
-    assert code == 0 and payload["commands"] == flown.output
+    assert code == 0 and payload["commands"] == ("attitude" if flown.output == "rates" else flown.output)  # the message kind
     # the thrust sent is u / SIM_THR_MAX in float32: the flight's peak u to float32 precision
     assert payload["peak_thrust_n"] == pytest.approx(flown.summary["peak_thrust_n"], rel=1e-6)
     events = payload["log_report"]["events"]
@@ -325,10 +325,10 @@ def test_mavlogdump_reads_both_logs(flown):
         assert done.returncode == 0, done.stderr
         lines = done.stdout.splitlines()
         scan = scan_log(TlogReader(log))
-        setpoint = "SET_ATTITUDE_TARGET" if flown.output == "attitude" else "SET_ACTUATOR_CONTROL_TARGET"
+        setpoint = "SET_ATTITUDE_TARGET" if flown.output in ("attitude", "rates") else "SET_ACTUATOR_CONTROL_TARGET"
         for kind, rows in (("ATTITUDE", scan.attitude[1]), ("LOCAL_POSITION_NED", scan.local_position[1])):
             assert sum(f" {kind} {{" in line for line in lines) == len(rows) > 100
-        target = scan.set_attitude if flown.output == "attitude" else scan.set_actuator
+        target = scan.set_attitude if flown.output in ("attitude", "rates") else scan.set_actuator
         assert sum(f" {setpoint} {{" in line for line in lines) == len(target[1]) > 100
 
 
@@ -363,10 +363,10 @@ def test_a_truncated_flight_log_reruns_exactly_up_to_the_damage(flown, tmp_path,
 
 def test_a_corrupted_setpoint_is_reported_missing_and_the_rest_is_read(flown, tmp_path, capsys):
     records = list(TlogReader(flown.flight_log))
-    kind = "SET_ATTITUDE_TARGET" if flown.output == "attitude" else "SET_ACTUATOR_CONTROL_TARGET"
+    kind = "SET_ATTITUDE_TARGET" if flown.output in ("attitude", "rates") else "SET_ACTUATOR_CONTROL_TARGET"
     setpoints = [r for r in records if r.msg.get_type() == kind]
     victim = setpoints[len(setpoints) // 2]
-    victim_ms = int(victim.msg.time_boot_ms if flown.output == "attitude" else victim.msg.time_usec // 1000)
+    victim_ms = int(victim.msg.time_boot_ms if flown.output in ("attitude", "rates") else victim.msg.time_usec // 1000)
     data = bytearray(flown.flight_log.read_bytes())
     data[victim.offset + 8 + 12] ^= 0xFF  # a payload byte: the checksum fails
     log = tmp_path / "flight.tlog"

@@ -22,6 +22,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from offboard.errors import UserError
 
 #: pymavlink connection strings ``--to`` accepts (network outputs only).
@@ -285,9 +287,21 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     if model not in codec.MODELS:
         model = "rigid-body"
     output = str(record.meta.get("commands") or "attitude")
-    params, origin = replay.flight_controller(params_log, scaling, model=model, output=output, controller_file=args.controller,
-                                              summary=None if args.controller is not None else summary_json)  # fmt: skip
-    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model)
+    # offboard fly --output rates travels in SET_ATTITUDE_TARGET too: summary.json says so, else the
+    # mission's setpoints do (attitude ignored, type_mask 128, on a rigid body)
+    flown_output = (summary_json or {}).get("output")
+    if flown_output is None and output == "attitude" and model == "rigid-body":
+        masks = replay.setpoints_for(scan, vehicle).values[np.asarray(record.meta["setpoint_rows"], dtype=np.int64), 0]
+        if len(masks) and np.all(masks.astype(int) & codec.PAPER_TYPE_MASK):
+            flown_output = "rates"
+    encoding = "rates" if flown_output == "rates" and output == "attitude" else None
+    try:
+        params, origin = replay.flight_controller(params_log, scaling, model=model, output=encoding or output,
+                                                  controller_file=args.controller,
+                                                  summary=None if args.controller is not None else summary_json)  # fmt: skip
+    except ValueError as exc:
+        raise ReplayArgumentError(f"--rerun: {exc}") from None
+    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding)
     label = f"controller: {origin}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}
