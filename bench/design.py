@@ -9,7 +9,8 @@ flies them, with the attitude output: Table I's gains (``--controller paper``) a
   and without 50 +- 20 ms of delay each way (``bench/linkdelay.py``); with the delay, the design
   allowing for the latency it measured (TIMESYNC) and for a wrong 10 ms (``--design-latency``);
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
-  mission with the designed gains, and the helix with Table I's.
+  mission with the designed gains, the helix with Table I's, and the helix and the square with
+  PX4 at ``--speed 4`` (``offboard fly --clock vehicle``).
 
 Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
 5 s, without each phase's last 0.1 s: on the helix, 5-11.9 s); the largest tilt in the second
@@ -109,13 +110,15 @@ def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep:
     return result
 
 
-def fly_px4(mission: Path, run_dir: Path, *, controller: str | None) -> dict:
-    """One flight against a real PX4 SITL, real time (``bench/px4sitl.py``)."""
+def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: float = 1.0) -> dict:
+    """One flight against a real PX4 SITL (``bench/px4sitl.py``), in real time or ``speed`` times
+    faster (then on the vehicle's clock, ``offboard fly --clock vehicle``)."""
     from bench.px4sitl import running_px4
 
     run_dir.mkdir(parents=True, exist_ok=True)
-    with running_px4(run_dir / "px4") as px4:
-        fly = _fly(mission, run_dir, px4.api_listen_port, () if controller is None else ("--controller", controller))
+    extra = (() if controller is None else ("--controller", controller)) + (("--clock", "vehicle") if speed != 1.0 else ())
+    with running_px4(run_dir / "px4", speed=speed) as px4:
+        fly = _fly(mission, run_dir, px4.api_listen_port, extra)
         try:
             _, err = fly.communicate(timeout=600)
         finally:
@@ -165,6 +168,10 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
                 record("real PX4", name, None, "real time", fly_px4(MISSIONS / name, work / f"f{k}", controller=None))
             k += 1
             record("real PX4", helix.name, "paper", "real time", fly_px4(helix, work / f"f{k}", controller="paper"))
+            for name in ("paper-helix.toml", "paper-square.toml"):
+                k += 1
+                record("real PX4", name, None, "--speed 4, vehicle clock",
+                       fly_px4(MISSIONS / name, work / f"f{k}", controller=None, speed=4.0))  # fmt: skip
     return {"flights": flights, "px4": bool(px4), "work_dir": str(work)}
 
 

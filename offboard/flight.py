@@ -17,7 +17,10 @@ fake clock. The sequence (docs/offboard.md):
 Sampling: in **lockstep** a sample is due when an ATTITUDE and a LOCAL_POSITION_NED with the
 same ``time_boot_ms`` T have arrived (the plant then waits for the setpoint echoing T); in
 **real time** the flight keeps its own sample clock at To from the injected clock and uses the
-freshest telemetry, still echoing the ATTITUDE's ``time_boot_ms``. Every decision is taken
+freshest telemetry, still echoing the ATTITUDE's ``time_boot_ms``; on the **vehicle's clock**
+(``vehicle_clock``, for a vehicle that runs faster or slower than real time: PX4 SITL ``--speed``,
+``sitl-plant --speed``) a sample is due when the telemetry's ``time_boot_ms`` has advanced To
+since the last one. Every decision is taken
 while handling a message or a sample, so a lockstep flight sends the same bytes every time.
 
 How it can end (``FlightStatus``): COMPLETE; LINK_LOST (telemetry stale for longer than the
@@ -89,6 +92,8 @@ class FlightConfig:
         ``rigid-body`` or ``paper``: what the vehicle's ATTITUDE angles are (``codec``).
     lockstep : bool
         Sample on telemetry arrival instead of on our own clock.
+    vehicle_clock : bool
+        Real time, but the sample clock is the vehicle's ``time_boot_ms`` (module docstring).
     telemetry_timeout_s : float
         Telemetry older than this (wall clock) stops the setpoints: LINK_LOST.
     reconnect_timeout_s : float
@@ -118,6 +123,7 @@ class FlightConfig:
     output: str = "attitude"
     model: str = "rigid-body"
     lockstep: bool = False
+    vehicle_clock: bool = False
     telemetry_timeout_s: float = 0.5
     reconnect_timeout_s: float = 5.0
     heartbeat_timeout_s: float = 10.0
@@ -512,6 +518,7 @@ class Flight:
         self._samples_sent = 0
         self._tick = 0
         self._next_tick_s: float | None = None
+        self._next_tick_ms: float | None = None  # on the vehicle's clock
         self._prev_sample_ms: int | None = None
         self._next_heartbeat: float = 0.0
         self._next_heartbeat_ms = 0
@@ -865,7 +872,7 @@ class Flight:
         if self._watch_telemetry:
             self._check_telemetry(now)
             wait = min(wait, self.config.telemetry_timeout_s / 4)
-        if not self.config.lockstep and self._source is not None:
+        if not self.config.lockstep and not self.config.vehicle_clock and self._source is not None:
             if self._next_tick_s is None:
                 self._next_tick_s = now
             if now >= self._next_tick_s:
@@ -978,6 +985,7 @@ class Flight:
         if self._outage_since is not None and self._att is not None and self._lpn is not None:
             self._telemetry_back(now)
         self._lockstep_sample_if_due()
+        self._vehicle_clock_sample_if_due()
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         status = codec.vehicle_status(msg)
@@ -1029,6 +1037,30 @@ class Flight:
             self._prev_sample_ms = t_ms
             self._answered_ms = t_ms
             self._tick += 1
+
+    def _vehicle_clock_sample_if_due(self) -> None:
+        """On the vehicle's clock: a sample when the position's ``time_boot_ms`` reaches the next
+        tick (late by whole periods: those are skipped and counted, as in real time)."""
+        cfg = self.config
+        if not cfg.vehicle_clock or cfg.lockstep or self._source is None or self._att is None or self._lpn is None:
+            return
+        t_ms = float(self._lpn.time_boot_ms)
+        period_ms = self.to * 1000.0
+        if self._next_tick_ms is None:
+            self._next_tick_ms = t_ms
+        if t_ms < self._next_tick_ms:
+            return
+        late = t_ms - self._next_tick_ms
+        if late >= period_ms:
+            skipped = int(late // period_ms)
+            self._tick += skipped
+            self._next_tick_ms += skipped * period_ms
+            if self._mission_tick0 is not None:
+                self.loop.overruns += skipped
+        if not self._sample(self.clock()) and self._mission_tick0 is not None and not self._mission_done:
+            self.loop.missed += 1
+        self._tick += 1
+        self._next_tick_ms += period_ms
 
     def _sample(self, now: float) -> bool:
         """Run the current setpoint source on the freshest telemetry; whether a setpoint went out."""

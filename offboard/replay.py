@@ -1380,6 +1380,7 @@ def flight_controller(
             speed_xy_max_m_s=recorded.get("speed_xy_max_m_s"),
             speed_up_max_m_s=recorded.get("speed_up_max_m_s"),
             speed_down_max_m_s=recorded.get("speed_down_max_m_s"),
+            yaw_rate_max_rad_s=recorded.get("yaw_rate_max_rad_s"),
         )
     return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"  # type: ignore[attr-defined]
 

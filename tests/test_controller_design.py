@@ -275,3 +275,24 @@ def test_the_batch_law_gives_the_same_extensions():
         out, _ = law_step(params, LawMemory.from_state(x), x, *refs)
         assert out_b.roll_setpoint_rad[k] == pytest.approx(out.roll_setpoint_rad, abs=1e-12)
         assert out_b.thrust_n[k] == pytest.approx(out.thrust_n, abs=1e-9)
+
+
+def test_a_bounded_yaw_rate_slews_the_yaw_reference():
+    """A pi step under yaw_rate_max: the reference turns at the bound, its rate is the
+    feed-forward, and it arrives; without the bound the step passes in one sample (the paper)."""
+    rate = math.radians(45.0)
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(limits=ActionLimits(yaw_rate_max_rad_s=rate))
+    x = hover_state(x5=5.0)
+    ref = TrackingReference(0.0, 0.0, 5.0, math.pi - 1e-9)
+    memory = LawMemory.from_state(x)
+    yaws = []
+    for _ in range(90):
+        out, memory = law_step(params, memory, x, ref, ref)
+        yaws.append(out.yaw_ref_rad)
+        if len(yaws) == 1:
+            assert out.yaw_rate_ff_rad_s == pytest.approx(rate) and abs(out.euler_rate_ref_rad_s[2]) < 5.0
+    steps = np.diff([0.0, *yaws])
+    assert np.all(steps <= rate * 0.05 + 1e-12) and yaws[-1] == pytest.approx(math.pi - 1e-9)
+    assert sum(s > 0 for s in steps) == math.ceil(math.pi / (rate * 0.05))  # 80 samples: 4 s
+    unbounded, _ = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, ref, ref)
+    assert unbounded.yaw_ref_rad == ref.yaw_rad

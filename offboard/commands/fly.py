@@ -52,6 +52,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="pymavlink connection string (udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial device)")
     link.add_argument("--lockstep", action="store_true",
                       help="sample on each telemetry burst instead of on our own clock (sitl-plant --lockstep)")
+    link.add_argument("--clock", choices=("wall", "vehicle"), default="wall",
+                      help="real time: sample every To of our clock, or of the vehicle's time_boot_ms (a vehicle "
+                           "running faster or slower than real time: PX4 SITL --speed, sitl-plant --speed)")
     link.add_argument("--target-system", type=int, default=None, metavar="N", help="fly this system id (default: the first autopilot heard)")
     link.add_argument("--sysid", type=int, default=245, metavar="N", help="our MAVLink system id")
     link.add_argument("--compid", type=int, default=191, metavar="N", help="our MAVLink component id (191: onboard computer)")
@@ -105,6 +108,8 @@ def _check(args: argparse.Namespace) -> None:
         positive(name, getattr(args, name.replace("-", "_")))
     if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
+    if args.clock == "vehicle" and args.lockstep:
+        raise FlyArgumentError("--clock vehicle: not with --lockstep (which samples on every telemetry burst)")
     if args.design_latency is not None and not (math.isfinite(args.design_latency) and 0 <= args.design_latency < 10):
         raise FlyArgumentError(f"--design-latency: must be a latency in [0, 10) s, got {args.design_latency}")
     if args.thrust_min is not None and not (math.isfinite(args.thrust_min) and 0 <= args.thrust_min < 1):
@@ -203,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
         output=args.output,
         model=args.model,
         lockstep=args.lockstep,
+        vehicle_clock=args.clock == "vehicle",
         telemetry_timeout_s=args.telemetry_timeout,
         reconnect_timeout_s=args.reconnect_timeout,
         heartbeat_timeout_s=args.heartbeat_timeout,
@@ -225,7 +231,8 @@ def run(args: argparse.Namespace) -> int:
     meta = {"mission": mission.name, "mission_source": mission.source, "mission_file": str(args.mission.resolve()),
             "controller_file": str(args.controller.resolve()) if from_file else None,
             "controller_choice": "file" if from_file else ("tuned" if choice.tuned else "paper"),
-            "output": args.output, "model": args.model, "lockstep": args.lockstep, "connect": args.connect}  # fmt: skip
+            "output": args.output, "model": args.model, "lockstep": args.lockstep, "clock": args.clock,
+            "connect": args.connect}  # fmt: skip
     started = time.monotonic()
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
@@ -281,6 +288,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
             "tilt_cone": c.limits.tilt_cone, "speed_xy_max_m_s": c.limits.speed_xy_max_m_s,
             "speed_up_max_m_s": c.limits.speed_up_max_m_s, "speed_down_max_m_s": c.limits.speed_down_max_m_s,
+            "yaw_rate_max_rad_s": c.limits.yaw_rate_max_rad_s,
         },  # fmt: skip
         "messages": link_stats,
         "loop": result.loop.to_dict(to),
@@ -294,7 +302,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
     }
 
 
-def format_fly_lines(extra: dict, lockstep: bool = False) -> str:
+def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = False) -> str:
     """The lines under the tracking table: messages, loop timing, outages, landing.
 
     In lockstep the vehicle paces the samples, so the period's jitter against To means nothing
@@ -302,7 +310,7 @@ def format_fly_lines(extra: dict, lockstep: bool = False) -> str:
     """
     m, loop = extra["messages"], extra["loop"]
     lost_pct = 100.0 * m["lost"] / max(m["received"] + m["lost"], 1)
-    timing = ("lockstep: paced by the vehicle" if lockstep else
+    timing = ("lockstep: paced by the vehicle" if lockstep else "on the vehicle's clock" if vehicle_clock else
               f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
               f"max {loop['jitter_max_ms']:.2f} ms")  # fmt: skip
     lines = [
@@ -329,7 +337,7 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
     payload: dict = {**meta, "run_dir": str(run_dir), "log": str(tlog)}
     if len(record):
         summary = summarize(record)
-        table = format_table(summary) + "\n" + format_fly_lines(extra, bool(meta["lockstep"]))
+        table = format_table(summary) + "\n" + format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
         payload.update(summary.to_dict())
         record.write_csv(run_dir / "series.csv")
         if not no_plots:
@@ -337,7 +345,7 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
 
             payload["figures"] = [str(p) for p in write_figures(record, run_dir, title=f"{meta['mission']} over MAVLink ({meta['output']})")]
     else:
-        table = format_fly_lines(extra, bool(meta["lockstep"]))
+        table = format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
     payload.update(extra)
     (run_dir / "summary.txt").write_text(table + "\n")
     (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")

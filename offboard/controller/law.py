@@ -87,7 +87,8 @@ class LawMemory(NamedTuple):
     """The controller's memory of sample n: desired speeds and angle references (eq. 31-33).
 
     ``i1, i3, i5`` hold the optional integral action's contribution to the desired speeds
-    (m/s); they stay zero with the paper's law.
+    (m/s); they stay zero with the paper's law. ``yaw_ref`` is the slewed yaw reference of the
+    optional yaw-rate bound (``ActionLimits.yaw_rate_max_rad_s``); unused without it.
     """
 
     x2d: float
@@ -101,11 +102,13 @@ class LawMemory(NamedTuple):
     i1: float = 0.0
     i3: float = 0.0
     i5: float = 0.0
+    yaw_ref: float = 0.0
 
     @classmethod
     def from_state(cls, x: tuple[float, ...] | np.ndarray) -> LawMemory:
-        """Start-up memory: every previous desired value equals its measured value."""
-        return cls(x[1], x[3], x[5], x[7], x[9], x[11], x[6], x[8])
+        """Start-up memory: every previous desired value equals its measured value (the slewed
+        yaw reference starts at the measured yaw)."""
+        return cls(x[1], x[3], x[5], x[7], x[9], x[11], x[6], x[8], yaw_ref=x[10])
 
 
 class LawOutput(NamedTuple):
@@ -198,7 +201,16 @@ def law_step(
         x6d = ops.minimum(x6d, limits.speed_up_max_m_s)
     if limits.speed_down_max_m_s is not None:  # ... MPC_Z_VEL_MAX_DN
         x6d = ops.maximum(x6d, -limits.speed_down_max_m_s)
-    x12d = (ops.wrap(ref_n1.yaw_rad - x11) - g.kx11 * ops.wrap(ref_n.yaw_rad - x11)) / to
+    yaw_n, yaw_n1, yaw_rate_ff = ref_n.yaw_rad, ref_n1.yaw_rad, ref_n1.yaw_rate_rad_s
+    if limits.yaw_rate_max_rad_s is not None:
+        # bounded yaw rate (PX4's MPC_YAWRAUTO_MAX in its own modes): the yaw reference slews
+        # towards x11d at most yaw_rate_max To a sample; a pi step then turns in pi / rate seconds
+        # instead of asking for 63 rad/s while the vehicle is tilted (not in the paper)
+        bound = limits.yaw_rate_max_rad_s * to
+        yaw_n = memory.yaw_ref
+        yaw_n1 = yaw_n + ops.minimum(ops.maximum(ops.wrap(ref_n1.yaw_rad - yaw_n), -bound), bound)
+        yaw_rate_ff = (yaw_n1 - yaw_n) / to
+    x12d = (ops.wrap(yaw_n1 - x11) - g.kx11 * ops.wrap(yaw_n - x11)) / to
 
     # eq. 33-34: reference speeds and the increments of eq. 34
     dx2 = x2d - g.kx2 * (memory.x2d - x2) - x2
@@ -268,13 +280,13 @@ def law_step(
         tau_tilde=tau_tilde,
         roll_ref_rad=x7ez,
         pitch_ref_rad=x9ez,
-        yaw_ref_rad=ref_n1.yaw_rad,
+        yaw_ref_rad=yaw_n1,
         euler_rate_ref_rad_s=(x8ref, x10ref, x12ref),
-        yaw_rate_ff_rad_s=ref_n1.yaw_rate_rad_s,
+        yaw_rate_ff_rad_s=yaw_rate_ff,
         roll_setpoint_rad=roll_sp,
         pitch_setpoint_rad=pitch_sp,
     )
-    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5)
+    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5, yaw_n1)
 
 
 @dataclass(frozen=True)

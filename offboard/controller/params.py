@@ -61,6 +61,9 @@ class ActionLimits:
         MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN: a step in the reference is then flown
         at a bounded speed, inside the range the linear design holds for
         (docs/controller-design.md).
+    yaw_rate_max_rad_s : float or None
+        Bound on the yaw reference's rate (PX4's MPC_YAWRAUTO_MAX): the law's yaw reference
+        slews towards x11d at most this fast (``LawMemory.yaw_ref``).
     """
 
     thrust_min_n: float | None = None
@@ -70,6 +73,7 @@ class ActionLimits:
     speed_xy_max_m_s: float | None = None
     speed_up_max_m_s: float | None = None
     speed_down_max_m_s: float | None = None
+    yaw_rate_max_rad_s: float | None = None
 
     def __post_init__(self) -> None:
         lo, hi = self.thrust_min_n, self.thrust_max_n
@@ -87,8 +91,8 @@ class ActionLimits:
         return any(getattr(self, name) is not None for name in ("thrust_min_n", "thrust_max_n", "tilt_max_rad", *SPEED_LIMITS))
 
 
-#: The optional bounds on the desired speeds of eq. 32 (``ActionLimits``).
-SPEED_LIMITS = ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s")
+#: The optional bounds on the desired speeds of eq. 32 and on the yaw reference's rate (``ActionLimits``).
+SPEED_LIMITS = ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s", "yaw_rate_max_rad_s")
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from offboard.controller.params import ControllerParams
 AUTOPILOT_PARAMS = (
     "MC_ROLL_P", "MC_PITCH_P", "MC_ROLLRATE_P", "MC_ROLLRATE_I", "MC_ROLLRATE_D",
     "MC_PITCHRATE_P", "MC_PITCHRATE_I", "MC_PITCHRATE_D",
-    "MPC_XY_VEL_MAX", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN",
+    "MPC_XY_VEL_MAX", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN", "MPC_YAWRAUTO_MAX",
 )  # fmt: skip
 #: sitl-plant's physical values.
 PLANT_PARAMS = ("SIM_THR_MAX", "SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX", "SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY",
@@ -30,7 +30,7 @@ SIH_PARAMS = ("SIH_MASS", "SIH_T_MAX", "SIH_Q_MAX", "SIH_IXX", "SIH_IYY", "SIH_I
               "SIH_T_TAU", "SIH_KDV", "CA_ROTOR_COUNT")  # fmt: skip
 
 #: PX4's defaults of the speed limits (mc_pos_control params).
-PX4_SPEED_DEFAULTS = {"MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5}
+PX4_SPEED_DEFAULTS = {"MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5, "MPC_YAWRAUTO_MAX": 45.0}
 
 
 def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
@@ -72,9 +72,10 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
     """``base`` with the designed gains (kx1..kx6) and the bounds the design assumes.
 
     The integral action and the tilt lead are the design's. The bounds: the thrust axis's tilt as a cone (``ActionLimits.tilt_cone``) and the desired
-    speeds bounded by the autopilot's own MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN
-    (PX4's defaults when not published), so that a step in the reference is flown in the range
-    the linear design holds for. The angle gains kx7..kx12 stay: through an attitude setpoint
+    speeds bounded by the autopilot's own MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN and
+    the yaw reference's rate by MPC_YAWRAUTO_MAX (PX4's defaults when not published), so that a
+    step in the reference is flown in the range the linear design holds for (a pi yaw step
+    while tilted to the bound made the attitude loop overshoot it by 5 deg). The angle gains kx7..kx12 stay: through an attitude setpoint
     the autopilot closes the attitude loop, and they act only with the paper's own inner loop.
     """
     h, v = design.horizontal, design.vertical
@@ -87,6 +88,7 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
         speed_xy_max_m_s=speed["MPC_XY_VEL_MAX"],
         speed_up_max_m_s=speed["MPC_Z_VEL_MAX_UP"],
         speed_down_max_m_s=speed["MPC_Z_VEL_MAX_DN"],
+        yaw_rate_max_rad_s=math.radians(speed["MPC_YAWRAUTO_MAX"]),
     )
     return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
                              integral_gain_per_s=float(h.integral_per_s),
@@ -170,7 +172,7 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
     if lim.tilt_max_rad is not None:
         lines.append(f"tilt_max_deg = {_fmt(round(math.degrees(lim.tilt_max_rad), 6))}")
     lines.append(f"tilt_cone = {'true' if lim.tilt_cone else 'false'}")
-    for name in ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s"):
+    for name in ("speed_xy_max_m_s", "speed_up_max_m_s", "speed_down_max_m_s", "yaw_rate_max_rad_s"):
         value = getattr(lim, name)
         if value is not None:
             lines.append(f"{name} = {_fmt(value)}")
