@@ -202,6 +202,8 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
         ParamSpec("MPC_XY_VEL_MAX", 12.0, min=0.0, max=20.0, unit="m/s"),
         ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, min=0.5, max=8.0, unit="m/s"),
         ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, min=0.5, max=4.0, unit="m/s"),
+        ParamSpec("MPC_YAWRAUTO_MAX", 45.0, min=0.0, max=360.0, unit="deg/s",
+                  description="yaw rate limit of the auto modes (PX4's default; the offboard's designed yaw-rate bound)"),
         ParamSpec("MPC_TILTMAX_AIR", 45.0, min=20.0, max=89.0, unit="deg"),
         ParamSpec("MPC_THR_HOVER", hover, min=0.05, max=0.9, description="normalised hover thrust"),
         ParamSpec("MPC_THR_MIN", 0.12, min=0.05, max=0.5, description="minimum collective thrust in flight, normalised (the offboard's thrust floor)"),
