@@ -653,6 +653,8 @@ class Flight:
                     self.params, notes = future.result()
             else:
                 self.params, notes = resolve_controller(choice, cfg.model, self.vehicle_params, self.scaling)
+                if cfg.lockstep:  # the vehicle waited for us: our pause was no telemetry loss
+                    self._last_telemetry_wall = self.clock()
         except ValueError as exc:
             raise LinkTimeout(str(exc)) from None
         for note in notes:
@@ -725,7 +727,17 @@ class Flight:
                 self._say("landed; the vehicle disarmed itself")
                 return None, ""
             command, params = codec.arm_params(False)
-            self._command(command, params)
+            try:
+                self._command(command, params)
+            except CommandRejected as exc:
+                # on the ground but not yet landed by the vehicle's own detector (its Land mode
+                # still running): it disarms itself once it is (PX4's COM_DISARM_LAND)
+                self._say(f"note: {exc}; waiting for the vehicle to disarm itself")
+                if not self._pump(lambda: self.status is not None and not self.status.armed, max(deadline - self.clock(), 0.0)):
+                    raise
+                self.disarmed = True
+                self._say("landed; the vehicle disarmed itself")
+                return None, ""
             self.disarmed = True
             self._say("landed and disarmed")
             return None, ""
