@@ -213,11 +213,6 @@ VEHICLE_PARAMS = {
 VEHICLE_PARAMS.update({name: "PX4's inner loop and speed limits (the tuned design)" for name in AUTOPILOT_PARAMS})
 VEHICLE_PARAMS.update({name: "PX4 SIH's vehicle" for name in SIH_PARAMS if name not in VEHICLE_PARAMS})
 
-#: Which simulator's physical parameters a vehicle publishes: sitl-plant's SIM_*, PX4 SIH's SIH_*,
-#: or none (a real airframe).
-PARAM_FAMILIES = ("SIM", "SIH", "none")
-
-
 def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool,
                    family: str = "SIM") -> tuple[list[str], list[str]]:  # fmt: skip
     """(required, optional) parameter names for this flight, for a vehicle of ``family``."""
@@ -783,8 +778,8 @@ class Flight:
             raise exc
 
     def _param_family(self) -> str:
-        """Probe which simulator's parameters the vehicle has (``PARAM_FAMILIES``); the probe's
-        value is kept."""
+        """Probe which simulator's physical parameters the vehicle publishes: ``SIM`` (sitl-plant),
+        ``SIH`` (PX4's SIH) or ``none`` (a real airframe); the probe's value is kept."""
         for family, probe in (("SIM", "SIM_THR_MAX"), ("SIH", "SIH_MASS")):
             value = self._read_param(probe)
             if value is not None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import struct
 import sys
 from pathlib import Path
 
@@ -124,7 +125,8 @@ def read_live_params(url: str, timeout_s: float = 10.0) -> dict[str, float]:
             raise LinkTimeout(f"no vehicle heartbeat on {url} within {timeout_s:g} s")
         out: dict[str, float] = {}
         for name in (*PLANT_PARAMS, *SIH_PARAMS, *AUTOPILOT_PARAMS):
-            if name in SIH_PARAMS and "SIM_THR_MAX" in out or name in PLANT_PARAMS and "SIH_MASS" in out:
+            # one simulator's family only: sitl-plant's SIM_* or PX4 SIH's SIH_* (the other is absent)
+            if (name in SIH_PARAMS and "SIM_THR_MAX" in out) or (name in PLANT_PARAMS and "SIH_MASS" in out):
                 continue
             for _ in range(2):
                 conn.mav.param_request_read_send(conn.target_system, conn.target_component, name.encode(), -1)
@@ -134,8 +136,6 @@ def read_live_params(url: str, timeout_s: float = 10.0) -> dict[str, float]:
                 if msg is not None:
                     value = msg.param_value
                     if msg.param_type in (1, 2, 3, 4, 5, 6):  # integers travel bytewise in the float (PX4)
-                        import struct
-
                         value = struct.unpack("<i", struct.pack("<f", value))[0]
                     out[name] = float(value)
                     break
