@@ -37,7 +37,7 @@ def make(kind: str) -> SE3Controller | Px4PositionController:
 @pytest.mark.parametrize("kind", ["se3", "px4"])
 @pytest.mark.parametrize("yaw", [0.0, 1.2, -2.5])
 def test_hover_at_the_reference_asks_for_weight_and_level(kind: str, yaw: float) -> None:
-    target = make(kind).step(state(euler=(0.0, 0.0, yaw)), Reference(np.array([0.0, 0.0, -5.0]), yaw_rad=yaw))
+    target = make(kind).target(state(euler=(0.0, 0.0, yaw)), Reference(np.array([0.0, 0.0, -5.0]), yaw_rad=yaw))
     assert target.thrust_n == pytest.approx(MASS * G, rel=1e-12)
     np.testing.assert_allclose(euler_from_quat(np.array(target.quat_wxyz)), [0.0, 0.0, yaw], atol=1e-12)
     np.testing.assert_allclose(target.force_ned_n, [0.0, 0.0, -MASS * G], atol=1e-12)
@@ -56,7 +56,7 @@ def test_hover_at_the_reference_asks_for_weight_and_level(kind: str, yaw: float)
 def test_frame_signs(kind: str, offset_ned: tuple[float, float, float], expect: str) -> None:
     here = state()
     ref = Reference(here.pos_ned_m + np.array(offset_ned))
-    target = make(kind).step(here, ref)
+    target = make(kind).target(here, ref)
     roll, pitch, _ = euler_from_quat(np.array(target.quat_wxyz))
     checks = {
         "pitch<0": pitch < -0.01 and abs(roll) < 1e-9,
@@ -70,7 +70,7 @@ def test_frame_signs(kind: str, offset_ned: tuple[float, float, float], expect: 
 def test_se3_thrust_is_the_force_along_the_body_axis() -> None:
     """f = -F . R e3 (Lee eq. 15): tilted 30 deg, the thrust is |F| cos 30."""
     ctrl = SE3Controller(MASS, INERTIA)
-    target = ctrl.step(state(euler=(math.radians(30), 0.0, 0.0)), Reference(np.array([0.0, 0.0, -5.0])))
+    target = ctrl.target(state(euler=(math.radians(30), 0.0, 0.0)), Reference(np.array([0.0, 0.0, -5.0])))
     assert target.thrust_n == pytest.approx(MASS * G * math.cos(math.radians(30)), rel=1e-12)
 
 
@@ -95,7 +95,7 @@ def test_limits_bound_tilt_and_thrust() -> None:
     se3 = SE3Controller(MASS, INERTIA, thrust_min_n=0.0, thrust_max_n=8.0, tilt_max_rad=math.radians(30))
     px4 = Px4PositionController(MASS, 0.05, Px4Gains(tilt_max_rad=math.radians(30)), thrust_max_n=8.0)
     for ctrl in (se3, px4):
-        target = ctrl.step(state(), far)
+        target = ctrl.target(state(), far)
         roll, pitch, _ = euler_from_quat(np.array(target.quat_wxyz))
         tilt = math.acos(math.cos(roll) * math.cos(pitch))
         assert tilt == pytest.approx(math.radians(30), abs=1e-9)
@@ -106,11 +106,11 @@ def test_px4_integral_freezes_while_thrust_saturates_and_resets() -> None:
     ctrl = Px4PositionController(MASS, 0.05, thrust_max_n=5.0)
     below = Reference(np.array([0.0, 0.0, -50.0]))  # far above: thrust saturates
     for _ in range(10):
-        ctrl.step(state(), below)
+        ctrl.target(state(), below)
     assert ctrl._int == [0.0, 0.0, 0.0]
     ctrl = Px4PositionController(MASS, 0.05)
     for _ in range(10):
-        ctrl.step(state(), Reference(np.array([0.0, 0.0, -5.3])))
+        ctrl.target(state(), Reference(np.array([0.0, 0.0, -5.3])))
     assert ctrl._int[2] < 0.0
     ctrl.reset()
     assert ctrl._int == [0.0, 0.0, 0.0]
@@ -128,7 +128,7 @@ def _fly(kind: str, reference: Reference, seconds: float) -> np.ndarray:
         loop = Px4Loop(plant_params(VEHICLE), model, 1e-3)
         loop.landed = False
     for _ in range(int(round(seconds / 0.05))):
-        target = ctrl.step(sim.truth(), reference)
+        target = ctrl.target(sim.truth(), reference)
         if kind == "se3":
             sim.actuation = ctrl.actuation(target)
         else:
@@ -171,7 +171,7 @@ def test_se3_equals_rotorpy_se3control() -> None:
         euler = rng.uniform(-0.5, 0.5, 3) * np.array([1, 1, 6])
         here = state(pos=rng.normal(size=3), vel=rng.normal(size=3), euler=tuple(euler), rates=tuple(rng.normal(size=3)))
         ref = Reference(rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), float(rng.uniform(-3, 3)), float(rng.normal()))
-        target = ours.step(here, ref)
+        target = ours.target(here, ref)
         thrust, torque = ours.thrust_and_torque(here.quat_wxyz, here.body_rate_frd_rad_s, target)
         r_enu_flu = T_NED_ENU @ rotation_matrix(here.quat_wxyz) @ B_FRD_FLU
         out = theirs.update(

@@ -61,8 +61,9 @@ def test_speed_figures_and_agreements(quick_run):
 def test_tracking_flies_every_controller_in_every_condition(quick_run):
     _, results = quick_run
     flights = results["tracking"]["flights"]
-    combos = {(f["condition"], f["controller"]) for f in flights}
-    assert len(combos) == len(flights) == 16
+    combos = {(f["loop"], f["condition"], f["controller"]) for f in flights}
+    assert len(combos) == len(flights) == 32  # 4 conditions x 4 controllers x 2 loops
+    assert {f["controller"] for f in flights if f["loop"] == "px4-attitude"} == {"paper", "paper-designed", "se3", "px4"}
     for f in flights:
         assert f["diverged_at_s"] is None, f
         assert f["flown_s"] == pytest.approx(0.5)

@@ -12,7 +12,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
 from offboard.controller import PAPER_CONTROLLER_FILE, RosalesController, TrackingReference, load_controller
-from offboard.frames import euler_rates_from_body_rates, paper_state
+from offboard.controller.command import MissingCommand
+from offboard.controller.paper import paper_command
+from offboard.frames import body_torque_from_generalized, euler_rates_from_body_rates, paper_state, tilt_about_heading
 from sitl_plant import codec as plant_codec
 from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
 from sitl_plant.dynamics.rotations import euler_from_quat, quat_from_euler, rotation_matrix
@@ -43,6 +45,13 @@ def control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True, ref=(2.0,
     ctrl = RosalesController(params)
     r = TrackingReference(*ref)
     return ctrl.step(x, r, r), measured
+
+
+def encode(out, m, form, yaw_aware, model, output):
+    """The law's output as offboard fly sends it: its command, then the command's setpoint."""
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form=form, yaw_aware=yaw_aware)
+    return codec.command_setpoint(paper_command(out, m.euler_rad, params, model), SCALING,
+                                  output=output, model=model)
 
 
 def test_measured_state_from_the_two_messages():
@@ -89,7 +98,7 @@ def test_euler_rate_form_follows_the_vehicle_model():
 
 def test_paper_attitude_output_is_the_rate_setpoint_the_paper_loop_inverts():
     out, m = control_output(form="castillo", yaw_aware=False)
-    sp = codec.attitude_setpoint(out, m.euler_rad, "castillo", SCALING, model="paper", yaw_aware=False)
+    sp = encode(out, m, "castillo", False, "paper", "attitude")
     assert sp.type_mask == mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
     assert_allclose(sp.q_wxyz, quat_from_euler(out.law.roll_ref_rad, out.law.pitch_ref_rad, out.law.yaw_ref_rad))
     msg = wire(codec.set_attitude_target(m.time_boot_ms, sp, 1, 1), sysid=245, compid=191)
@@ -104,7 +113,7 @@ def test_paper_attitude_output_is_the_rate_setpoint_the_paper_loop_inverts():
 def test_rigid_body_attitude_output_keeps_the_thrust_axis_at_the_reference_heading():
     out, m = control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True, ref=(2.0, 1.0, 3.0, 2.5, 0.4))
     law = out.law
-    sp = codec.attitude_setpoint(out, m.euler_rad, "zyx", SCALING, model="rigid-body", yaw_aware=True)
+    sp = encode(out, m, "zyx", True, "rigid-body", "attitude")
     assert sp.type_mask == codec.RIGID_BODY_TYPE_MASK == 3
     # PX4's yaw feed-forward is the reference's own yaw rate, not x12ref (the law's yaw feedback:
     # here 7.2 rad/s for a 1.8 rad yaw error, 63 rad/s at the paper's pi step)
@@ -119,12 +128,12 @@ def test_rigid_body_attitude_output_keeps_the_thrust_axis_at_the_reference_headi
 
 @pytest.mark.parametrize("roll, pitch, heading", [(0.1, 0.2, 0.5), (-0.3, 0.05, -2.0), (0.0, 0.0, 1.0)])
 def test_tilt_about_the_same_heading_is_unchanged(roll, pitch, heading):
-    assert_allclose(codec.tilt_about_heading(roll, pitch, heading, heading), (roll, pitch), atol=1e-12)
+    assert_allclose(tilt_about_heading(roll, pitch, heading, heading), (roll, pitch), atol=1e-12)
 
 
 def test_tilt_about_a_quarter_turn():
     # rolling right while facing north pushes east; facing east that is pitching forward (nose down)
-    roll, pitch = codec.tilt_about_heading(0.2, 0.0, 0.0, math.pi / 2)
+    roll, pitch = tilt_about_heading(0.2, 0.0, 0.0, math.pi / 2)
     assert roll == pytest.approx(0.0, abs=1e-12) and pitch == pytest.approx(-0.2)
 
 
@@ -135,7 +144,7 @@ def test_thrust_is_normalised_and_clipped(thrust_n, expected):
 
 def test_rigid_body_actuator_output_is_the_body_torque_of_the_generalised_one():
     out, m = control_output(euler=(0.01, -0.02, 0.7), ref=(1.0, -2.0, 3.0, 0.7), still=True)  # near the state: small torques
-    sp = codec.actuator_setpoint(out, m.euler_rad, "rigid-body", "zyx", SCALING)
+    sp = encode(out, m, "zyx", True, "rigid-body", "actuator")
     assert np.all(np.abs(sp.controls[:3]) < 1.0) and 0.0 < sp.controls[3] < 1.0
     tau_body = np.array(sp.controls[:3]) * [1.176, 1.176, 0.1568]
     # virtual work: tau_gen = W_eta^T tau_body
@@ -149,7 +158,7 @@ def test_rigid_body_actuator_output_is_the_body_torque_of_the_generalised_one():
 
 def test_actuator_controls_saturate_like_the_mixer():
     out, m = control_output()  # 2 m from the reference: torques beyond the rotors'
-    sp = codec.actuator_setpoint(out, m.euler_rad, "rigid-body", "zyx", SCALING)
+    sp = encode(out, m, "zyx", True, "rigid-body", "actuator")
     assert max(abs(c) for c in sp.controls[:3]) == 1.0
     assert all(-1.0 <= c <= 1.0 for c in sp.controls[:3]) and 0.0 <= sp.controls[3] <= 1.0
 
@@ -157,21 +166,23 @@ def test_actuator_controls_saturate_like_the_mixer():
 def test_actuator_torque_round_trip_on_the_rigid_body():
     euler = np.array([0.3, -0.4, 1.1])
     tau_gen = np.array([0.2, -0.1, 0.05])
-    body = codec.body_torque_from_generalized(tau_gen, euler, "zyx")
+    body = body_torque_from_generalized(tau_gen, euler, "zyx")
     assert_allclose(euler_rate_matrix(euler, "zyx").T @ body, tau_gen, atol=1e-12)
 
 
 def test_paper_actuator_output_is_the_generalised_torque_clipped():
     out, m = control_output(form="castillo", yaw_aware=False)
-    sp = codec.actuator_setpoint(out, m.euler_rad, "paper", "castillo", SCALING)
+    sp = encode(out, m, "castillo", False, "paper", "actuator")
     expected = np.clip(np.asarray(out.torques_nm) / [1.176, 1.176, 0.1568], -1, 1)
     assert_allclose(sp.controls[:3], expected)
 
 
 def test_actuator_output_needs_the_torque_scaling():
     out, m = control_output()
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form="zyx", yaw_aware=True)
     with pytest.raises(ValueError, match="SIM_TQ_RP_MAX"):
-        codec.actuator_setpoint(out, m.euler_rad, "rigid-body", "zyx", codec.Scaling(19.6))
+        codec.command_setpoint(paper_command(out, m.euler_rad, params, "rigid-body"), codec.Scaling(19.6),
+                               output="actuator", model="rigid-body")
 
 
 def test_hold_setpoint_is_the_vehicles_attitude():
@@ -246,35 +257,46 @@ def test_set_attitude_target_wire_layout():
     ("actuator", "rigid-body", "zyx", True),
     ("actuator", "paper", "castillo", False),
 ])  # fmt: skip
-def test_law_setpoint_is_the_one_encoding_of_the_laws_output(output, model, form, yaw_aware):
+def test_command_setpoint_fields_are_what_the_message_carries(output, model, form, yaw_aware):
     out, m = control_output(euler=(0.01, -0.02, 0.7), form=form, yaw_aware=yaw_aware, still=True)
-    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form=form, yaw_aware=yaw_aware)
-    sp = codec.law_setpoint(out, m.euler_rad, params, SCALING, output=output, model=model)
+    sp = encode(out, m, form, yaw_aware, model, output)
     if output == "attitude":
-        assert sp == codec.attitude_setpoint(out, m.euler_rad, form, SCALING, model=model, yaw_aware=yaw_aware)
         msg = wire(codec.set_attitude_target(m.time_boot_ms, sp, 1, 1))
         carried = (*msg.q, msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust)
     else:
-        assert sp == codec.actuator_setpoint(out, m.euler_rad, model, form, SCALING)
         msg = wire(codec.set_actuator_control_target(m.time_boot_ms, sp, 1, 1))
         carried = tuple(msg.controls[:4])
     # setpoint_fields lists what the message carries, in its order (float32 on the wire)
     assert_allclose(np.float32(codec.setpoint_fields(sp)), np.float32(carried), rtol=0, atol=0)
 
 
-def test_law_setpoint_refuses_an_unknown_output_or_model():
+def test_command_setpoint_refuses_an_unknown_output_or_model():
     out, m = control_output()
     params = load_controller(PAPER_CONTROLLER_FILE)
+    command = paper_command(out, m.euler_rad, params, "rigid-body")
     with pytest.raises(ValueError, match="output must be one of"):
-        codec.law_setpoint(out, m.euler_rad, params, SCALING, output="position", model="rigid-body")
+        codec.command_setpoint(command, SCALING, output="position", model="rigid-body")
     with pytest.raises(ValueError, match="model must be one of"):
-        codec.law_setpoint(out, m.euler_rad, params, SCALING, output="attitude", model="blimp")
+        codec.command_setpoint(command, SCALING, output="attitude", model="blimp")
+    with pytest.raises(ValueError, match="vehicle_model must be one of"):
+        paper_command(out, m.euler_rad, params, "blimp")
+
+
+@pytest.mark.parametrize("output", ["rates", "actuator"])
+def test_a_form_the_controller_does_not_give_is_refused_by_name(output):
+    from offboard.baselines import Px4PositionController
+    from offboard.trajectory.base import Reference
+
+    _, m = control_output()
+    command = Px4PositionController(0.5, 0.05).step(m, Reference(np.zeros(3)), Reference(np.zeros(3)))
+    with pytest.raises(MissingCommand, match="the px4 controller gives no (body-rate|torque) command"):
+        codec.command_setpoint(command, SCALING, output=output, model="rigid-body", controller="px4")
+    assert codec.command_setpoint(command, SCALING, output="attitude", model="rigid-body").type_mask == codec.RIGID_BODY_TYPE_MASK
 
 
 def test_rates_output_is_a_body_rate_setpoint_from_the_laws_euler_rate_references():
     out, m = control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True)
-    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form="zyx", yaw_aware=True)
-    sp = codec.law_setpoint(out, m.euler_rad, params, SCALING, output="rates", model="rigid-body")
+    sp = encode(out, m, "zyx", True, "rigid-body", "rates")
     assert sp.type_mask == mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE  # PX4 flies the rates
     decoded = plant_codec.decode_attitude_target(wire(codec.set_attitude_target(m.time_boot_ms, sp, 1, 1)))
     assert decoded.flies_rates and decoded.q_wxyz is None

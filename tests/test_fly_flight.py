@@ -161,19 +161,19 @@ def test_every_setpoint_echoes_the_telemetry_it_answers():
 
 
 @pytest.mark.parametrize("output", ["attitude", "actuator"])
-def test_mission_setpoints_are_encoded_by_codec_law_setpoint(output, monkeypatch):
+def test_mission_setpoints_are_encoded_by_codec_command_setpoint(output, monkeypatch):
     """The one encoding replay's re-run also uses: every mission sample's message is its result."""
     from offboard import codec
 
     encoded = []
-    original = codec.law_setpoint
+    original = codec.command_setpoint
 
     def spy(*args, **kwargs):
         sp = original(*args, **kwargs)
         encoded.append(sp)
         return sp
 
-    monkeypatch.setattr(codec, "law_setpoint", spy)
+    monkeypatch.setattr(codec, "command_setpoint", spy)
     link = PlantLink(make_plant(), FakeClock())
     flight, _ = make_flight(link, config=FlightConfig(lockstep=True, connect="test", output=output))
     result = flight.run()
@@ -201,7 +201,7 @@ def test_a_nan_output_is_never_sent_and_the_vehicle_lands(monkeypatch):
 
             def nan_step(*args, **kwargs):
                 out = original(*args, **kwargs)
-                return dataclasses.replace(out, law=out.law._replace(thrust_n=math.nan))
+                return dataclasses.replace(out, thrust_n=math.nan)
 
             self.controller.step = nan_step
         return real_step(self, measured)

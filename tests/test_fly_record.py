@@ -7,8 +7,8 @@ import numpy as np
 from numpy.testing import assert_allclose
 
 from offboard import codec
-from offboard.controller import PAPER_CONTROLLER_FILE, RosalesController, load_controller
-from offboard.frames import tracking_reference
+from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.controller.paper import PaperController
 from offboard.inprocess import Scenario, run_scenario
 from offboard.record import COLUMNS, RecordBuilder, control_row
 from offboard.trajectory import Line
@@ -23,14 +23,14 @@ def sample():
     lpn = mavlink.MAVLink_local_position_ned_message(1500, 0.5, -0.25, -1.0, 0.1, 0.2, -0.3)
     measured = codec.measured_state(att, lpn)
     ref = Reference(np.array([1.0, 0.0, -2.0]), yaw_rad=0.4)
-    out = RosalesController(params).step(codec.controller_state(measured, params.euler_rate_form),
-                                         tracking_reference(ref), tracking_reference(ref))  # fmt: skip
-    return measured, ref, out
+    command = PaperController(params).step(measured, ref, ref)
+    return measured, ref, command
 
 
 def test_a_row_has_every_column_from_the_state_the_reference_and_the_law():
-    measured, ref, out = sample()
-    row = control_row(1.5, measured, ref, out)
+    measured, ref, command = sample()
+    out = command.law
+    row = control_row(1.5, measured, ref, command)
     assert set(row) == set(COLUMNS)
     assert row["t_s"] == 1.5 and row["ref_yaw_rad"] == 0.4 and row["thrust_n"] == out.law.thrust_n
     assert_allclose(row["pos_ned_m"], [0.5, -0.25, -1.0]) and assert_allclose(row["ref_pos_ned_m"], [1.0, 0.0, -2.0])
@@ -40,6 +40,18 @@ def test_a_row_has_every_column_from_the_state_the_reference_and_the_law():
     builder = RecordBuilder()
     builder.append(**row)
     assert len(builder.build()) == 1
+
+
+def test_a_baselines_command_makes_a_row_with_nan_where_it_has_no_value():
+    from offboard.baselines import Px4PositionController
+
+    measured, ref, _ = sample()
+    command = Px4PositionController(0.5, 0.05).step(measured, ref, ref)
+    row = control_row(1.5, measured, ref, command)
+    assert set(row) == set(COLUMNS) and row["thrust_n"] == command.thrust_n
+    assert np.all(np.isnan(row["tau_tilde"])) and np.all(np.isnan(row["torques_nm"]))  # PX4's cascade gives neither
+    assert row["ref_euler_rad"] == command.attitude_ref_euler_rad
+    RecordBuilder().append(**row)
 
 
 def test_the_in_process_run_records_through_it(monkeypatch):

@@ -177,17 +177,17 @@ def test_rerun_with_the_flights_controller_reproduces_the_log_exactly(flown, tmp
 
 
 def test_rerun_encodes_with_the_flights_own_setpoint_function(flown, tmp_path, capsys, monkeypatch):
-    """codec.law_setpoint is the one encoding: the re-run's every sample goes through it, exactly."""
+    """codec.command_setpoint is the one encoding: the re-run's every sample goes through it, exactly."""
     from offboard import codec
 
     calls = []
-    original = codec.law_setpoint
+    original = codec.command_setpoint
 
     def spy(*args, **kwargs):
         calls.append(kwargs["output"])
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(codec, "law_setpoint", spy)
+    monkeypatch.setattr(codec, "command_setpoint", spy)
     code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
     assert code == 0 and payload["rerun"]["exact"]
     assert calls == [flown.output] * payload["rerun"]["samples"]
