@@ -482,7 +482,9 @@ class LogScan:
             text = "".join(self._text_chunks.pop((src[0], chunk_id)))
         severity = int(msg.severity)
         label = SEVERITY_NAMES[severity] if 0 <= severity < len(SEVERITY_NAMES) else str(severity)
-        failsafe = "failsafe" in text.lower() or severity <= MAV_SEVERITY_CRITICAL
+        # PX4 sends its refusals of a command ("Arming denied: ...", "Disarming denied: not landed")
+        # as CRITICAL too: a refused command is not the vehicle failing safe
+        failsafe = "failsafe" in text.lower() or (severity <= MAV_SEVERITY_CRITICAL and "denied" not in text.lower())
         self.events.append(Event(t_s, "failsafe" if failsafe else "text", f"[{label}] {text}", src[0]))
 
     def _attitude(self, t_s: float, src: tuple[int, int], msg) -> None:

@@ -62,7 +62,8 @@ def write_foreign_log(path: Path, duration_s: float = 6.0, gap: tuple[float, flo
 
     ATTITUDE at 50 Hz except during ``gap``, LOCAL_POSITION_NED at 25 Hz (stamped 10 ms after
     an ATTITUDE), POSITION_TARGET_LOCAL_NED at 25 Hz, heartbeats at 1 Hz: Hold, then Offboard
-    at 1 s, system status CRITICAL at 4 s, a failsafe text at 4.5 s and Land from 5 s.
+    at 1 s, system status CRITICAL at 4 s, a failsafe text at 4.5 s, Land from 5 s and a refused
+    disarm (CRITICAL, as PX4 sends it: a refusal, not a failsafe) at 5.5 s.
     """
     log = ForeignLog(path)
     vehicle = mavlink.MAVLink(None, srcSystem=VEHICLE, srcComponent=1)
@@ -84,6 +85,8 @@ def write_foreign_log(path: Path, duration_s: float = 6.0, gap: tuple[float, flo
             out.append((vehicle, mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, b"Takeoff detected")))
         if tick == 450:
             out.append((vehicle, mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_CRITICAL, b"Failsafe activated: no offboard signal")))
+        if tick == 550:
+            out.append((vehicle, mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_CRITICAL, b"Disarming denied: not landed")))
         if tick % 2 == 0 and not gap[0] <= t < gap[1]:
             roll, pitch, yaw = 0.1 * math.sin(t), -0.05 * math.cos(t), 0.3 * t
             out.append((vehicle, mavlink.MAVLink_attitude_message(ms, roll, pitch, yaw, 0.1, 0.2, 0.3)))
@@ -253,7 +256,7 @@ def test_mode_changes_and_failsafes_with_their_times(foreign_scan):
     assert failsafes == [(4.0, "system status CRITICAL"), (4.5, "[CRITICAL] Failsafe activated: no offboard signal")]
     assert any(e.kind == "armed" and round(e.time_s - EPOCH_US / 1e6, 2) == 1.0 for e in scan.events)
     texts = [e.text for e in scan.events if e.kind == "text"]
-    assert texts == ["[INFO] Takeoff detected"]
+    assert texts == ["[INFO] Takeoff detected", "[CRITICAL] Disarming denied: not landed"]
 
 
 @pytest.mark.parametrize(
