@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 RUN    ?= runs/demo-$(shell date +%Y%m%d-%H%M%S)
 export MPLBACKEND := Agg
 
-.PHONY: demo test bench install clean
+.PHONY: demo test test-fast bench install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
+test-fast: $(STAMP)
+	$(PY) -m pytest -q tests/unit -m "not slow and not e2e"
 
 # the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
 bench: $(STAMP)

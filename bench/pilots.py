@@ -7,7 +7,7 @@ Two comparisons (``bench.tracking.LOOPS``):
   12 % thrust floor, the 35 deg tilt limit; the law with Table I's gains and with the gains
   designed for the vehicle's inner loop), its attitude target flown by PX4's attitude and rate
   controllers at the physics rate (``Drive.PX4``): what ``offboard fly --controller K`` through
-  sitl-plant's px4 inner loop flies, to float32 rounding (tests/test_controller_contract.py);
+  sitl-plant's px4 inner loop flies, to float32 rounding (tests/unit/offboard/test_controller_contract.py);
 - **each controller's own inner loop** (``contender``), an in-process study:
 
   every controller is built by ``offboard.controllers.make_controller`` from one belief

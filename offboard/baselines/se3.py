@@ -15,7 +15,7 @@ As in RotorPy's ``SE3Control`` (``rotorpy/controllers/quadrotor_control.py``), t
 gains are scaled by the inertia (``J k_R``, ``J k_W``), the desired body rate is
 ``W_d = (0, 0, psi_d_dot)`` and the terms of Lee's eq. 16 in ``W_d_dot`` are left out. The gains
 default to RotorPy's for its 0.5 kg Hummingbird, whose mass and inertia are within 4 % of the
-paper's vehicle. ``tests/test_baselines.py`` checks this module against ``SE3Control`` itself
+paper's vehicle. ``tests/unit/offboard/test_baselines.py`` checks this module against ``SE3Control`` itself
 through the NED/FRD <-> ENU/FLU conversion when RotorPy is installed.
 
 Added for a real airframe (the same limits the other controllers get): the tilt of ``b3_d``

@@ -12,7 +12,7 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from test_fly_support import fly, hover_mission, read_tlog
+from helpers.flights import fly, hover_mission, read_tlog
 
 pytestmark = pytest.mark.e2e
 

@@ -15,7 +15,7 @@ import pytest
 
 from offboard.missions import MISSIONS_DIR
 from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
-from test_fly_support import ENV, PY
+from helpers.flights import ENV, PY
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
               pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip

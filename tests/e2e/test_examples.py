@@ -14,9 +14,10 @@ from pathlib import Path
 import pytest
 
 from offboard.missions import MISSIONS_DIR, load_mission
-from test_fly_support import ENV
+from helpers.flights import ENV
+from helpers import REPO
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = REPO / "examples"
 COVERED = {"paper_law_rigid_body", "law_vs_se3", "mass_sweep", "mavlink_flight", "read_tlog"}
 
 

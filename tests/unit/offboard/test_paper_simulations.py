@@ -15,8 +15,9 @@ from offboard.inprocess import run_scenario
 from offboard.metrics import summarize
 from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
+from helpers import REPO
 
-MISSIONS = Path(__file__).resolve().parent.parent / "missions"
+MISSIONS = REPO / "missions"
 
 
 def fly(name: str):
@@ -37,6 +38,7 @@ def sim1():
     return fly("paper-sim1.toml")
 
 
+@pytest.mark.slow
 def test_sim1_converges_in_every_phase(sim1):
     scenario, record, summary = sim1
     assert record.status is FlightStatus.COMPLETE, record.status_detail
@@ -80,6 +82,7 @@ def test_sim2_noise_free_z_error_matches_its_closed_form():
     assert z_error_up == pytest.approx(expected, rel=0.02)
 
 
+@pytest.mark.slow
 def test_sim2_with_noise_is_reproducible_and_drifts_as_integrated_noise_does():
     """Position and speed integrated from noisy accelerations drift (docs/reproduction.md):
     the flight completes, its true error exceeds the noise-free run's, and a seed repeats it."""
@@ -94,6 +97,7 @@ def test_sim2_with_noise_is_reproducible_and_drifts_as_integrated_noise_does():
     assert noisy_err > clean_err + 0.1
 
 
+@pytest.mark.slow
 def test_sim2_with_the_integral_option_loses_the_z_offset():
     _, record, _ = fly("paper-sim2-integral.toml")
     assert record.status is FlightStatus.COMPLETE, record.status_detail
@@ -101,6 +105,7 @@ def test_sim2_with_the_integral_option_loses_the_z_offset():
     assert abs(np.mean(record.error_ned_m[late, 2])) < 0.1  # against 0.82 m without it
 
 
+@pytest.mark.slow
 def test_sim2_over_the_whole_mission_diverges_at_the_yaw_switch():
     _, record, _ = fly("paper-sim2-as-stated.toml")
     assert record.status is FlightStatus.DIVERGED
@@ -118,6 +123,7 @@ def distance_to_square_m(north: float, east: float, side: float = 5.0) -> float:
     return best
 
 
+@pytest.mark.slow
 def test_sim3_turns_the_square_corners_along_curves():
     """At each corner the velocity reference jumps: the path leaves the square in a curve of a few
     centimetres (this law is far more aggressive than the paper's plots) and rejoins it mid-side."""
@@ -134,6 +140,7 @@ def test_sim3_turns_the_square_corners_along_curves():
     assert np.linalg.norm(record.error_ned_m[-1]) < 0.01  # settles at the end
 
 
+@pytest.mark.slow
 def test_rigid_body_needs_the_yaw_aware_law_at_psi_pi_over_2():
     _, aware, aware_summary = fly("paper-sim1-rigid-body.toml")
     _, plain, _ = fly("paper-sim1-rigid-body-plain.toml")
@@ -146,6 +153,7 @@ def test_rigid_body_needs_the_yaw_aware_law_at_psi_pi_over_2():
     assert plain.status is FlightStatus.DIVERGED or np.min(np.linalg.norm(plain.error_ned_m[late_plain], axis=1)) > 10.0
 
 
+@pytest.mark.slow
 def test_simulate_command_prints_one_json_object(tmp_path, capsys):
     code = main(["simulate", str(MISSIONS / "paper-sim1.toml"), "--json", "--no-plots", "--run-dir", str(tmp_path)])
     assert code == 0

@@ -237,6 +237,7 @@ def test_paper_loop_reproduces_the_in_process_law():
     assert np.linalg.norm(positions[-1] - positions[0]) > 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["rigid-body", "paper"])
 def test_offboard_position_and_velocity_setpoints(model):
     plant = make_plant(model)

@@ -311,12 +311,14 @@ def _hover_with_mass_error(integral_gain_per_s: float):
     return float(np.mean(record.error_ned_m[late, 2]))
 
 
+@pytest.mark.slow
 def test_without_integral_the_mass_error_leaves_the_closed_form_offset():
     k = PARAMS.gains
     expected_down = -9.81 * 0.05**2 * (0.5 / 0.6 - 1) / ((1 - k.kx5) * (1 - k.kx6))  # +0.8175 m (down error)
     assert _hover_with_mass_error(0.0) == pytest.approx(expected_down, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_integral_action_removes_the_steady_state_error():
     assert abs(_hover_with_mass_error(1.0)) < 1e-3
 

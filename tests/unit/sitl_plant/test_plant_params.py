@@ -17,6 +17,7 @@ from sitl_plant.params import (
     vehicle_from_params,
 )
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from helpers import REPO
 
 # the names the offboard process reads: they must exist exactly so
 CONTRACT_NAMES = [
@@ -124,7 +125,7 @@ def test_long_names_rejected():
 def test_every_parameter_is_documented(table):
     from pathlib import Path
 
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "plant.md").read_text()
+    doc = (REPO / "docs" / "plant.md").read_text()
     rows = {line.split("|")[1].strip().strip("`") for line in doc.splitlines() if line.startswith("| `")}
     missing = [name for name in table if name not in rows]
     assert missing == []

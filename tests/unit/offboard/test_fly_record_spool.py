@@ -53,6 +53,7 @@ def assert_record_equals(record, want: dict[str, np.ndarray]) -> None:
         np.testing.assert_array_equal(record[name], values, err_msg=name)  # bit for bit (NaN-free)
 
 
+@pytest.mark.slow
 def test_100k_rows_hold_bounded_memory_and_build_the_rows():
     rows = 100_000  # 83 min of a 20 Hz flight; as Python lists these rows held ~100 MB
     builder = RecordBuilder(SPEC)

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
+from helpers import REPO
 
 pytestmark = pytest.mark.e2e
 
-REPO = Path(__file__).resolve().parents[1]
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 

@@ -16,7 +16,7 @@ from offboard.controller.tuning import design_for_vehicle, vehicle_values
 from offboard.demo import free_udp_ports, stop_process
 from sitl_plant.params import plant_params
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
-from test_fly_support import ENV, PY
+from helpers.flights import ENV, PY
 
 
 def plant_values() -> dict[str, float]:
@@ -30,6 +30,7 @@ def tune(capsys, *args: str) -> tuple[int, str, str]:
     return code, out.out, out.err
 
 
+@pytest.mark.slow
 def test_tune_a_vehicle_file_writes_the_designed_controller(tmp_path, capsys):
     out = tmp_path / "tuned.toml"
     code, _, err = tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--output", str(out))
@@ -50,6 +51,7 @@ def test_tune_a_vehicle_file_writes_the_designed_controller(tmp_path, capsys):
     assert "phase margin" in out.read_text()
 
 
+@pytest.mark.slow
 def test_tune_from_a_parameter_file_equals_tune_from_the_vehicle_file(tmp_path, capsys):
     values = plant_values()
     as_json = tmp_path / "params.json"

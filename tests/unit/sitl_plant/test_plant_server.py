@@ -10,6 +10,7 @@ from sitl_plant.autopilot import Autopilot
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, KEEPALIVE_S, Plant, PlantConfig, StreamSchedule, run_lockstep, run_realtime
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from helpers import FakeClock
 
 _SENDER = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
 _PARSER = mavlink.MAVLink(None)
@@ -17,14 +18,6 @@ _PARSER = mavlink.MAVLink(None)
 
 def wire(msg):
     return _PARSER.parse_buffer(msg.pack(_SENDER))[0]
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 class FakeEndpoint:

@@ -26,16 +26,9 @@ from sitl_plant.autopilot import Autopilot, Mode
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, LOCKSTEP_STREAMS, Plant, PlantConfig
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from helpers import FakeClock
 
 PAPER = load_controller(PAPER_CONTROLLER_FILE)
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 class PlantLink:

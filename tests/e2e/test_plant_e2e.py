@@ -23,11 +23,11 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.dynamics.rotations import quat_from_euler
+from helpers import REPO
 
 pytestmark = pytest.mark.e2e
 
 NAN = math.nan
-REPO = Path(__file__).resolve().parents[1]
 HOVER = 0.5 * 9.81 / 19.6  # the paper quad: m g / SIM_THR_MAX
 IGNORE_ALL = 0b11000111  # SET_ATTITUDE_TARGET with nothing to fly: a lockstep tick, no proof of life
 

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from test_fly_support import ENV, PY, hover_mission, read_tlog
+from helpers.flights import ENV, PY, hover_mission, read_tlog
 
 pytestmark = pytest.mark.e2e
 

@@ -9,6 +9,7 @@ one way (``offboard.controllers.make_controller``), stepped through the one inte
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -40,7 +41,9 @@ def belief():
     )  # fmt: skip
 
 
+@functools.cache
 def designed():
+    """The design takes a second: once for the module (ControllerParams is frozen)."""
     table = plant_params(VEHICLE)
     values = vehicle_values({name: table[name] for name in table})
     params = belief()

@@ -19,7 +19,7 @@ from offboard.inprocess import Scenario, run_scenario
 from offboard.missions import MISSIONS_DIR, load_mission
 from sitl_plant.params import to_float32
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
-from test_fly_support import ENV, PY, fly, free_udp_ports, hover_mission, read_tlog, series, write_mission
+from helpers.flights import ENV, PY, fly, free_udp_ports, hover_mission, read_tlog, series, write_mission
 
 pytestmark = pytest.mark.e2e
 
