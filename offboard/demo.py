@@ -23,7 +23,9 @@ import sys
 import time
 from pathlib import Path
 
+from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
+from sitl_plant.paths import output_folder
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
 STOP_TIMEOUT_S = 5.0
@@ -78,7 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     run_dir: Path = args.run_dir or Path("runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
-    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        output_folder(run_dir, "--run-dir")
+    except UserError as exc:
+        print(f"demo: error: {exc}", file=sys.stderr)
+        return 2
     plant_port, offboard_port = free_udp_ports(2)
     python = sys.executable
     plant_cmd = [

@@ -130,7 +130,7 @@ class MavLink:
         if tlog_path is not None:
             try:
                 self._tlog = TlogWriter(tlog_path)
-            except LinkError:
+            except OSError:  # LinkError, OutputPathError: the socket is ours to close
                 self.conn.close()
                 raise
         port = getattr(self.conn, "port", None)

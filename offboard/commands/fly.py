@@ -29,6 +29,7 @@ from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
 from offboard.metrics import format_table, summarize
 from offboard.record import FlightStatus
+from sitl_plant.paths import output_folder
 
 MODELS = ("rigid-body", "paper")
 
@@ -218,10 +219,7 @@ def run(args: argparse.Namespace) -> int:
         connect=args.connect,
     )
     run_dir = args.run_dir or Path("runs") / f"fly-{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FlyArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    output_folder(run_dir, "--run-dir")
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
     log_clock = LogClock(args.lockstep)
     console = _Console(sys.stderr, args.quiet)

@@ -17,11 +17,16 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-from offboard.errors import MissionFormatError
+from offboard.errors import MissionFormatError, UserError
 from offboard.missions import Mission, load_mission
 from offboard.missions.plan import write_plan
 from offboard.missions.wpl import write_wpl
 from offboard.trajectory.sampling import DEFAULT_DT_S, summarize
+from sitl_plant.paths import output_file
+
+
+class MissionArgumentError(UserError, ValueError):
+    """An argument of ``offboard mission`` is well-formed for argparse but unusable."""
 
 
 def _positive_seconds(text: str) -> float:
@@ -68,7 +73,22 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plot_format(path: Path) -> None:
+    """Refuse, before any work, a picture name whose suffix matplotlib cannot write."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    formats = FigureCanvasAgg.get_supported_filetypes()
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in formats:
+        given = f"'.{suffix}'" if suffix else "a name without a suffix"
+        raise MissionArgumentError(f"--plot {path}: cannot tell a picture format from {given}; end the name in .png "
+                                   f"(or {', '.join('.' + f for f in sorted(formats) if f != 'png')})")
+
+
 def _show(args: argparse.Namespace) -> int:
+    if args.plot is not None:
+        _plot_format(args.plot)
+        output_file(args.plot, "--plot")
     mission = load_mission(args.file)
     print_summary(mission, sys.stdout, args.dt)
     if args.plot is not None:
@@ -80,6 +100,7 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    output_file(args.output, "output")
     mission = load_mission(args.file)
     if mission.items is None:
         raise MissionFormatError(f"{args.file.name}: only waypoint files (QGC WPL 110, .plan) convert; a parametric mission has no MAVLink items")

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from offboard.errors import UserError
+from sitl_plant.paths import output_folder
 
 #: pymavlink connection strings ``--to`` accepts (network outputs only).
 STREAM_SCHEMES = ("udpout:", "udpbcast:", "udpin:", "tcp:", "tcpin:")
@@ -225,10 +226,7 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
 
     summary = summarize(record)
     run_dir = args.run_dir or Path("runs") / f"replay-{args.log.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ReplayArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    output_folder(run_dir, "--run-dir")
     record.write_csv(run_dir / "series.csv")
     figures = []
     title = args.log.name

@@ -11,6 +11,7 @@ from pathlib import Path
 from offboard.inprocess import DRIVES, MODELS, run_scenario
 from offboard.metrics import format_table, summarize
 from offboard.scenario import load_scenario
+from sitl_plant.paths import output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -44,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     def progress(fraction: float) -> None:
         sys.stderr.write(f"\r{scenario.name}: {100 * fraction:5.1f} %")
 
+    run_dir = output_folder(args.run_dir or Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}", "--run-dir")
     started = time.perf_counter()
     record = run_scenario(scenario, progress if show_progress else None)
     wall = time.perf_counter() - started
@@ -51,8 +53,6 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write("\r" + " " * 40 + "\r")
     summary = summarize(record)
 
-    run_dir = args.run_dir or Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    run_dir.mkdir(parents=True, exist_ok=True)
     record.write_csv(run_dir / "series.csv")
     table = format_table(summary)
     (run_dir / "summary.txt").write_text(table + "\n")

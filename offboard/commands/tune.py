@@ -32,6 +32,7 @@ from offboard.controller.tuning import (
     vehicle_values,
 )
 from offboard.errors import LinkTimeout, UserError
+from sitl_plant.paths import output_file
 
 
 class TuneArgumentError(UserError, ValueError):
@@ -155,6 +156,9 @@ def _check(args: argparse.Namespace) -> None:
             raise TuneArgumentError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
+    for option, path in (("--output", args.output), ("--plot", args.plot)):
+        if path is not None:
+            output_file(path, option)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,0 +1,87 @@
+"""Where the programs write: missing parent folders are created, anything else in the way is one
+line naming the option and the path (exit 2), never a traceback — as real processes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from offboard.missions import MISSIONS_DIR
+from sitl_plant.link import TlogWriter
+from sitl_plant.paths import OutputPathError, output_file, output_folder
+
+BOX = str(MISSIONS_DIR / "px4-sitl-box.waypoints")
+HELIX = str(MISSIONS_DIR / "paper-helix.toml")
+
+
+def _run(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def blocker(tmp_path):
+    """A plain file standing where a folder would have to be (no user, root included, can pass)."""
+    path = tmp_path / "a-file"
+    path.write_text("not a folder\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["-m", "offboard.cli", "mission", "convert", BOX, "{blocker}/x.plan"],
+         "offboard mission: error: output {blocker}/x.plan: cannot create the folder {blocker}: a file of that name is in the way"),
+        (["-m", "offboard.cli", "mission", "convert", BOX, "{tmp}"],
+         "offboard mission: error: output {tmp}: is a folder; give a file name"),
+        (["-m", "offboard.cli", "mission", "show", HELIX, "--plot", "{tmp}/out.txt"],
+         "offboard mission: error: --plot {tmp}/out.txt: cannot tell a picture format from '.txt'; end the name in .png (or "),
+        (["-m", "offboard.cli", "simulate", str(MISSIONS_DIR / "paper-sim3.toml"), "--run-dir", "{blocker}"],
+         "offboard simulate: error: --run-dir {blocker}: is a file, not a folder"),
+        (["-m", "offboard.cli", "fly", HELIX, "--run-dir", "{blocker}"],
+         "offboard fly: error: --run-dir {blocker}: is a file, not a folder"),
+        (["-m", "offboard.cli", "fly", HELIX, "--run-dir", "{tmp}/run", "--log", "{blocker}/x.tlog",
+          "--connect", "udpin:127.0.0.1:0"],
+         "offboard fly: error: --log {blocker}/x.tlog: cannot create the folder {blocker}: a file of that name is in the way"),
+        (["-m", "sitl_plant.cli", "--api-bind", "127.0.0.1:0", "--api-remote", "none", "--gcs-bind", "none",
+          "--log", "{blocker}/sub/x.tlog"],
+         "sitl-plant: error: --log {blocker}/sub/x.tlog: cannot create the folder {blocker}/sub: Not a directory"),
+    ],
+)  # fmt: skip
+def test_an_unwritable_output_is_one_line(argv, expected, tmp_path, blocker):
+    fill = {"blocker": str(blocker), "tmp": str(tmp_path)}
+    proc = _run(*(a.format(**fill) for a in argv))
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(expected.format(**fill))
+
+
+def test_nothing_is_flown_or_written_before_a_bad_output_is_refused(tmp_path, blocker):
+    # simulate checks its run folder before it flies (it used to fly the whole scenario first)
+    proc = _run("-m", "offboard.cli", "simulate", str(MISSIONS_DIR / "paper-sim1.toml"), "--run-dir", str(blocker))
+    assert proc.returncode == 2
+    assert blocker.read_text() == "not a folder\n"
+
+
+def test_missing_parent_folders_are_created(tmp_path):
+    out = tmp_path / "new" / "deeper" / "box.plan"
+    proc = _run("-m", "offboard.cli", "mission", "convert", BOX, str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert out.is_file() and '"fileType": "Plan"' in out.read_text()
+    log = TlogWriter(tmp_path / "logs" / "today" / "plant.tlog")  # sitl-plant --log and offboard fly --log
+    log.write(1, b"\xfd")
+    log.close()
+    assert (tmp_path / "logs" / "today" / "plant.tlog").stat().st_size == 9
+
+
+def test_the_helpers_say_what_is_in_the_way(tmp_path, blocker):
+    assert output_folder(tmp_path / "a" / "b", "--run-dir").is_dir()
+    assert output_file(tmp_path / "c" / "f.png", "--plot") == tmp_path / "c" / "f.png"
+    assert (tmp_path / "c").is_dir()
+    with pytest.raises(OutputPathError, match="a file stands where one of its parent folders should be"):
+        output_folder(blocker / "x" / "y", "--run-dir")
+    with pytest.raises(OSError):  # callers may catch it as the builtin
+        output_file(tmp_path, "output")
