@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import signal
 import sys
@@ -25,6 +24,7 @@ from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
 
 #: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
 PAPER_KEYWORD = "paper"
+from offboard import jsonout
 from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
 from offboard.metrics import format_table, summarize
@@ -253,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
     wall = time.monotonic() - started
     payload, table = _report(result, link.stats.to_dict(), wall, run_dir, tlog, meta, args.no_plots)
     if args.json:
-        print(json.dumps(payload, allow_nan=True))
+        print(jsonout.dumps(payload))
     else:
         if table:
             print(table)
@@ -346,5 +346,5 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
         table = format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
     payload.update(extra)
     (run_dir / "summary.txt").write_text(table + "\n")
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2) + "\n")
     return payload, table

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from offboard import jsonout
 from offboard.errors import UserError
 from sitl_plant.paths import output_folder
 
@@ -259,9 +260,9 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         "rerun": rerun_payload,
         "figures": [str(p) for p in figures],
     }
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True, default=str) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2, default=str) + "\n")
     if args.json:
-        print(json.dumps(payload, allow_nan=True, default=str))
+        print(jsonout.dumps(payload, default=str))
     else:
         print(text)
         print(f"\nrun folder: {run_dir}" + (f" ({len(figures)} figures)" if figures else ""))

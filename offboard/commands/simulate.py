@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
+from offboard import jsonout
 from offboard.inprocess import DRIVES, MODELS, run_scenario
 from offboard.metrics import format_table, summarize
 from offboard.scenario import load_scenario
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     (run_dir / "summary.txt").write_text(table + "\n")
     payload = {"scenario": scenario.name, "source": scenario.source, "model": scenario.model,
                "drive": scenario.drive, "wall_time_s": wall, **summary.to_dict()}
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2) + "\n")
     figures: list[Path] = []
     if not args.no_plots and len(record):
         from offboard.plots import write_figures
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         figures = write_figures(record, run_dir, title=f"{scenario.name} ({scenario.model}, {scenario.drive})")
 
     if args.json:
-        print(json.dumps(payload, allow_nan=True))
+        print(jsonout.dumps(payload))
     else:
         print(f"{scenario.name}: model {scenario.model}, drive {scenario.drive}, sensors {scenario.sensors}, "
               f"wind {scenario.wind}  ({wall:.2f} s wall)")
