@@ -43,10 +43,11 @@ from typing import Protocol
 import numpy as np
 
 from offboard import codec
+from offboard.clockrate import STALLED_RATE, ClockRateMeter
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams, RosalesController
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
-from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
+from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.frames import tracking_reference
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
@@ -545,6 +546,10 @@ class Flight:
         self.armed_by_us = False
         self.landed = False
         self.disarmed = False
+        # on our own clock in real time: the vehicle's clock must run at our rate (offboard.clockrate)
+        self._clock_meter: ClockRateMeter | None = None
+        if not (self.config.lockstep or self.config.vehicle_clock):
+            self._clock_meter = ClockRateMeter()
 
     # -- public ----------------------------------------------------------------------------------
 
@@ -679,6 +684,7 @@ class Flight:
     def _stream_and_arm(self) -> None:
         target = self._samples_sent + self.config.prestream_samples
         self._pump(lambda: self._samples_sent >= target)
+        self._check_clock_rate()
         command, params = codec.set_mode_offboard_params()
         self._command(command, params)
         self._expect_offboard = True
@@ -837,6 +843,25 @@ class Flight:
             self.trajectory = shifted
             self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
 
+    def _check_clock_rate(self) -> None:
+        """Before OFFBOARD, on our own clock: refuse a vehicle whose clock runs at another rate
+        (``offboard.clockrate``); we keep streaming while the measurement completes."""
+        meter = self._clock_meter
+        if meter is None:
+            return
+        self._pump(lambda: meter.measure() is not None, 10.0)
+        measured = meter.measure()
+        self._clock_meter = None  # measured once; no more pairs kept
+        if measured is None:
+            return  # no telemetry to measure with: the telemetry watch reports that
+        self.meta["clock_rate"] = measured.rate
+        if measured.real_time:
+            return
+        if measured.rate < STALLED_RATE:
+            raise ClockMismatch(f"{measured.describe()}: a lockstep vehicle waits for our setpoints; fly it with --lockstep")
+        raise ClockMismatch(f"{measured.describe()}, so a sample time of {self.to * 1000:g} ms of ours would be "
+                            f"{self.to * measured.rate * 1000:.0f} ms of the vehicle's: fly it with --clock vehicle")
+
     def _now_ns(self) -> int:
         """Our TIMESYNC time: the latest telemetry stamp in lockstep (reproducible), else the clock."""
         if self.config.lockstep:
@@ -989,6 +1014,8 @@ class Flight:
             self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
         now = self.clock()
         self._last_telemetry_wall = now
+        if self._clock_meter is not None and msg.get_type() == "ATTITUDE":
+            self._clock_meter.add(now, int(msg.time_boot_ms))
         if self._outage_since is not None and self._att is not None and self._lpn is not None:
             self._telemetry_back(now)
         self._lockstep_sample_if_due()

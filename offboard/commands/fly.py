@@ -5,8 +5,8 @@ Against ``sitl-plant`` or a PX4 SITL, exactly as MAVSDK users fly PX4: listen on
 stream setpoints, switch to OFFBOARD, arm, fly, land, disarm. See docs/offboard.md.
 
 Exit code: ``FlightStatus.exit_code`` (0 complete, 3 diverged, 4 NaN command, 5 link lost,
-6 failsafe, 7 mode changed, 8 command rejected, 130 interrupted); 2 for a bad argument or file,
-or no vehicle at all.
+6 failsafe, 7 mode changed, 8 command rejected, 9 lost track, 130 interrupted); 2 for a bad
+argument or file, no vehicle at all, or a vehicle whose clock runs at another rate than ours.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ PAPER_KEYWORD = "paper"
 from offboard import jsonout
 from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
-from offboard.metrics import format_table, summarize
+from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from sitl_plant.paths import output_folder
 
@@ -251,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
         console.end()
         link.close()
     wall = time.monotonic() - started
+    if result.status is FlightStatus.COMPLETE and check_tracking(result.record).status is not FlightStatus.COMPLETE:
+        result = dataclasses.replace(result, status=result.record.status, detail=result.record.status_detail)
     payload, table = _report(result, link.stats.to_dict(), wall, run_dir, tlog, meta, args.no_plots)
     if args.json:
         print(jsonout.dumps(payload))

@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace, reader, scan) -> int:
     from offboard import replay
-    from offboard.metrics import format_table, summarize
+    from offboard.metrics import check_tracking, format_table, summarize
     from offboard.trajectory.shifted import shift_trajectory
 
     summary_json = _flight_summary(args.log)
@@ -225,7 +225,7 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         elif args.controller is None:
             exit_code = 1
 
-    summary = summarize(record)
+    summary = summarize(check_tracking(record))
     run_dir = args.run_dir or Path("runs") / f"replay-{args.log.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     output_folder(run_dir, "--run-dir")
     record.write_csv(run_dir / "series.csv")

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from offboard import jsonout
 from offboard.inprocess import DRIVES, MODELS, run_scenario
-from offboard.metrics import format_table, summarize
+from offboard.metrics import check_tracking, format_table, summarize
+from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
 from sitl_plant.paths import output_folder
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - started
     if show_progress:
         sys.stderr.write("\r" + " " * 40 + "\r")
-    summary = summarize(record)
+    summary = summarize(check_tracking(record))
 
     record.write_csv(run_dir / "series.csv")
     table = format_table(summary)
@@ -72,4 +73,6 @@ def run(args: argparse.Namespace) -> int:
               f"wind {scenario.wind}  ({wall:.2f} s wall)")
         print(table)
         print(f"run folder: {run_dir}" + (f" ({len(figures)} figures)" if figures else ""))
+    if record.status is not FlightStatus.COMPLETE:
+        print(f"offboard simulate: {record.status.name}: {record.status_detail}", file=sys.stderr)
     return record.status.exit_code
