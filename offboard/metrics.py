@@ -145,26 +145,55 @@ def check_tracking(record: FlightRecord) -> FlightRecord:
     return record
 
 
+def check_complete(record: FlightRecord, mission_duration_s: float) -> FlightRecord:
+    """A COMPLETE record that ends more than half a sample before its mission did becomes
+    INCOMPLETE (in place; returned): a log cut short, or a flight stopped early, is not a
+    flight of the whole mission."""
+    t = record["t_s"]
+    if record.status is FlightStatus.COMPLETE and len(t):
+        to = record.meta.get("sample_time_s")
+        margin = 0.5 * float(to) if isinstance(to, (int, float)) and math.isfinite(to) and to > 0 else 0.5
+        if float(t[-1]) < mission_duration_s - margin:
+            record.status = FlightStatus.INCOMPLETE
+            record.status_detail = f"the record ends at t = {t[-1]:.2f} s, before the mission's end at {mission_duration_s:.2f} s"
+    return record
+
+
+def _num(value: float, width: int, fmt: str = ".3f") -> str:
+    """A table cell: the number, or "-" where there is none (no samples, no references)."""
+    return f"{value:{width}{fmt}}" if math.isfinite(value) else f"{'-':>{width}}"
+
+
 def format_table(summary: Summary) -> str:
-    """A plain-text table: per phase, RMS / max / mean error per axis and 3D, in metres."""
-    head = f"{'phase':<16} {'span s':>13}  " + "  ".join(f"{a + ' rms/max/mean':>24}" for a in (*AXES, "3d"))
+    """A plain-text table, 80-odd characters wide: per row (whole flight, after 5 s, each phase
+    the flight reached) the 3D error's RMS, max and mean, and the RMS per axis, in metres; then
+    steady states, peak actions, duration and status. Every figure, per axis max and mean too,
+    is in the JSON summary (``Summary.to_dict``)."""
+    head = (f"{'phase':<16} {'span s':>11}  {'3d rms':>7} {'max':>7} {'mean':>7}   "
+            f"{'north rms':>9} {'east rms':>9} {'down rms':>9}")  # fmt: skip
     lines = [head, "-" * len(head)]
+    end = summary.duration_s
+    empty: list[str] = []
     for p in summary.phases:
-        cells = "  ".join(
-            f"{s.rms_m:7.3f} {s.max_m:7.3f} {s.mean_m:+8.3f}" for s in (p.axes[a] for a in (*AXES, "3d"))
-        )
-        lines.append(f"{p.name:<16} {p.start_s:6.1f}-{min(p.end_s, 9999):<6.1f}  {cells}")
-    holds = [p for p in summary.phases if p.steady_state_m is not None]
-    for p in holds:
-        ss = p.steady_state_m or {}
-        lines.append(
-            f"steady state in {p.name}: "
-            + ", ".join(f"{a} {ss[a]:+.4f} m" for a in AXES)
-        )
+        if p.samples == 0:
+            empty.append(p.name)
+            continue
+        d3 = p.axes["3d"]
+        span = f"{p.start_s:.1f}-{min(p.end_s, end, 9999):.1f}"
+        lines.append(f"{p.name[:16]:<16} {span:>11}  {_num(d3.rms_m, 7)} {_num(d3.max_m, 7)} {_num(d3.mean_m, 7)}   "
+                     + " ".join(_num(p.axes[a].rms_m, 9) for a in AXES))  # fmt: skip
+    if empty:
+        lines.append(f"no samples in: {', '.join(empty)} (the record ends at {end:.2f} s)")
+    if all(not math.isfinite(p.axes["3d"].rms_m) for p in summary.phases):
+        lines.append("no tracking errors: no references")
+    for p in summary.phases:
+        if p.steady_state_m is not None:
+            ss = p.steady_state_m
+            lines.append(f"steady state in {p.name}: " + ", ".join(f"{a} {ss[a]:+.4f} m" for a in AXES))
+    torques = ", ".join(_num(v, 0, ".4g").strip() for v in summary.peak_torques_nm)
     lines.append(
-        f"peak u {summary.peak_thrust_n:.2f} N (min {summary.min_thrust_n:.2f} N), "
-        f"peak |tau| {', '.join(f'{v:.4g}' for v in summary.peak_torques_nm)} N m, "
-        f"peak tilt {summary.peak_tilt_deg:.1f} deg"
+        f"peak u {_num(summary.peak_thrust_n, 0, '.2f').strip()} N (min {_num(summary.min_thrust_n, 0, '.2f').strip()} N), "
+        f"peak |tau| {torques} N m, peak tilt {_num(summary.peak_tilt_deg, 0, '.1f').strip()} deg"
     )
     lines.append(f"duration {summary.duration_s:.2f} s, status {summary.status}"
                  + (f" ({summary.status_detail})" if summary.status_detail else ""))
