@@ -516,6 +516,7 @@ class Flight:
         self._next_tick_s: float | None = None
         self._next_tick_ms: float | None = None  # on the vehicle's clock
         self._prev_sample_ms: int | None = None
+        self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
         self._next_heartbeat: float = 0.0
         self._next_heartbeat_ms = 0
         # supervision
@@ -1000,6 +1001,8 @@ class Flight:
         try:
             if msg.get_type() == "ATTITUDE":
                 codec.check_attitude(msg)
+                if self._att is None or int(msg.time_boot_ms) != int(self._att.time_boot_ms):
+                    self._stamps_since_sample += 1  # a lockstep vehicle: one a period
                 self._att = msg
                 self._recent_att[int(msg.time_boot_ms)] = msg
                 if len(self._recent_att) > 16:
@@ -1063,11 +1066,17 @@ class Flight:
         if self._prev_sample_ms is not None:
             step = t_ms - self._prev_sample_ms
             if step != int(round(self.to * 1000)) and self._samples_sent > 1:
+                if self._stamps_since_sample > 1:
+                    # a lockstep vehicle sends one stamp a period and waits; this one did not wait
+                    raise LockstepMismatch(f"the vehicle is not in lockstep: its ATTITUDE advanced {self._stamps_since_sample} "
+                                           f"stamps ({step} ms) without waiting for our setpoint; start sitl-plant with "
+                                           "--lockstep, or fly without --lockstep")  # fmt: skip
                 raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
                                        f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
         if self._next_heartbeat_ms <= t_ms:
             self._send_heartbeat()
         if self._sample(self.clock()):  # unanswered (nothing to send yet): the plant still waits for it
+            self._stamps_since_sample = 0
             self._prev_sample_ms = t_ms
             self._answered_ms = t_ms
             self._tick += 1

@@ -201,6 +201,17 @@ def test_no_vehicle_is_one_line_naming_the_address(tmp_path):
     assert f"udpin:127.0.0.1:{port}" in lines[0] and "heartbeat" in lines[0] and "0.5 s" in lines[0]
 
 
+def test_lockstep_against_a_real_time_plant_says_the_plant_is_not_in_lockstep(tmp_path):
+    """The issue: this advised --lockstep-period 0.05, which was not what was wrong."""
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 1.0, 2.0), lockstep=False, fly_args=("--lockstep",))
+    assert flown.returncode == 2, flown.stderr
+    lines = [line for line in flown.stderr.splitlines() if line.startswith("offboard fly:")]
+    assert len(lines) == 1 and "Traceback" not in flown.stderr
+    assert lines[0].startswith("offboard fly: error: the vehicle is not in lockstep: its ATTITUDE advanced ")
+    assert lines[0].endswith("start sitl-plant with --lockstep, or fly without --lockstep")
+    assert "--lockstep-period" not in flown.stderr
+
+
 @pytest.mark.parametrize(
     "args, expected",
     [
