@@ -25,6 +25,7 @@ from pathlib import Path
 
 from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
+from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_folder
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
@@ -67,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m offboard.demo",
         description="Fly the paper's helix over MAVLink: sitl-plant and offboard fly as two processes.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--run-dir", type=Path, default=None, help="run folder (default: runs/demo-<time>)")
     parser.add_argument("--mission", type=Path, default=PAPER_HELIX, help="mission file")

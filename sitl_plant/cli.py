@@ -15,6 +15,7 @@ from typing import TextIO
 
 from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
 from sitl_plant.codec import Home
+from sitl_plant.clihelp import HelpFormatter, add_version
 from sitl_plant.errors import UserError
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
@@ -32,22 +33,14 @@ class ArgumentError(UserError, ValueError):
     """An option's value is well-formed for argparse but meaningless (e.g. ``--speed 0``)."""
 
 
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows defaults, except where there is none to show (flags, unset options)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default in (None, "", False) or action.default is argparse.SUPPRESS:
-            return action.help
-        return super()._get_help_string(action)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sitl-plant",
         description="A simulated PX4-style quadrotor autopilot speaking MAVLink 2 over UDP. "
         "Connect an offboard program with udpin:0.0.0.0:14540 (plus --instance), a ground station on UDP 14550.",
-        formatter_class=_Formatter,
+        formatter_class=HelpFormatter,
     )
+    add_version(parser, "sitl-plant")
     sim = parser.add_argument_group("simulation")
     sim.add_argument("--model", choices=MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
     sim.add_argument("--vehicle", metavar="FILE", type=Path, default=PAPER_VEHICLE_FILE, help="vehicle parameter file (TOML)")

@@ -29,6 +29,7 @@ from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
+from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_folder
 
 MODELS = ("rigid-body", "paper")
@@ -45,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Connect to a vehicle, stream setpoints, switch to OFFBOARD, arm, fly MISSION with the "
         "Rosales et al. controller, land and disarm; print the tracking table and leave the log, "
         "figures and summary in a run folder. The exit code says how the flight ended.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("mission", type=Path, help="mission file: parametric .toml, QGC WPL .waypoints or .plan")
     link = parser.add_argument_group("link")

@@ -22,6 +22,7 @@ from offboard.missions import Mission, load_mission
 from offboard.missions.plan import write_plan
 from offboard.missions.wpl import write_wpl
 from offboard.trajectory.sampling import DEFAULT_DT_S, summarize
+from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_file
 
 
@@ -49,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub = parser.add_subparsers(dest="mission_command", required=True, metavar="ACTION")
 
     show = sub.add_parser(
-        "show", help="summary table of a mission (and a plot with --plot)", formatter_class=argparse.ArgumentDefaultsHelpFormatter
+        "show", help="summary table of a mission (and a plot with --plot)", formatter_class=HelpFormatter
     )
     show.add_argument("file", type=Path, help="mission file")
     show.add_argument("--plot", type=Path, metavar="PNG", default=None, help="also write a picture of the path to PNG")

@@ -12,6 +12,7 @@ from offboard.inprocess import DRIVES, MODELS, run_scenario
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
+from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_folder
 
 
@@ -21,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fly a scenario file in-process (controller + simulated vehicle) and report it",
         description="Fly a scenario (mission + vehicle + controller + sensors) in one process, print the "
         "tracking table and write the paper's figures, a CSV and the summary into a run folder.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("scenario", type=Path, help="scenario file, e.g. missions/paper-sim1.toml")
     parser.add_argument("--run-dir", type=Path, default=None,

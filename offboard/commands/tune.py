@@ -32,6 +32,7 @@ from offboard.controller.tuning import (
     vehicle_values,
 )
 from offboard.errors import LinkTimeout, UserError
+from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_file
 
 
@@ -46,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Model the vehicle's attitude loop, rate loop, motors, sample-and-hold and latency, and "
         "choose the law's gains kx1..kx6 for the fastest closed loop that keeps the stated margins "
         "(docs/controller-design.md). Writes a controller file for offboard fly --controller.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--params", type=Path, metavar="FILE",
