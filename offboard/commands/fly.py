@@ -185,7 +185,6 @@ class _Interrupts:
 
 
 def run(args: argparse.Namespace) -> int:
-    from offboard.link import MavLink
     from offboard.missions import load_mission
 
     _check(args)
@@ -220,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
         connect=args.connect,
     )
     run_dir = args.run_dir or Path("runs") / f"fly-{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    created = [p for p in (run_dir, *run_dir.parents) if not p.exists()]  # ours to remove if nothing is flown
     output_folder(run_dir, "--run-dir")
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
     log_clock = LogClock(args.lockstep)
@@ -233,6 +233,29 @@ def run(args: argparse.Namespace) -> int:
             "output": args.output, "model": args.model, "lockstep": args.lockstep, "clock": args.clock,
             "connect": args.connect}  # fmt: skip
     started = time.monotonic()
+    try:
+        return _fly(args, mission, choice, config, meta, run_dir, tlog, log_clock, console, started)
+    except UserError:
+        _remove_if_empty(tlog, created)
+        raise
+
+
+def _remove_if_empty(tlog: Path, created: list[Path]) -> None:
+    """After a flight that never started (no vehicle, a refused link): no 0-byte log and no empty
+    run folder left behind; a log with packets in it stays, for the diagnosis."""
+    try:
+        if tlog.is_file() and tlog.stat().st_size == 0:
+            tlog.unlink()
+        for folder in created:  # deepest first
+            folder.rmdir()  # only if empty
+    except OSError:
+        pass
+
+
+def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: FlightConfig, meta: dict, run_dir: Path,
+         tlog: Path, log_clock: LogClock, console: _Console, started: float) -> int:
+    from offboard.link import MavLink
+
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
     try:
