@@ -91,8 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     plant_cmd = [
         python, "-m", "sitl_plant.cli", "--model", args.model,
         "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote", f"127.0.0.1:{offboard_port}",
-        "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"), "--quiet",
-    ]  # fmt: skip
+        "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"),
+    ]  # fmt: skip  (not --quiet: plant.log keeps its banner, a status line every 10 s and its summary)
     fly_cmd = [
         python, "-m", "offboard.cli", "fly", str(args.mission), "--model", args.model,
         "--connect", f"udpin:127.0.0.1:{offboard_port}", "--run-dir", str(run_dir),

@@ -389,7 +389,12 @@ class FlightResult:
 
 @dataclass(frozen=True)
 class Progress:
-    """One live-progress sample: what the one-line display shows."""
+    """One live-progress sample: what the one-line display shows.
+
+    During the mission: its phase, mission time and the 3D error (m). During the landing: phase
+    ``"landing"``, the vehicle's seconds since the landing began, and ``error_m`` NaN (the vehicle
+    lands by itself: there is no reference).
+    """
 
     phase: str
     t_s: float
@@ -517,6 +522,7 @@ class Flight:
         self._next_tick_ms: float | None = None  # on the vehicle's clock
         self._prev_sample_ms: int | None = None
         self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
+        self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self._next_heartbeat: float = 0.0
         self._next_heartbeat_ms = 0
         # supervision
@@ -1143,6 +1149,11 @@ class Flight:
         thrust = 0.0
         if self.params is not None and self.scaling is not None and self.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
             thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
+        if self._progress is not None:  # the landing's progress: seconds since it began, where the vehicle is
+            if self._landing_ms is None:
+                self._landing_ms = measured.time_boot_ms
+            self._progress(Progress("landing", (measured.time_boot_ms - self._landing_ms) / 1000.0,
+                                    tuple(float(v) for v in measured.pos_ned_m), math.nan))  # type: ignore[arg-type]
         return self._setpoint_message(codec.hold_setpoint(measured.euler_rad, thrust), measured.time_boot_ms)
 
     def _mission_source(self, measured: MeasuredState) -> mavlink.MAVLink_message | None:

@@ -47,6 +47,8 @@ def test_demo_flies_the_paper_helix_and_leaves_the_run_folder(tmp_path):
     assert_gone(child_pids(proc.stderr))
     msgs = read_tlog(run_dir / "flight.tlog")
     assert sum(m.get_type() == "SET_ATTITUDE_TARGET" for m in msgs) > 800
+    plant_log = (run_dir / "plant.log").read_text()  # the issue: it was empty
+    assert plant_log.startswith("sitl-plant: rigid-body model") and "sitl-plant: stopped at t=" in plant_log
 
 
 def test_ctrl_c_on_the_demo_lands_and_leaves_no_process(tmp_path):

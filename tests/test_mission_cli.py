@@ -88,3 +88,20 @@ def test_bad_arguments_exit_2(argv, capsys):
         main(argv)
     assert info.value.code == 2
     assert "usage:" in capsys.readouterr().err
+
+
+def test_show_names_the_velocity_steps_of_the_square(capsys):
+    """The issue: "max a 0.00" for a square whose velocity steps at every corner."""
+    assert main(["mission", "show", str(MISSIONS_DIR / "paper-square.toml")]) == 0
+    out = capsys.readouterr().out
+    square = next(line.split() for line in out.splitlines() if line.startswith("1  square"))
+    assert square[8] == "steps"  # the max a column
+    assert ("speed     the velocity reference steps (unbounded acceleration, not smoothed): t = 5.00 s 1.41 m/s (square), "
+            "t = 10.00 s 1.41 m/s (square), t = 15.00 s 1.41 m/s (square), t = 20.00 s 1.00 m/s (square -> hold)") in out
+    assert "acceleration 0.00 m/s^2 between the velocity steps" in out
+
+
+def test_show_lists_no_velocity_step_where_the_reference_is_smooth(capsys):
+    assert main(["mission", "show", str(MISSIONS_DIR / "px4-sitl-box.waypoints")]) == 0
+    out = capsys.readouterr().out
+    assert "velocity reference steps" not in out and "steps" not in out

@@ -148,7 +148,10 @@ class _Console:
             return
         self._last = now
         n, e, d = p.pos_ned_m
-        self.stream.write(f"\r{p.phase:<14.14} t={p.t_s:7.2f} s  N {n:7.2f}  E {e:7.2f}  D {d:7.2f} m  error {p.error_m:6.3f} m\x1b[K")
+        # the mission: its time and the 3D error; the landing (no reference): time since it began
+        tail = f"  error {p.error_m:6.3f} m" if math.isfinite(p.error_m) else f"  {-d:6.2f} m above home"
+        clock = f"t={p.t_s:7.2f} s" if math.isfinite(p.error_m) else f"+{p.t_s:6.2f} s"
+        self.stream.write(f"\r{p.phase:<14.14} {clock}  N {n:7.2f}  E {e:7.2f}  D {d:7.2f} m{tail}\x1b[K")
         self.stream.flush()
         self._shown = True
 
@@ -326,6 +329,14 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
     }
 
 
+def format_timesync(offset_ms: float, rtt_ms: float) -> str:
+    """The TIMESYNC line: offset = the vehicle's clock minus ours (MAVLink's TIMESYNC), which only
+    says where the two clocks started (its boot, our monotonic clock's origin), not an error."""
+    side = "ahead of" if offset_ms >= 0 else "behind"
+    return (f"timesync: the vehicle's clock is {abs(offset_ms) / 1000:.3f} s {side} ours (offset {offset_ms:.3f} ms: "
+            f"where the two clocks started, not an error), round trip {rtt_ms:.3f} ms")  # fmt: skip
+
+
 def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = False) -> str:
     """The lines under the tracking table: messages, loop timing, outages, landing.
 
@@ -346,7 +357,7 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
     if extra["link_outages_s"]:
         lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
     if extra["timesync"]:
-        lines.append(f"timesync: offset {extra['timesync']['offset_ms']:.3f} ms, round trip {extra['timesync']['rtt_ms']:.3f} ms")
+        lines.append(format_timesync(extra["timesync"]["offset_ms"], extra["timesync"]["rtt_ms"]))
     landing = "landed and disarmed" if extra["landed"] and extra["disarmed"] else (
         "landed, still armed" if extra["landed"] else "landing not confirmed")
     lines.append(f"{landing}; {extra['wall_time_s']:.1f} s wall in all")

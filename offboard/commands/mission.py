@@ -146,7 +146,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
             f"{r.duration_s:.2f}",
             f"{r.length_m:.2f}",
             f"{r.max_speed_m_s:.2f}",
-            f"{r.max_accel_m_s2:.2f}",
+            f"{r.max_accel_m_s2:.2f}" if not any(v.where == r.name for v in s.velocity_steps) else "steps",
             f"{math.degrees(r.max_yaw_rate_rad_s):.1f}",
         )
         for k, r in enumerate(s.segments, start=1)
@@ -159,9 +159,14 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     lo, hi = s.min_ned_m, s.max_ned_m
     w(f"bounds    north [{lo[0]:.2f}, {hi[0]:.2f}]  east [{lo[1]:.2f}, {hi[1]:.2f}]  down [{lo[2]:.2f}, {hi[2]:.2f}] m (NED)\n")
     w(
-        f"peaks     speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2, "
+        f"peaks     speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2"
+        f"{' between the velocity steps' if s.velocity_steps else ''}, "
         f"yaw rate {math.degrees(s.max_yaw_rate_rad_s):.1f} deg/s (sampled every {dt_s * 1000:g} ms)\n"
     )
+    if s.velocity_steps:
+        listed = ", ".join(f"t = {v.t_s:.2f} s {v.speed_change_m_s:.2f} m/s ({v.where})" for v in s.velocity_steps[:8])
+        more = f" and {len(s.velocity_steps) - 8} more" if len(s.velocity_steps) > 8 else ""
+        w(f"speed     the velocity reference steps (unbounded acceleration, not smoothed): {listed}{more}\n")
     if s.jumps:
         w("jumps     the reference steps between segments (not smoothed):\n")
         for j in s.jumps:
