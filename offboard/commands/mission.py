@@ -122,7 +122,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     w = out.write
     w(f"mission   {mission.name}  ({mission.source})\n")
     if mission.description:
-        w(f"          {mission.description}\n")
+        w(_wrapped("          ", mission.description))
     if mission.home is not None:
         lat, lon, alt = mission.home
         w(f"home      {lat:.7f} deg, {lon:.7f} deg, {alt:.2f} m AMSL (origin of the local NED frame)\n")
@@ -135,7 +135,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
         f"start     vehicle at N {n0:.2f} E {e0:.2f} D {d0:.2f} m, yaw {math.degrees(mission.start_yaw_rad):.1f} deg; "
         f"reference starts {gap:.2f} m from it\n\n"
     )
-    header = ("#", "segment", "type", "kind", "start s", "duration s", "length m", "max v m/s", "max a m/s2", "max yaw rate deg/s")
+    header = ("#", "segment", "type", "kind", "start s", "duration s", "length m", "max v m/s", "max a m/s2", "yaw rate deg/s")
     rows = [
         (
             str(k),
@@ -166,7 +166,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     if s.velocity_steps:
         listed = ", ".join(f"t = {v.t_s:.2f} s {v.speed_change_m_s:.2f} m/s ({v.where})" for v in s.velocity_steps[:8])
         more = f" and {len(s.velocity_steps) - 8} more" if len(s.velocity_steps) > 8 else ""
-        w(f"speed     the velocity reference steps (unbounded acceleration, not smoothed): {listed}{more}\n")
+        w(_wrapped("speed     ", f"the velocity reference steps (unbounded acceleration, not smoothed): {listed}{more}"))
     if s.jumps:
         w("jumps     the reference steps between segments (not smoothed):\n")
         for j in s.jumps:
@@ -176,4 +176,11 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
             )
     else:
         w("jumps     none: the reference is continuous in position and yaw\n")
-    w("phases    " + ", ".join(f"{p.name} [{p.start_s:.1f}, {p.end_s:.1f}) {p.kind}" for p in traj.phases()) + "\n")
+    w(_wrapped("phases    ", ", ".join(f"{p.name} [{p.start_s:.1f}, {p.end_s:.1f}) {p.kind}" for p in traj.phases())))
+
+
+def _wrapped(label: str, text: str, width: int = 100) -> str:
+    """A long report line, wrapped at ``width`` under its label."""
+    import textwrap
+
+    return textwrap.fill(text, width, initial_indent=label, subsequent_indent=" " * len(label), break_on_hyphens=False) + "\n"
