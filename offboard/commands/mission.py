@@ -135,7 +135,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
         f"start     vehicle at N {n0:.2f} E {e0:.2f} D {d0:.2f} m, yaw {math.degrees(mission.start_yaw_rad):.1f} deg; "
         f"reference starts {gap:.2f} m from it\n\n"
     )
-    header = ("#", "segment", "type", "kind", "start s", "duration s", "length m", "max v m/s", "max a m/s2", "yaw rate deg/s")
+    header = ("#", "segment", "type", "kind", "start s", "dur s", "len m", "max v m/s", "max a m/s2", "max yaw deg/s")
     rows = [
         (
             str(k),
@@ -158,11 +158,12 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     w(f"\ntotal     {s.duration_s:.2f} s, {s.length_m:.2f} m of path ({len(s.segments)} segments)\n")
     lo, hi = s.min_ned_m, s.max_ned_m
     w(f"bounds    north [{lo[0]:.2f}, {hi[0]:.2f}]  east [{lo[1]:.2f}, {hi[1]:.2f}]  down [{lo[2]:.2f}, {hi[2]:.2f}] m (NED)\n")
-    w(
-        f"peaks     speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2"
+    w(_wrapped(
+        "peaks     ",
+        f"speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2"
         f"{' between the velocity steps' if s.velocity_steps else ''}, "
-        f"yaw rate {math.degrees(s.max_yaw_rate_rad_s):.1f} deg/s (sampled every {dt_s * 1000:g} ms)\n"
-    )
+        f"yaw rate {math.degrees(s.max_yaw_rate_rad_s):.1f} deg/s (sampled every {dt_s * 1000:g} ms)"
+    ))
     if s.velocity_steps:
         listed = ", ".join(f"t = {v.t_s:.2f} s {v.speed_change_m_s:.2f} m/s ({v.where})" for v in s.velocity_steps[:8])
         more = f" and {len(s.velocity_steps) - 8} more" if len(s.velocity_steps) > 8 else ""
