@@ -148,10 +148,28 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(s, handler)
     files = sorted(p.name for p in run_dir.iterdir() if p.is_file())
     print(f"demo: run folder {run_dir.resolve()}: {', '.join(files)}", file=sys.stderr)
+    verdict = _verdict(run_dir / "summary.json")
+    if verdict:
+        print(f"demo: {verdict}", file=sys.stderr)
     if (run_dir / "summary.txt").is_file():
         print(f"demo: summary in {run_dir / 'summary.txt'}, figures {run_dir}/*.png, logs flight.tlog (offboard) "
               f"and plant.tlog (plant)", file=sys.stderr)
     return code if code >= 0 else 128 - code
+
+
+def _verdict(summary_json: Path) -> str:
+    """The flight's one-line verdict from its summary.json ('' without one)."""
+    import json
+
+    try:
+        data = json.loads(summary_json.read_text())
+    except (OSError, ValueError):
+        return ""
+    verdict = data.get("verdict") if isinstance(data, dict) else None
+    limit = ((data.get("controller") or {}).get("tilt_max_deg")) if isinstance(data, dict) else None
+    if not isinstance(verdict, str):
+        return ""
+    return verdict + (f" (limit {limit:g} deg)" if isinstance(limit, (int, float)) else "") + f", status {data.get('status')}"
 
 
 if __name__ == "__main__":
