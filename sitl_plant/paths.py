@@ -1,9 +1,13 @@
-"""Where both programs write: one rule for every output file and run folder.
+"""Where both programs write: one rule for every output file, one for run folders.
 
-The rule: **missing parent folders are created** (as ``mkdir -p`` would, and as a run folder
-always was); anything that still stands in the way — a parent that is a file, a folder where a
-file should go, a file where a folder should go, no permission — is an ``OutputPathError``
-naming the option and the path, which the command lines print as one line.
+- An **output file** (``--log``, ``--plot``, ``--output``, ``mission convert``'s output) goes into
+  a folder that exists: a missing folder is refused, never created, so a typo in a path does not
+  leave stray folders behind (and, run as root, ``/nonexistent/dir/x.plan`` creates nothing).
+- A **run folder** (``--run-dir``) is created with its parents, as it always was
+  (``runs/fly-<mission>-<time>`` from a fresh clone).
+
+Anything in the way is an ``OutputPathError`` naming the option and the path, which the command
+lines print as one line (exit 2).
 """
 
 from __future__ import annotations
@@ -14,15 +18,35 @@ from sitl_plant.errors import UserError
 
 
 class OutputPathError(UserError, OSError):
-    """An output file or folder cannot be created where the user asked for it."""
+    """An output file or folder cannot be created where the user asked for it.
+
+    ``reason`` is the message without the option and path (for callers that word their own).
+    """
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 def _reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
+def output_file_problem(path: str | Path) -> str | None:
+    """Why ``path`` cannot be written as a file (None when it can be tried)."""
+    path = Path(path)
+    parent = path.parent
+    if path.is_dir():
+        return "is a folder; give a file name"
+    if parent.exists() and not parent.is_dir():
+        return f"{parent} is a file, not a folder"
+    if not parent.exists():
+        return f"the folder {parent} does not exist (create it first: mkdir -p {parent})"
+    return None
+
+
 def output_file(path: str | Path, what: str) -> Path:
-    """Make ``path`` ready to be written as a file: its missing parent folders are created.
+    """Check that ``path`` can be written as a file: its folder exists, it is not a folder.
 
     Parameters
     ----------
@@ -39,23 +63,17 @@ def output_file(path: str | Path, what: str) -> Path:
     Raises
     ------
     OutputPathError
-        ``path`` is a folder, or its parent folder cannot be created.
+        ``path`` is a folder, or its folder does not exist or is a file.
     """
     path = Path(path)
-    if path.is_dir():
-        raise OutputPathError(f"{what} {path}: is a folder; give a file name")
-    parent = path.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputPathError(f"{what} {path}: cannot create the folder {parent}: a file of that name is in the way") from None
-    except OSError as exc:
-        raise OutputPathError(f"{what} {path}: cannot create the folder {parent}: {_reason(exc)}") from None
+    problem = output_file_problem(path)
+    if problem is not None:
+        raise OutputPathError(f"{what} {path}: {problem}", problem)
     return path
 
 
 def output_folder(path: str | Path, what: str) -> Path:
-    """Create the folder ``path`` (and its missing parents) if it does not exist.
+    """Create the run folder ``path`` (and its missing parents) if it does not exist.
 
     Raises
     ------
@@ -66,9 +84,12 @@ def output_folder(path: str | Path, what: str) -> Path:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
-        raise OutputPathError(f"{what} {path}: is a file, not a folder") from None
+        reason = "is a file, not a folder"
+        raise OutputPathError(f"{what} {path}: {reason}", reason) from None
     except NotADirectoryError:
-        raise OutputPathError(f"{what} {path}: cannot create it: a file stands where one of its parent folders should be") from None
+        reason = "cannot create it: a file stands where one of its parent folders should be"
+        raise OutputPathError(f"{what} {path}: {reason}", reason) from None
     except OSError as exc:
-        raise OutputPathError(f"{what} {path}: cannot create it: {_reason(exc)}") from None
+        reason = f"cannot create it: {_reason(exc)}"
+        raise OutputPathError(f"{what} {path}: {reason}", reason) from None
     return path

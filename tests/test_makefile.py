@@ -17,7 +17,10 @@ pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="no make on
 
 
 def dry_run(target: str, venv: Path) -> list[str]:
-    proc = subprocess.run(["make", "-n", target, f"VENV={venv}"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    # run from `make test` itself: the outer make's flags would add "make[1]: Entering directory" lines
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS", "MAKEOVERRIDES")}
+    proc = subprocess.run(["make", "--no-print-directory", "-n", target, f"VENV={venv}"], cwd=REPO, capture_output=True,
+                          text=True, timeout=60, env=env)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     return proc.stdout.splitlines()
 

@@ -1,4 +1,5 @@
-"""Where the programs write: missing parent folders are created, anything else in the way is one
+"""Where the programs write: an output file goes into a folder that exists (a missing one is
+refused, never created); a run folder is created with its parents; anything in the way is one
 line naming the option and the path (exit 2), never a traceback — as real processes."""
 
 from __future__ import annotations
@@ -9,7 +10,6 @@ import sys
 import pytest
 
 from offboard.missions import MISSIONS_DIR
-from sitl_plant.link import TlogWriter
 from sitl_plant.paths import OutputPathError, output_file, output_folder
 
 BOX = str(MISSIONS_DIR / "px4-sitl-box.waypoints")
@@ -31,22 +31,29 @@ def blocker(tmp_path):
 @pytest.mark.parametrize(
     "argv, expected",
     [
+        (["-m", "offboard.cli", "mission", "convert", BOX, "{tmp}/missing/x.plan"],
+         "offboard mission: error: output {tmp}/missing/x.plan: the folder {tmp}/missing does not exist "
+         "(create it first: mkdir -p {tmp}/missing)"),
         (["-m", "offboard.cli", "mission", "convert", BOX, "{blocker}/x.plan"],
-         "offboard mission: error: output {blocker}/x.plan: cannot create the folder {blocker}: a file of that name is in the way"),
+         "offboard mission: error: output {blocker}/x.plan: {blocker} is a file, not a folder"),
         (["-m", "offboard.cli", "mission", "convert", BOX, "{tmp}"],
          "offboard mission: error: output {tmp}: is a folder; give a file name"),
         (["-m", "offboard.cli", "mission", "show", HELIX, "--plot", "{tmp}/out.txt"],
          "offboard mission: error: --plot {tmp}/out.txt: cannot tell a picture format from '.txt'; end the name in .png (or "),
+        (["-m", "offboard.cli", "mission", "show", HELIX, "--plot", "{tmp}/figs/helix.png"],
+         "offboard mission: error: --plot {tmp}/figs/helix.png: the folder {tmp}/figs does not exist"),
         (["-m", "offboard.cli", "simulate", str(MISSIONS_DIR / "paper-sim3.toml"), "--run-dir", "{blocker}"],
          "offboard simulate: error: --run-dir {blocker}: is a file, not a folder"),
         (["-m", "offboard.cli", "fly", HELIX, "--run-dir", "{blocker}"],
          "offboard fly: error: --run-dir {blocker}: is a file, not a folder"),
-        (["-m", "offboard.cli", "fly", HELIX, "--run-dir", "{tmp}/run", "--log", "{blocker}/x.tlog",
+        (["-m", "offboard.cli", "fly", HELIX, "--run-dir", "{tmp}/run", "--log", "{tmp}/missing/x.tlog",
           "--connect", "udpin:127.0.0.1:0"],
-         "offboard fly: error: --log {blocker}/x.tlog: cannot create the folder {blocker}: a file of that name is in the way"),
+         "offboard fly: error: --log {tmp}/missing/x.tlog: cannot write the log: the folder {tmp}/missing does not exist"),
         (["-m", "sitl_plant.cli", "--api-bind", "127.0.0.1:0", "--api-remote", "none", "--gcs-bind", "none",
-          "--log", "{blocker}/sub/x.tlog"],
-         "sitl-plant: error: --log {blocker}/sub/x.tlog: cannot create the folder {blocker}/sub: Not a directory"),
+          "--log", "{tmp}/missing/x.tlog"],
+         "sitl-plant: error: --log {tmp}/missing/x.tlog: cannot write the log: the folder {tmp}/missing does not exist"),
+        (["-m", "offboard.cli", "tune", "--vehicle", "sitl_plant/vehicles/paper-quad.toml", "--output", "{tmp}/missing/c.toml"],
+         "offboard tune: error: --output {tmp}/missing/c.toml: the folder {tmp}/missing does not exist"),
     ],
 )  # fmt: skip
 def test_an_unwritable_output_is_one_line(argv, expected, tmp_path, blocker):
@@ -57,6 +64,7 @@ def test_an_unwritable_output_is_one_line(argv, expected, tmp_path, blocker):
     lines = proc.stderr.splitlines()
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith(expected.format(**fill))
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "figs").exists()  # nothing created
 
 
 def test_nothing_is_flown_or_written_before_a_bad_output_is_refused(tmp_path, blocker):
@@ -66,22 +74,20 @@ def test_nothing_is_flown_or_written_before_a_bad_output_is_refused(tmp_path, bl
     assert blocker.read_text() == "not a folder\n"
 
 
-def test_missing_parent_folders_are_created(tmp_path):
-    out = tmp_path / "new" / "deeper" / "box.plan"
+def test_an_output_file_in_an_existing_folder_is_written(tmp_path):
+    out = tmp_path / "box.plan"
     proc = _run("-m", "offboard.cli", "mission", "convert", BOX, str(out))
     assert proc.returncode == 0, proc.stderr
     assert out.is_file() and '"fileType": "Plan"' in out.read_text()
-    log = TlogWriter(tmp_path / "logs" / "today" / "plant.tlog")  # sitl-plant --log and offboard fly --log
-    log.write(1, b"\xfd")
-    log.close()
-    assert (tmp_path / "logs" / "today" / "plant.tlog").stat().st_size == 9
 
 
 def test_the_helpers_say_what_is_in_the_way(tmp_path, blocker):
-    assert output_folder(tmp_path / "a" / "b", "--run-dir").is_dir()
-    assert output_file(tmp_path / "c" / "f.png", "--plot") == tmp_path / "c" / "f.png"
-    assert (tmp_path / "c").is_dir()
+    assert output_folder(tmp_path / "a" / "b", "--run-dir").is_dir()  # run folders: with their parents
+    assert output_file(tmp_path / "a" / "f.png", "--plot") == tmp_path / "a" / "f.png"
     with pytest.raises(OutputPathError, match="a file stands where one of its parent folders should be"):
         output_folder(blocker / "x" / "y", "--run-dir")
     with pytest.raises(OSError):  # callers may catch it as the builtin
         output_file(tmp_path, "output")
+    with pytest.raises(OutputPathError, match="does not exist"):
+        output_file(tmp_path / "new" / "f.png", "--plot")
+    assert not (tmp_path / "new").exists()
