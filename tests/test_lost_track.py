@@ -3,6 +3,7 @@ flight that ends far off its reference is LOST_TRACK (exit 9), not complete."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 
@@ -10,11 +11,10 @@ import numpy as np
 import pytest
 
 from offboard.clockrate import CHECK_SPAN_S, ClockRateMeter
-from offboard.inprocess import run_scenario
 from offboard.metrics import LOST_TRACK_M, check_tracking, end_error_m
 from offboard.missions import MISSIONS_DIR
 from offboard.record import COLUMNS, FlightStatus, RecordBuilder
-from offboard.scenario import load_scenario
+from test_docs_figures import flown
 from test_fly_support import ENV, PY, fly, read_tlog, write_mission
 
 
@@ -109,7 +109,8 @@ def test_an_earlier_status_is_kept():
 )
 def test_the_threshold_separates_the_bundled_scenarios(name, end_m):
     """The figures metrics.LOST_TRACK_M's comment quotes."""
-    record = run_scenario(load_scenario(MISSIONS_DIR / name))
+    # run_scenario's record (shared with tests/test_docs_figures.py, run once), copied: the verdict marks its copy
+    record = dataclasses.replace(flown(name)[0])
     assert record.status is FlightStatus.COMPLETE  # what run_scenario alone says
     assert end_error_m(record) == pytest.approx(end_m, rel=0.05, abs=0.01)
     lost = end_m > LOST_TRACK_M
