@@ -12,7 +12,7 @@ RUN    ?= runs/demo-$(shell date +%Y%m%d-%H%M%S)
 PIP    := $(PY) -m pip install --disable-pip-version-check --progress-bar off
 export MPLBACKEND := Agg
 
-.PHONY: demo test bench install clean
+.PHONY: demo test test-fast bench install clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "make: creating the virtual environment $(VENV)"; $(PYTHON) -m venv $(VENV); }
@@ -33,6 +33,10 @@ demo: $(STAMP)
 
 test: $(TEST_STAMP)
 	$(PY) -m pytest -q
+
+# the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
+test-fast: $(TEST_STAMP)
+	$(PY) -m pytest -q tests/unit -m "not slow and not e2e"
 
 # the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
 bench: $(STAMP)

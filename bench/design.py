@@ -2,15 +2,19 @@
 
 Every flight is two real processes (or ``offboard fly`` and a real PX4 SITL), exactly as a user
 flies them, with the attitude output: Table I's gains (``--controller paper``) against the gains
-``offboard fly`` designs for the vehicle's inner loop (no ``--controller``; docs/controller-design.md).
+``offboard fly`` designs for the vehicle's inner loop (no ``--controller``; docs/controller-design.md),
+and the baselines (``--controller se3``, ``--controller px4``) sending the same SET_ATTITUDE_TARGET
+at the same rate through the same attitude loop.
 
-- ``sitl-plant`` in lockstep: every bundled mission, both controllers;
+- ``sitl-plant`` in lockstep: every bundled mission, every controller;
 - ``sitl-plant`` in real time (``make demo``'s setting): the paper helix, both controllers, with
   and without 50 +- 20 ms of delay each way (``bench/linkdelay.py``); with the delay, the design
   allowing for the latency it measured (TIMESYNC) and for a wrong 10 ms (``--design-latency``);
+  the baselines with the delay;
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
-  mission with the designed gains, the helix with Table I's, and the helix and the square with
-  PX4 at ``--speed 4`` (``offboard fly --clock vehicle``).
+  mission with the designed gains, the helix with Table I's, the helix and the square with the
+  baselines, and the helix and the square with PX4 at ``--speed 4`` (``offboard fly --clock
+  vehicle``).
 
 Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
 5 s, without each phase's last 0.1 s: on the helix, 5-11.9 s); the largest tilt in the second
@@ -34,6 +38,8 @@ MISSIONS = ROOT / "missions"
 FLY_MISSIONS = ("paper-helix.toml", "paper-square.toml", "figure-eight.toml", "all-segments.toml",
                 "px4-sitl-box.waypoints", "px4-sitl-survey.plan")  # fmt: skip
 DELAY_S, JITTER_S = 0.05, 0.02
+#: ``offboard fly --controller`` words of the baselines (``offboard.controllers``).
+BASELINES = ("se3", "px4")
 
 
 def figures(run_dir: Path) -> dict:
@@ -144,7 +150,7 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
     missions = FLY_MISSIONS[:1] if quick else FLY_MISSIONS
     k = 0
     for name in missions:
-        for controller in ("paper", None):
+        for controller in ("paper", None, *BASELINES):
             k += 1
             record("sitl-plant", name, controller, "lockstep",
                    fly_plant(MISSIONS / name, work / f"f{k}", controller=controller, lockstep=True))  # fmt: skip
@@ -156,6 +162,7 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
             ("paper", True, None, "real time, 50 +- 20 ms delay"),
             (None, True, None, "real time, 50 +- 20 ms delay (latency measured)"),
             (None, True, 0.01, "real time, 50 +- 20 ms delay, designed for 10 ms"),
+            *((b, True, None, "real time, 50 +- 20 ms delay") for b in BASELINES),
         ):
             k += 1
             record("sitl-plant", helix.name, controller, condition,
@@ -168,6 +175,11 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
                 record("real PX4", name, None, "real time", fly_px4(MISSIONS / name, work / f"f{k}", controller=None))
             k += 1
             record("real PX4", helix.name, "paper", "real time", fly_px4(helix, work / f"f{k}", controller="paper"))
+            for name in ("paper-helix.toml", "paper-square.toml"):
+                for baseline in BASELINES:
+                    k += 1
+                    record("real PX4", name, baseline, "real time",
+                           fly_px4(MISSIONS / name, work / f"f{k}", controller=baseline))  # fmt: skip
             for name in ("paper-helix.toml", "paper-square.toml"):
                 k += 1
                 record("real PX4", name, None, "--speed 4, vehicle clock",
@@ -186,7 +198,8 @@ def markdown(result: dict) -> str:
         "",
         "Each flight: `offboard fly` (attitude output) against `sitl-plant` or a real PX4 SITL, as a user flies it;",
         "`paper` is Table I's gains (`--controller paper`), `designed` the default, gains designed for the vehicle's",
-        "inner loop (docs/controller-design.md). Moving RMS: 3D error while the reference moves, after 5 s",
+        "inner loop (docs/controller-design.md); `se3` and `px4` the baselines (`--controller se3|px4`), sending the",
+        "same SET_ATTITUDE_TARGET at the same rate. Moving RMS: 3D error while the reference moves, after 5 s",
         "(helix: 5-11.9 s); hold tilt and hold RMS: the second half of every hold, over 0.5 m above the start.",
         "",
         "| vehicle | mission | controller | condition | status | moving RMS m | hold tilt max ° | hold RMS m | peak tilt ° |",

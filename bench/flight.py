@@ -1,26 +1,22 @@
-"""One closed-loop flight in process, any pilot, on the rigid body: the tracking benchmark's unit.
+"""One closed-loop flight in process, any controller, on the rigid body: the tracking benchmark's unit.
 
-The loop is ``offboard.inprocess.run_scenario``'s (sample the truth through the sensor model
-every To, run the controller, hold its actuation for the sample), with the pilot choosing the
-actuation and ``sitl_plant.dynamics.batch.FastRigidBodySim`` (the compiled twin of
-``VehicleSim``) stepping the physics; ``fast=False`` uses ``VehicleSim`` itself.
+``offboard.inprocess.simulate`` flies it (the one simulation loop), with the compiled rigid body
+(``sitl_plant.dynamics.batch.FastRigidBodySim``; ``fast=False``: ``VehicleSim`` itself); this
+module only starts the vehicle where the benchmark wants it and reads the arrays it tabulates.
 """
 
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from offboard.controller.command import Controller
+from offboard.inprocess import Drive, simulate
+from offboard.record import FlightStatus
 from offboard.trajectory.base import Trajectory
-from sitl_plant.dynamics.batch import FastRigidBodySim
-from sitl_plant.dynamics.integrate import steps_per_period
-from sitl_plant.dynamics.rigid_body import ROTORS, RigidBodyModel, hover_rotor_speed
 from sitl_plant.dynamics.sensors import sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
-from sitl_plant.simulation import VehicleSim
 from sitl_plant.vehicle import VehicleParams
 
 PHYSICS_DT_S = 1e-3
@@ -45,7 +41,8 @@ class FlightResult:
 
 
 def fly(
-    pilot,  # noqa: ANN001 - bench.pilots.Pilot
+    controller: Controller,
+    drive: Drive,
     trajectory: Trajectory,
     vehicle: VehicleParams,
     *,
@@ -55,62 +52,30 @@ def fly(
     seed: int = 1,
     start_at_reference: bool = True,
     fast: bool = True,
-    sample_time_s: float = 0.05,
 ) -> FlightResult:
-    """Fly ``trajectory`` with ``pilot``; see the module docstring.
+    """Fly ``trajectory`` with ``controller`` through ``drive``; see the module docstring.
 
     ``start_at_reference``: the vehicle starts at rest at the reference's position and heading
     at t = 0, rotors at hover speed (on the ground if that position is on the ground).
     """
-    model = RigidBodyModel(vehicle)
     ref0 = trajectory.reference(0.0)
     start = np.array(ref0.pos_ned_m, dtype=float) if start_at_reference else np.zeros(3)
     start[2] = min(start[2], 0.0)
-    cls = FastRigidBodySim if fast else VehicleSim
-    sim = cls(
-        model, physics_dt_s=PHYSICS_DT_S, wind=None if wind == "none" else wind_from_spec(wind, seed),
+    result = simulate(
+        vehicle, controller, trajectory, drive=drive, physics_dt_s=PHYSICS_DT_S, duration_s=duration_s,
+        sensors=sensors_from_spec(sensors, seed), wind=None if wind == "none" else wind_from_spec(wind, seed),
         initial_pos_ned_m=start, initial_yaw_rad=ref0.yaw_rad if start_at_reference else 0.0,
+        hovering=start_at_reference, fast=fast,
     )  # fmt: skip
-    if start_at_reference and start[2] < 0.0:
-        sim.x[ROTORS] = hover_rotor_speed(vehicle)  # hovering at the start, not falling
-    pilot.bind(model)
-    meter = sensors_from_spec(sensors, seed)
-    n_physics = steps_per_period(sample_time_s, PHYSICS_DT_S)
-    duration = trajectory.duration_s if duration_s is None else duration_s
-    samples = int(round(duration / sample_time_s))
-    t_out, pos, ref, tilt, thrust, cost = [], [], [], [], [], []
-    diverged = None
-    physics_wall_s = 0.0
-    ref_next = trajectory.reference(0.0)
-    for n in range(samples + 1):
-        t = n * sample_time_s
-        ref_now, ref_next = ref_next, trajectory.reference((n + 1) * sample_time_s)
-        truth = sim.truth()
-        phi, theta = float(truth.euler_rad[0]), float(truth.euler_rad[1])
-        if (not all(map(math.isfinite, sim.x.tolist())) or math.cos(phi) * math.cos(theta) <= 0.0
-                or max(map(abs, truth.pos_ned_m.tolist())) > 1e4):  # fmt: skip
-            diverged = t
-            break
-        actuation = pilot.command(meter.measure(truth), ref_now, ref_next)
-        t_out.append(t)
-        pos.append(truth.pos_ned_m)
-        ref.append(ref_now.pos_ned_m)
-        tilt.append(math.acos(max(-1.0, min(1.0, math.cos(phi) * math.cos(theta)))))
-        thrust.append(pilot.thrust_n)
-        cost.append(pilot.cost_s)
-        if n == samples:
-            break
-        sim.actuation = actuation
-        try:
-            with np.errstate(divide="raise", over="raise", invalid="raise"):
-                start_physics = time.perf_counter()
-                sim.step(n_physics)
-                physics_wall_s += time.perf_counter() - start_physics
-        except (ArithmeticError, FloatingPointError, np.linalg.LinAlgError):
-            diverged = t
-            break
+    record = result.record
+    euler = record["euler_rad"]
+    n = len(record)
+    t = record["t_s"]
+    diverged = None if record.status is FlightStatus.COMPLETE else result.ended_at_s
     return FlightResult(
-        t_s=np.array(t_out), pos_ned_m=np.array(pos).reshape(-1, 3), ref_ned_m=np.array(ref).reshape(-1, 3),
-        tilt_rad=np.array(tilt), thrust_n=np.array(thrust), cost_s=np.array(cost), diverged_at_s=diverged,
-        physics_wall_s=physics_wall_s,
+        t_s=np.asarray(t, dtype=float), pos_ned_m=record["pos_ned_m"].reshape(-1, 3),
+        ref_ned_m=record["ref_pos_ned_m"].reshape(-1, 3),
+        tilt_rad=np.arccos(np.clip(np.cos(euler[:, 0]) * np.cos(euler[:, 1]), -1.0, 1.0)) if n else np.zeros(0),
+        thrust_n=np.asarray(record["thrust_n"], dtype=float), cost_s=result.step_cost_s, diverged_at_s=diverged,
+        physics_wall_s=result.physics_wall_s,
     )  # fmt: skip

@@ -1,31 +1,37 @@
-"""The controllers of the comparison, each wrapped as a *pilot*: measured state in, actuation out.
+"""The controllers of the comparison, each with the vehicle loop it flies through in-process.
 
-A pilot runs its controller's outer step once per control sample (``command``) and returns the
-actuation ``VehicleSim``/``FastRigidBodySim`` applies at every physics step until the next
-sample: that is the controller's own inner loop.
+Two comparisons (``bench.tracking.LOOPS``):
 
-- ``paper``: the paper's law (``RosalesController``, yaw-aware, limits), tau~ held and eq. 16
-  applied at the physics rate with the believed inertia (``EulerAccelActuation``, the plant's
-  ``paper`` inner loop; ``offboard simulate --drive inner-loop``).
-- ``se3``: ``offboard.baselines.SE3Controller``; its attitude law (Lee eq. 16) at the physics rate.
-- ``px4``: ``offboard.baselines.Px4PositionController``; its attitude setpoint flown by the
-  plant's PX4 attitude and rate controllers (``sitl_plant.inner_loops.Px4Loop``) at the physics rate.
+- **through PX4's attitude loop** (``flown_controller``): every controller built as ``offboard
+  fly`` builds it for the vehicle (``offboard.flight.resolve_controller``: the belief, PX4's
+  12 % thrust floor, the 35 deg tilt limit; the law with Table I's gains and with the gains
+  designed for the vehicle's inner loop), its attitude target flown by PX4's attitude and rate
+  controllers at the physics rate (``Drive.PX4``): what ``offboard fly --controller K`` through
+  sitl-plant's px4 inner loop flies, to float32 rounding (tests/unit/offboard/test_controller_contract.py);
+- **each controller's own inner loop** (``contender``), an in-process study:
+
+  every controller is built by ``offboard.controllers.make_controller`` from one belief
+  (``belief_params``: the same mass, inertia, thrust range, tilt limit and To) and flown by
+  ``offboard.inprocess.simulate`` with a drive (``offboard.inprocess.Drive``):
+
+- ``paper``: the paper's law (yaw-aware, limits), tau~ held and eq. 16 applied at the physics
+  rate with the believed inertia (``inner-loop``, the plant's ``paper`` inner loop;
+  ``offboard simulate --drive inner-loop``); ``paper+i`` with the integral action;
+- ``se3``: Lee's SE(3) controller, its attitude law (Lee eq. 16) at the physics rate
+  (``attitude-law``);
+- ``px4``: PX4's position cascade, its attitude setpoint flown by the plant's PX4 attitude and
+  rate controllers (``sitl_plant.inner_loops.Px4Loop``) at the physics rate (``px4``).
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
-import numpy as np
-
-from offboard.baselines import Px4Gains, Px4PositionController, SE3Controller
-from offboard.controller import ActionLimits, ControllerParams, RosalesController
-from offboard.frames import euler_rates_from_body_rates, paper_state, tracking_reference
-from offboard.trajectory.base import Reference
-from sitl_plant.simulation import EulerAccelActuation
-from sitl_plant.state import VehicleState
+from offboard.controller import ActionLimits, ControllerParams
+from offboard.controller.command import Controller
+from offboard.controllers import make_controller
+from offboard.inprocess import Drive
 from sitl_plant.vehicle import VehicleParams
 
 SAMPLE_TIME_S = 0.05  # the paper's To, for every controller
@@ -44,101 +50,52 @@ class Belief:
 NOMINAL = Belief()
 TABLE_II = Belief(mass_kg=0.6, inertia_kg_m2=(2.7e-3, 4.8e-3, 8.9e-3))
 
-
-class Pilot:
-    """Base: ``command(measured, ref_n, ref_n1) -> actuation``; ``thrust_n`` and ``cost_s`` of the last.
-
-    ``ref_n``, ``ref_n1``: the references at this sample and the next (the paper's law uses both).
-    """
-
-    name = ""
-    thrust_n = 0.0
-    cost_s = 0.0
-
-    def bind(self, model: object) -> None:
-        """Called once with the simulated model before the flight."""
+#: The drive each controller flies through in the in-process comparison (module docstring).
+DRIVES = {"paper": Drive.INNER_LOOP, "paper+i": Drive.INNER_LOOP, "se3": Drive.ATTITUDE_LAW, "px4": Drive.PX4}
 
 
-class PaperPilot(Pilot):
-    def __init__(self, belief: Belief, *, integral_gain_per_s: float = 0.0, name: str = "paper") -> None:
-        extra = {"integral_gain_per_s": integral_gain_per_s} if integral_gain_per_s > 0 else {}
-        self.params = ControllerParams(
-            sample_time_s=SAMPLE_TIME_S,
-            mass_kg=belief.mass_kg,
-            inertia_kg_m2=belief.inertia_kg_m2,
-            euler_rate_form="zyx",  # a rigid body's Euler-rate map (paper-sim1-rigid-body.toml)
-            yaw_aware=True,
-            limits=ActionLimits(thrust_min_n=0.0, thrust_max_n=THRUST_MAX_N, tilt_max_rad=math.radians(TILT_MAX_DEG)),
-            **extra,  # type: ignore[arg-type]
-        )
-        self.name = name
-        self.controller = RosalesController(self.params)
-        self._inertia = np.diag(self.params.inertia_kg_m2)
-
-    def command(self, measured: VehicleState, ref_n: Reference, ref_n1: Reference) -> EulerAccelActuation:
-        p = self.params
-        rates = euler_rates_from_body_rates(measured.euler_rad, measured.body_rate_frd_rad_s, p.euler_rate_form)
-        x = paper_state(measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, rates)
-        ref_n, ref_n1 = tracking_reference(ref_n), tracking_reference(ref_n1)
-        start = time.perf_counter()
-        out = self.controller.step(x, ref_n, ref_n1)
-        self.cost_s = time.perf_counter() - start
-        self.thrust_n = out.law.thrust_n
-        return EulerAccelActuation(out.law.thrust_n, np.array(out.law.tau_tilde), self._inertia, p.euler_rate_form)
+def belief_params(belief: Belief, *, integral_gain_per_s: float = 0.0) -> ControllerParams:
+    """The one ``ControllerParams`` every contender is built from (Table I's gains for the law)."""
+    extra = {"integral_gain_per_s": integral_gain_per_s} if integral_gain_per_s > 0 else {}
+    return ControllerParams(
+        sample_time_s=SAMPLE_TIME_S,
+        mass_kg=belief.mass_kg,
+        inertia_kg_m2=belief.inertia_kg_m2,
+        euler_rate_form="zyx",  # a rigid body's Euler-rate map (paper-sim1-rigid-body.toml)
+        yaw_aware=True,
+        limits=ActionLimits(thrust_min_n=0.0, thrust_max_n=THRUST_MAX_N, tilt_max_rad=math.radians(TILT_MAX_DEG)),
+        **extra,  # type: ignore[arg-type]
+    )
 
 
-class Se3Pilot(Pilot):
-    name = "se3"
-
-    def __init__(self, belief: Belief) -> None:
-        self.controller = SE3Controller(
-            belief.mass_kg, belief.inertia_kg_m2, thrust_min_n=0.0, thrust_max_n=THRUST_MAX_N,
-            tilt_max_rad=math.radians(TILT_MAX_DEG),
-        )  # fmt: skip
-
-    def command(self, measured: VehicleState, reference: Reference, ref_n1: Reference):  # noqa: ANN201
-        start = time.perf_counter()
-        target = self.controller.step(measured, reference)
-        self.cost_s = time.perf_counter() - start
-        self.thrust_n = target.thrust_n
-        return self.controller.actuation(target)
+def contender(kind: str, belief: Belief, integral_gain_per_s: float = 0.0) -> tuple[Controller, Drive]:
+    """The ``kind`` controller (``paper``, ``paper+i``, ``se3``, ``px4``) and its drive."""
+    if kind not in DRIVES:
+        raise ValueError(f"unknown controller {kind!r}")
+    params = belief_params(belief, integral_gain_per_s=integral_gain_per_s if kind == "paper+i" else 0.0)
+    controller = make_controller("paper" if kind.startswith("paper") else kind, params)
+    controller.name = kind
+    return controller, DRIVES[kind]
 
 
-class Px4Pilot(Pilot):
-    name = "px4"
+def flown_controller(kind: str, belief: Belief, vehicle: VehicleParams) -> Controller:
+    """``kind`` (``paper``: Table I's gains; ``paper-designed``: the gains ``offboard fly`` designs
+    for the vehicle, lockstep latency 0; ``se3``; ``px4``) as ``offboard fly`` builds it."""
+    from offboard.codec import Scaling
+    from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+    from offboard.flight import ControllerChoice, resolve_controller
+    from sitl_plant.params import plant_params
 
-    def __init__(self, belief: Belief) -> None:
-        self.controller = Px4PositionController(
-            belief.mass_kg, SAMPLE_TIME_S, Px4Gains(tilt_max_rad=math.radians(TILT_MAX_DEG)),
-            thrust_min_n=0.0, thrust_max_n=THRUST_MAX_N,
-        )  # fmt: skip
-        self.loop = None
-
-    def bind(self, model: object) -> None:
-        from sitl_plant.inner_loops import Px4Loop
-        from sitl_plant.params import plant_params
-
-        vehicle: VehicleParams = model.params  # type: ignore[attr-defined]
-        self.loop = Px4Loop(plant_params(vehicle), model, 1e-3)  # type: ignore[arg-type]
-        self.loop.landed = False
-
-    def command(self, measured: VehicleState, reference: Reference, ref_n1: Reference):  # noqa: ANN201
-        start = time.perf_counter()
-        target = self.controller.step(measured, reference)
-        self.cost_s = time.perf_counter() - start
-        self.thrust_n = target.thrust_n
-        assert self.loop is not None
-        self.loop.fly_attitude(target.quat_wxyz, target.thrust_n, target.yaw_rate_ff_rad_s)
-        return self.loop
-
-
-def make_pilot(kind: str, belief: Belief, integral_gain_per_s: float = 0.0) -> Pilot:
-    if kind == "paper":
-        return PaperPilot(belief)
-    if kind == "paper+i":
-        return PaperPilot(belief, integral_gain_per_s=integral_gain_per_s, name="paper+i")
-    if kind == "se3":
-        return Se3Pilot(belief)
-    if kind == "px4":
-        return Px4Pilot(belief)
-    raise ValueError(f"unknown controller {kind!r}")
+    table = plant_params(vehicle)
+    values = {name: table[name] for name in table}
+    base = load_controller(PAPER_CONTROLLER_FILE)
+    from_file = belief != NOMINAL  # a controller file with the belief (Table II): the file's mass and inertia
+    if from_file:
+        base = base.with_changes(mass_kg=belief.mass_kg, inertia_kg_m2=belief.inertia_kg_m2)
+    law = "paper" if kind.startswith("paper") else kind
+    choice = ControllerChoice(base=base, kind=law, from_file=from_file, tuned=kind == "paper-designed", latency_s=0.0,
+                              yaw_aware=True)
+    params, _ = resolve_controller(choice, "rigid-body", values, Scaling(values["SIM_THR_MAX"]))
+    controller = make_controller(law, params)
+    controller.name = kind
+    return controller

@@ -121,22 +121,22 @@ FAST_REPEATS = 5
 def physics_one_vehicle(duration_s: float, reference_duration_s: float, rotorpy_duration_s: float) -> dict:
     """Sim-s per wall-s of the helix flight (paper's law at 20 Hz, 1 kHz RK4), three ways."""
     from bench.flight import fly
-    from bench.pilots import NOMINAL, PaperPilot
+    from bench.pilots import NOMINAL, contender
     from sitl_plant.dynamics import batch
     from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
     vehicle = load_vehicle(PAPER_VEHICLE_FILE)
     trajectory = _helix()
-    fly(PaperPilot(NOMINAL), trajectory, vehicle, duration_s=0.2)  # compile / warm caches
+    fly(*contender("paper", NOMINAL), trajectory, vehicle, duration_s=0.2)  # compile / warm caches
     rates, physics_rates = [], []
     for _ in range(FAST_REPEATS):  # the median of a few flights: one is a few tens of ms
         start = time.perf_counter()
-        fast = fly(PaperPilot(NOMINAL), trajectory, vehicle, duration_s=duration_s)
+        fast = fly(*contender("paper", NOMINAL), trajectory, vehicle, duration_s=duration_s)
         rates.append(duration_s / (time.perf_counter() - start))
         physics_rates.append(duration_s / fast.physics_wall_s)
     fast_rate = statistics.median(rates)
     start = time.perf_counter()
-    ref = fly(PaperPilot(NOMINAL), trajectory, vehicle, duration_s=reference_duration_s, fast=False)
+    ref = fly(*contender("paper", NOMINAL), trajectory, vehicle, duration_s=reference_duration_s, fast=False)
     ref_rate = reference_duration_s / (time.perf_counter() - start)
     n = len(ref.t_s)
     deviation = float(np.max(np.abs(ref.pos_ned_m - fast.pos_ned_m[:n])))
@@ -159,11 +159,11 @@ def _no_numba_rate(duration_s: float) -> float | None:
     """The same fast loop with the kernels interpreted (SITL_PLANT_NO_NUMBA=1), in a subprocess."""
     code = (
         "import sys,time; sys.path.insert(0, %r)\n"
-        "from bench.flight import fly; from bench.pilots import PaperPilot, NOMINAL\n"
+        "from bench.flight import fly; from bench.pilots import contender, NOMINAL\n"
         "from bench.speed import _helix\n"
         "from sitl_plant.vehicle import load_vehicle, PAPER_VEHICLE_FILE\n"
         "v = load_vehicle(PAPER_VEHICLE_FILE); tr = _helix()\n"
-        "s = time.perf_counter(); fly(PaperPilot(NOMINAL), tr, v, duration_s=%r)\n"
+        "s = time.perf_counter(); fly(*contender('paper', NOMINAL), tr, v, duration_s=%r)\n"
         "print(%r / (time.perf_counter() - s))\n"
     ) % (str(ROOT), duration_s, duration_s)
     env = dict(os.environ, SITL_PLANT_NO_NUMBA="1")
@@ -204,7 +204,8 @@ def _rotorpy_rate(duration_s: float, vehicle, trajectory) -> dict:  # noqa: ANN0
         return {"rotorpy": None}
     from importlib import metadata
 
-    from bench.pilots import NOMINAL, PaperPilot
+    from bench.pilots import NOMINAL, contender
+    from offboard.inprocess import vehicle_loop
     from sitl_plant.dynamics.rigid_body import hover_rotor_speed, rotor_speeds_for
     from sitl_plant.dynamics.rotations import euler_from_quat
     from sitl_plant.state import VehicleState
@@ -221,7 +222,8 @@ def _rotorpy_rate(duration_s: float, vehicle, trajectory) -> dict:  # noqa: ANN0
              "w": np.zeros(3), "wind": np.zeros(3), "rotor_speeds": np.full(4, speed)}  # fmt: skip
     quad = Multirotor(rotorpy_quad_params(vehicle), initial_state=state, control_abstraction="cmd_motor_speeds",
                       aero=False, enable_ground=False)  # fmt: skip
-    pilot = PaperPilot(NOMINAL)
+    controller, drive = contender("paper", NOMINAL)
+    inner_loop = vehicle_loop(drive, controller, vehicle)
     samples = int(round(duration_s / 0.05))
     physics_s = 0.0
     errors = []
@@ -235,7 +237,7 @@ def _rotorpy_rate(duration_s: float, vehicle, trajectory) -> dict:  # noqa: ANN0
         vel = ned_enu @ state["v"]
         measured = VehicleState(t, ned_enu @ state["x"], vel, np.zeros(3), eta, np.zeros(3), w, q)
         errors.append(float(np.linalg.norm(measured.pos_ned_m - trajectory.reference(t).pos_ned_m)))
-        act = pilot.command(measured, trajectory.reference(t), trajectory.reference(t + 0.05))
+        act = inner_loop.actuation(controller.step(measured, trajectory.reference(t), trajectory.reference(t + 0.05)), None)  # type: ignore[arg-type]
         model = _EulerReader()
         for _ in range(50):
             r = ned_enu @ Rotation.from_quat(state["q"]).as_matrix() @ flu

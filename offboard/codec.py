@@ -3,10 +3,10 @@
 Incoming: ATTITUDE and LOCAL_POSITION_NED become a ``MeasuredState`` (NED/FRD), which
 ``controller_state`` turns into the paper's 12-state (``offboard.frames``); HEARTBEAT,
 COMMAND_ACK, PARAM_VALUE and TIMESYNC become small typed values.
-Outgoing: the law's output becomes SET_ATTITUDE_TARGET (``attitude_setpoint``) or
-SET_ACTUATOR_CONTROL_TARGET (``actuator_setpoint``) fields — ``law_setpoint`` chooses between
-them and is the one encoding both ``offboard fly`` and ``offboard replay --rerun`` use, so a
-re-run compares like with like — and commands are built as COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
+Outgoing: a controller's ``Command`` (``offboard.controller.command``) becomes
+SET_ATTITUDE_TARGET or SET_ACTUATOR_CONTROL_TARGET fields by ``command_setpoint``, the one
+encoding both ``offboard fly`` and ``offboard replay --rerun`` use, so a re-run compares like with
+like; commands are built as COMMAND_LONG. Every function is testable with pymavlink's ``pack()`` and ``parse_buffer()``.
 
 Frames and units are MAVLink's: NED metres, FRD body rates in rad/s, the quaternion (w, x, y, z)
 rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboard.md):
@@ -21,7 +21,7 @@ rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboar
     get its rates from the PX4 attitude P there, docs/plant.md), so the flight reproduces the
     in-process run; ``--inner-loop px4`` flies the same rates with PX4's rate controller.
   - rigid body (PX4): q = the attitude with the law's thrust axis and the heading x11d(n+1)
-    (``setpoint_attitude``); PX4 flies q and reads ``body_yaw_rate`` as the yaw-rate
+    (``offboard.frames.setpoint_attitude``); PX4 flies q and reads ``body_yaw_rate`` as the yaw-rate
     feed-forward (``yaw_sp_move_rate``, a world-frame rate, added to its own yaw P), so that field
     carries the reference's yaw rate (``LawOutput.yaw_rate_ff_rad_s``: 0 at a step, where x12ref,
     which holds the law's yaw-error feedback, asked for 63 rad/s at the paper's pi step) and the
@@ -43,10 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from offboard.controller.law import ControlOutput
-from offboard.controller.params import ControllerParams
-from offboard.frames import body_rates_from_euler_rates, euler_rates_from_body_rates, paper_state
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+from offboard.controller.command import VEHICLE_MODELS, Command, require
+from offboard.frames import euler_rates_from_body_rates, paper_state
 from sitl_plant.dynamics.rotations import quat_from_euler
 
 MAVLinkMessage = mavlink.MAVLink_message
@@ -60,8 +58,8 @@ PX4_MAIN_MODES = {1: "Manual", 2: "Altitude", 3: "Position", 4: "Auto", 5: "Acro
 PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Return", 6: "Land", 8: "Follow", 9: "Precland"}
 
 #: The vehicle models the offboard process knows how to talk to (``--model``).
-MODELS = ("rigid-body", "paper")
-#: The setpoint messages the law's output can travel in (``--output``; ``law_setpoint``): an
+MODELS = VEHICLE_MODELS
+#: The setpoint messages the law's output can travel in (``--output``; ``command_setpoint``): an
 #: attitude and thrust, body rates and thrust (both SET_ATTITUDE_TARGET, as PX4 takes them), or
 #: SET_ACTUATOR_CONTROL_TARGET torques.
 OUTPUTS = ("attitude", "rates", "actuator")
@@ -99,6 +97,11 @@ class MeasuredState:
     vel_ned_m_s: np.ndarray
     euler_rad: np.ndarray
     body_rate_frd_rad_s: np.ndarray
+
+    @property
+    def quat_wxyz(self) -> np.ndarray:
+        """The attitude (body FRD -> NED) of the reported ZYX angles."""
+        return quat_from_euler(float(self.euler_rad[0]), float(self.euler_rad[1]), float(self.euler_rad[2]))
 
 
 def check_attitude(msg: MAVLinkMessage) -> None:
@@ -215,160 +218,52 @@ def thrust_norm(thrust_n: float, scaling: Scaling) -> float:
     return min(max(thrust_n / scaling.thrust_max_n, 0.0), 1.0)
 
 
-def tilt_about_heading(roll_rad: float, pitch_rad: float, heading_from_rad: float, heading_to_rad: float) -> tuple[float, float]:
-    """(roll, pitch) that give, at heading ``heading_to``, the thrust axis that (roll, pitch) give
-    at heading ``heading_from`` (ZYX angles, rigid body: the thrust axis is body z).
 
-    The body z axis of ``Rz(h) Ry(pitch) Rx(roll)`` is ``Rz(h) (cos r sin p, -sin r, cos r cos p)``;
-    the angles are solved for the same axis under ``Rz(heading_to)``. Identity when the headings
-    are equal.
-    """
-    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
-    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
-    d = heading_from_rad - heading_to_rad
-    cd, sd = math.cos(d), math.sin(d)
-    vx0, vy0, vz = cr * sp, -sr, cr * cp  # body z at heading 0
-    vx, vy = cd * vx0 - sd * vy0, sd * vx0 + cd * vy0  # ... turned by heading_from - heading_to
-    return math.atan2(-vy, math.hypot(vx, vz)), math.atan2(vx, vz)
+def command_setpoint(command: Command, scaling: Scaling, *, output: str, model: str, controller: str = "") -> AttitudeSetpoint | ActuatorSetpoint:
+    """The setpoint of one mission sample: a controller's command as the message fields that carry it.
 
+    The one encoding of a command: ``offboard.flight`` sends it, ``offboard.replay``'s re-run
+    compares it with the log, so both turn the same command into the same fields.
 
-def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: float, law_heading_rad: float, model: str) -> np.ndarray:
-    """The setpoint quaternion (w, x, y, z) for the law's angle references.
+    - ``attitude`` on a rigid body: SET_ATTITUDE_TARGET with the attitude target, the yaw-rate
+      feed-forward in the body yaw rate and the roll and pitch rates ignored (PX4's attitude
+      controller flies it); on the paper's model (whose plant flies body rates with its paper
+      inner loop): the attitude target and the body-rate target, attitude ignored;
+    - ``rates``: body rates and thrust, attitude ignored (q carries the asked-for attitude
+      ``attitude_ref_euler_rad`` for the log), as PX4 flies it with its rate controller;
+    - ``actuator``: SET_ACTUATOR_CONTROL_TARGET group 0, ``torque_nm`` normalised by
+      ``SIM_TQ_RP_MAX``/``SIM_TQ_Y_MAX`` and clipped to [-1, 1].
 
-    The law computes x7ez and x9ez about a heading: the measured yaw with the yaw-aware option, 0
-    without (eq. 18 ignores yaw). On a rigid body, whose thrust turns with yaw, the setpoint keeps
-    that thrust axis and asks for the heading ``yaw_ref`` (PX4 tracks the thrust axis first and the
-    heading after), so a large yaw step does not swing the thrust round with the reference. On the
-    paper's model the thrust direction depends on (phi, theta) only (eq. 18): the plain ZYX
-    quaternion of (x7ez, x9ez, yaw_ref).
-    """
-    roll, pitch = roll_ref_rad, pitch_ref_rad
-    if model == "rigid-body":
-        roll, pitch = tilt_about_heading(roll_ref_rad, pitch_ref_rad, law_heading_rad, yaw_ref_rad)
-    return quat_from_euler(roll, pitch, yaw_ref_rad)
-
-
-def attitude_setpoint(
-    out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling, *, model: str = "paper", yaw_aware: bool = False
-) -> AttitudeSetpoint:
-    """The ``attitude`` output of one sample (module docstring).
-
-    Parameters
-    ----------
-    out : ControlOutput
-        The controller's output for sample n.
-    euler_rad : ndarray (3,)
-        The measured attitude of sample n, at which W_eta maps the Euler-rate references.
-    euler_rate_form : str
-        The controller's W_eta form.
-    scaling : Scaling
-    model : str
-        ``rigid-body`` or ``paper`` (``setpoint_attitude``).
-    yaw_aware : bool
-        Whether the law computed its angles about the measured heading (else about 0).
-    """
-    law = out.law
-    heading = float(euler_rad[2]) if yaw_aware else 0.0
-    q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, model)
-    q_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-    if model == "rigid-body":  # PX4: attitude + yaw-rate feed-forward (module docstring)
-        return AttitudeSetpoint(q_wxyz, (0.0, 0.0, float(law.yaw_rate_ff_rad_s)),
-                                thrust_norm(law.thrust_n, scaling), RIGID_BODY_TYPE_MASK)  # fmt: skip
-    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
-    return AttitudeSetpoint(
-        q_wxyz=q_wxyz,
-        body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
-        thrust_norm=thrust_norm(law.thrust_n, scaling),
-        type_mask=PAPER_TYPE_MASK,
-    )
-
-
-def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
-    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
-
-    By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
-    (eq. 3), so ``tau_gen = W_eta^T tau_body``.
-    """
-    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))
-
-
-def actuator_setpoint(out: ControlOutput, euler_rad: np.ndarray, model: str, euler_rate_form: str, scaling: Scaling) -> ActuatorSetpoint:
-    """The ``actuator`` output of one sample: eq. 16 torques and u, normalised (module docstring).
+    Thrust is always ``u / SIM_THR_MAX`` clipped to [0, 1].
 
     Raises
     ------
     ValueError
-        The scaling lacks the torque maxima.
-    """
-    if scaling.torque_roll_pitch_max_nm is None or scaling.torque_yaw_max_nm is None:
-        raise ValueError("the actuator output needs the vehicle's torque scaling (SIM_TQ_RP_MAX, SIM_TQ_Y_MAX)")
-    tau = np.asarray(out.torques_nm, dtype=float)
-    if model == "rigid-body":
-        tau = body_torque_from_generalized(tau, euler_rad, euler_rate_form)
-    rp, yw = scaling.torque_roll_pitch_max_nm, scaling.torque_yaw_max_nm
-    controls = (tau[0] / rp, tau[1] / rp, tau[2] / yw)
-    clipped = tuple(min(max(float(c), -1.0), 1.0) for c in controls)
-    return ActuatorSetpoint(controls=(clipped[0], clipped[1], clipped[2], thrust_norm(out.law.thrust_n, scaling)))
-
-
-def law_setpoint(
-    out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, scaling: Scaling, *, output: str, model: str
-) -> AttitudeSetpoint | ActuatorSetpoint:
-    """The setpoint of one mission sample: the law's output as the message fields that carry it.
-
-    The one encoding of the law's output: ``offboard.flight`` sends it, ``offboard.replay``'s
-    re-run compares it with the log, so both turn the same output into the same fields.
-
-    Parameters
-    ----------
-    out : ControlOutput
-        The controller's output for sample n.
-    euler_rad : ndarray (3,)
-        The measured attitude of sample n (roll, pitch, yaw; rad).
-    params : ControllerParams
-        The controller that produced ``out``: its W_eta form and whether it is yaw-aware.
-    scaling : Scaling
-        The vehicle's normalisation (``SIM_THR_MAX``; the torque maxima for ``actuator``).
-    output : str
-        ``attitude`` (SET_ATTITUDE_TARGET, ``attitude_setpoint``), ``rates`` (SET_ATTITUDE_TARGET
-        body rates, ``rates_setpoint``) or ``actuator`` (SET_ACTUATOR_CONTROL_TARGET,
-        ``actuator_setpoint``).
-    model : str
-        ``rigid-body`` or ``paper``: what the vehicle is (module docstring).
-
-    Raises
-    ------
-    ValueError
-        An unknown output or model, or the actuator output without the torque scaling.
+        An unknown output or model, the actuator output without the torque scaling, or a form
+        the controller does not give (``MissingCommand``, naming ``controller``).
     """
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    thrust = thrust_norm(command.thrust_n, scaling)
     if output == "actuator":
-        return actuator_setpoint(out, euler_rad, model, params.euler_rate_form, scaling)
+        if scaling.torque_roll_pitch_max_nm is None or scaling.torque_yaw_max_nm is None:
+            raise ValueError("the actuator output needs the vehicle's torque scaling (SIM_TQ_RP_MAX, SIM_TQ_Y_MAX)")
+        tau = require(command, "torque_nm", controller)
+        rp, yw = scaling.torque_roll_pitch_max_nm, scaling.torque_yaw_max_nm
+        controls = (tau[0] / rp, tau[1] / rp, tau[2] / yw)
+        clipped = tuple(min(max(float(c), -1.0), 1.0) for c in controls)
+        return ActuatorSetpoint(controls=(clipped[0], clipped[1], clipped[2], thrust))
+    if output == "attitude" and model == "rigid-body":  # PX4: attitude + yaw-rate feed-forward
+        return AttitudeSetpoint(command.attitude_wxyz, (0.0, 0.0, float(command.yaw_rate_ff_rad_s)), thrust, RIGID_BODY_TYPE_MASK)
+    rates = require(command, "body_rate_frd_rad_s", controller)
     if output == "rates":
-        return rates_setpoint(out, euler_rad, params.euler_rate_form, scaling)
-    return attitude_setpoint(out, euler_rad, params.euler_rate_form, scaling, model=model, yaw_aware=params.yaw_aware)
-
-
-def rates_setpoint(out: ControlOutput, euler_rad: np.ndarray, euler_rate_form: str, scaling: Scaling) -> AttitudeSetpoint:
-    """The ``rates`` output: body rates ``W_eta(eta(n)) (x8ref, x10ref, x12ref)`` (eq. 3) and u.
-
-    A rate setpoint (type_mask 128, attitude ignored; q carries the law's angle references for the
-    log), as PX4 flies it in OFFBOARD with its rate controller: the law's own angle loop (eq.
-    31-33 for x7-x12, kx7-kx12) closes the attitude at To, instead of the autopilot's attitude P.
-    On the paper model this is the ``attitude`` output's encoding.
-    """
-    law = out.law
-    q = quat_from_euler(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad)
-    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), euler_rate_form)  # eq. 3
-    return AttitudeSetpoint(
-        q_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
-        body_rates_frd_rad_s=(float(rates[0]), float(rates[1]), float(rates[2])),
-        thrust_norm=thrust_norm(law.thrust_n, scaling),
-        type_mask=PAPER_TYPE_MASK,
-    )
+        q = quat_from_euler(*command.attitude_ref_euler_rad)
+        q_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    else:
+        q_wxyz = command.attitude_wxyz
+    return AttitudeSetpoint(q_wxyz, rates, thrust, PAPER_TYPE_MASK)
 
 
 def setpoint_fields(sp: AttitudeSetpoint | ActuatorSetpoint) -> tuple[float, ...]:

@@ -45,10 +45,11 @@ import numpy as np
 from offboard import codec
 from offboard.clockrate import STALLED_RATE, ClockRateMeter
 from offboard.codec import MeasuredState, Scaling
-from offboard.controller import ActionLimits, ControllerParams, RosalesController
+from offboard.controller import ActionLimits, ControllerParams
+from offboard.controller.command import Controller
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
+from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
-from offboard.frames import tracking_reference
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
@@ -181,9 +182,13 @@ class ControllerChoice:
     latency_s : float or None
         The latency the design assumes (s); None: measured at start-up, the TIMESYNC round trip
         plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
+    kind : str
+        Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
+        gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
     """
 
     base: ControllerParams
+    kind: str = "paper"
     from_file: bool = False
     tuned: bool = False
     latency_s: float | None = None
@@ -537,7 +542,7 @@ class Flight:
         self._disarmed_beats = 0
         self._interrupt_enabled = True
         # the mission
-        self.controller: RosalesController | None = None
+        self.controller: Controller | None = None
         self.params: ControllerParams | None = None
         self.scaling: Scaling | None = None
         self.rows = RecordBuilder(FLIGHT_COLUMNS)
@@ -674,7 +679,7 @@ class Flight:
         if "COM_OF_LOSS_T" in p and cfg.telemetry_timeout_s >= p["COM_OF_LOSS_T"]:
             self._say(f"note: the telemetry timeout {cfg.telemetry_timeout_s:g} s is not below the vehicle's "
                       f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
-        self.controller = RosalesController(self.params)
+        self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model)
         self._mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:
             self._do_timesync()
@@ -1167,10 +1172,8 @@ class Flight:
         n = self._tick - self._mission_tick0
         recording = not self._mission_done and n <= self._mission_samples
         t = n * self.to
-        params = self.params
-        x = codec.controller_state(measured, params.euler_rate_form)
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
-        out = self.controller.step(x, tracking_reference(ref_n, self.controller.params.reference_lead_s2), tracking_reference(ref_n1, self.controller.params.reference_lead_s2))
+        command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
         if recording:
             if why:
@@ -1179,17 +1182,18 @@ class Flight:
                 self.loop.add_period(now - self._last_sample_wall)
             self._last_sample_wall = now
             self.loop.samples += 1
-            self.rows.append(**control_row(t, measured, ref_n, out), time_boot_ms=measured.time_boot_ms,
+            self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms,
                              sample_wall_s=now - (self._mission_wall0 or now))  # fmt: skip
             if self._progress is not None:
                 err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]
-        if not out.is_finite():
+        if not command.is_finite():
             self._source = None
             raise _End(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
         if n >= self._mission_samples:
             self._mission_done = True
-        sp = codec.law_setpoint(out, measured.euler_rad, params, self.scaling, output=self.config.output, model=self.config.model)
+        sp = codec.command_setpoint(command, self.scaling, output=self.config.output, model=self.config.model,
+                                    controller=self.controller.name)  # fmt: skip
         return self._setpoint_message(sp, measured.time_boot_ms)
 
     def _say_start(self, measured: MeasuredState) -> None:

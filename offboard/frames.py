@@ -8,11 +8,14 @@ related by ``omega = W_eta @ eta_dot`` (eq. 3) with the W_eta form the controlle
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from offboard.controller.law import TrackingReference
 from offboard.trajectory.base import Reference
 from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+from sitl_plant.dynamics.rotations import quat_from_euler
 
 
 def paper_position_from_ned(pos_ned_m: np.ndarray) -> np.ndarray:
@@ -72,3 +75,45 @@ def tracking_reference(reference: Reference, lead_s2: tuple[float, float] = (0.0
         an, ae, ad = reference.acc_ned_m_s2
         n, e, d = n - ch * an, e - ch * ae, d - cv * ad
     return TrackingReference(float(n), float(e), float(-d), reference.yaw_rad, reference.yaw_rate_rad_s)
+
+
+def tilt_about_heading(roll_rad: float, pitch_rad: float, heading_from_rad: float, heading_to_rad: float) -> tuple[float, float]:
+    """(roll, pitch) that give, at heading ``heading_to``, the thrust axis that (roll, pitch) give
+    at heading ``heading_from`` (ZYX angles, rigid body: the thrust axis is body z).
+
+    The body z axis of ``Rz(h) Ry(pitch) Rx(roll)`` is ``Rz(h) (cos r sin p, -sin r, cos r cos p)``;
+    the angles are solved for the same axis under ``Rz(heading_to)``. Identity when the headings
+    are equal.
+    """
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    d = heading_from_rad - heading_to_rad
+    cd, sd = math.cos(d), math.sin(d)
+    vx0, vy0, vz = cr * sp, -sr, cr * cp  # body z at heading 0
+    vx, vy = cd * vx0 - sd * vy0, sd * vx0 + cd * vy0  # ... turned by heading_from - heading_to
+    return math.atan2(-vy, math.hypot(vx, vz)), math.atan2(vx, vz)
+
+
+def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: float, law_heading_rad: float, model: str) -> np.ndarray:
+    """The setpoint quaternion (w, x, y, z) for the law's angle references.
+
+    The law computes x7ez and x9ez about a heading: the measured yaw with the yaw-aware option, 0
+    without (eq. 18 ignores yaw). On a rigid body, whose thrust turns with yaw, the setpoint keeps
+    that thrust axis and asks for the heading ``yaw_ref`` (PX4 tracks the thrust axis first and the
+    heading after), so a large yaw step does not swing the thrust round with the reference. On the
+    paper's model the thrust direction depends on (phi, theta) only (eq. 18): the plain ZYX
+    quaternion of (x7ez, x9ez, yaw_ref).
+    """
+    roll, pitch = roll_ref_rad, pitch_ref_rad
+    if model == "rigid-body":
+        roll, pitch = tilt_about_heading(roll_ref_rad, pitch_ref_rad, law_heading_rad, yaw_ref_rad)
+    return quat_from_euler(roll, pitch, yaw_ref_rad)
+
+
+def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
+    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
+
+    By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
+    (eq. 3), so ``tau_gen = W_eta^T tau_body``.
+    """
+    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))

@@ -1,43 +1,337 @@
-"""The controller and a simulated vehicle in one process: the paper's reproduction.
+"""One simulation loop: any controller, a simulated vehicle, in one process.
 
-``run_scenario`` samples the vehicle every To through its sensor model, runs the controller on
-the measured state and the references at n and n+1, and drives the vehicle in one of two ways
-(NOTES.md, "What a careful reproduction runs into"):
+``simulate`` samples the vehicle every To through its sensor model, steps the controller
+(``offboard.controller.command.Controller``) on the measured state and the references at n and
+n+1, and hands its ``Command`` to a **vehicle loop** (``Drive``), the vehicle side that turns a
+command into the thrust and torque the physics applies until the next sample:
 
-- ``inner-loop``: tau~ is held for the sample and a vehicle-side inner loop applies eq. 16 at the
-  physics rate with the model the autopilot believes (``EulerAccelActuation``). This is what the
-  ``paper`` inner loop of ``sitl-plant`` does with a SET_ATTITUDE_TARGET, so a MAVLink flight
-  reproduces this run.
-- ``held-torque``: the real torques of eq. 16 are computed once per sample by the controller and
-  held for the whole sample (``HeldActuation``), as a literal reading of the paper.
+- ``inner-loop``: the paper's tau~ held for the sample, eq. 16 applied at the physics rate with
+  the model the autopilot believes (``EulerAccelActuation``): what the ``paper`` inner loop of
+  ``sitl-plant`` does with the rate setpoint, so a MAVLink flight reproduces this run
+  (NOTES.md, "What a careful reproduction runs into");
+- ``held-torque``: the real torques of eq. 16 computed once per sample and held for the whole
+  sample (``HeldActuation``), a literal reading of the paper;
+- ``px4``: the attitude target flown by PX4's attitude and rate controllers at the physics rate
+  (``sitl_plant.inner_loops.Px4Loop``): what a SET_ATTITUDE_TARGET gets from sitl-plant's
+  ``px4`` inner loop, or from PX4; every controller gives an attitude target;
+- ``attitude-law``: the controller's own attitude law at the physics rate (SE(3)'s Lee eq. 16,
+  ``SE3Controller.actuation``), as an in-process study flies it.
 
-The conversions from the vehicle's NED/FRD report are those the MAVLink process uses
-(``offboard.frames``).
+``run_scenario`` runs a scenario file's flight (``offboard simulate``) through it; the benchmarks
+(``bench/flight.py``) fly every controller through it. The conversions from the vehicle's NED/FRD
+report are those the MAVLink process uses (``offboard.controller.paper``).
 """
 
 from __future__ import annotations
 
+import enum
 import math
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-from offboard.controller import ControllerParams, RosalesController
-from offboard.frames import euler_rates_from_body_rates, paper_state, tracking_reference
+from offboard.controller import ControllerParams
+from offboard.controller.command import VEHICLE_MODELS, Command, Controller, VehicleModel, require
+from offboard.controller.paper import PaperController
 from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
-from sitl_plant.simulation import EulerAccelActuation, HeldActuation, Model, PaperModel, VehicleSim
+from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
+from sitl_plant.dynamics.wind import wind_from_spec
+from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, Model, PaperModel, VehicleSim, WindField
 from sitl_plant.vehicle import VehicleParams
 
-DRIVES = ("inner-loop", "held-torque")
-MODELS = ("paper", "rigid-body")
+
+class Drive(enum.StrEnum):
+    """How the vehicle side flies a command in-process (module docstring)."""
+
+    INNER_LOOP = "inner-loop"
+    HELD_TORQUE = "held-torque"
+    PX4 = "px4"
+    ATTITUDE_LAW = "attitude-law"
+
+
+DRIVES = tuple(d.value for d in Drive)
+#: The drives of a scenario file (the paper's controller): all but a baseline's own attitude law.
+SCENARIO_DRIVES = (Drive.INNER_LOOP.value, Drive.HELD_TORQUE.value, Drive.PX4.value)
+MODELS = VEHICLE_MODELS
+
+
+class VehicleLoop(Protocol):
+    """The vehicle side of an in-process flight: a command in, the actuation for the sample out."""
+
+    def bind(self, sim: VehicleSim) -> None:
+        """Called once with the simulation before the flight."""
+
+    def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        """What the physics applies at every step until the next sample."""
+        ...
+
+
+@dataclass
+class PaperInnerLoop:
+    """``inner-loop``: tau~ held, eq. 16 at the physics rate with the believed inertia and W_eta."""
+
+    believed_inertia_kg_m2: tuple[float, float, float]
+    euler_rate_form: str
+    controller: str = "paper"
+
+    def __post_init__(self) -> None:
+        self._inertia = np.diag(self.believed_inertia_kg_m2)
+
+    def bind(self, sim: VehicleSim) -> None:
+        pass
+
+    def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        tau_tilde = require(command, "euler_accel_rad_s2", self.controller)
+        return EulerAccelActuation(command.thrust_n, np.array(tau_tilde), self._inertia, self.euler_rate_form)
+
+
+@dataclass
+class HeldTorque:
+    """``held-torque``: the eq. 16 torques of the sample held as the model's torque input."""
+
+    controller: str = "paper"
+
+    def bind(self, sim: VehicleSim) -> None:
+        pass
+
+    def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        tau = np.array(require(command, "generalized_torque_nm", self.controller))
+        return HeldActuation(command.thrust_n, sim.model.torque_from_generalized(sim.x, tau))
+
+
+@dataclass
+class Px4AttitudeLoop:
+    """``px4``: PX4's attitude and rate controllers fly the attitude target (``Px4Loop``)."""
+
+    vehicle: VehicleParams
+    loop: object = None
+
+    def bind(self, sim: VehicleSim) -> None:
+        from sitl_plant.inner_loops import Px4Loop
+        from sitl_plant.params import plant_params
+
+        self.loop = Px4Loop(plant_params(self.vehicle), sim.model, sim.physics_dt_s)
+        self.loop.landed = False
+
+    def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        assert self.loop is not None, "bind() first"
+        self.loop.fly_attitude(command.attitude_wxyz, command.thrust_n, command.yaw_rate_ff_rad_s)  # type: ignore[attr-defined]
+        return self.loop  # type: ignore[return-value]
+
+
+class HasAttitudeLaw(Protocol):
+    name: str
+
+    def actuation(self) -> Actuation: ...
+
+
+@dataclass
+class ControllerAttitudeLaw:
+    """``attitude-law``: the controller's own attitude law at the physics rate (``actuation()``)."""
+
+    controller: HasAttitudeLaw
+
+    def bind(self, sim: VehicleSim) -> None:
+        pass
+
+    def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        return self.controller.actuation()
+
+
+def vehicle_loop(drive: Drive | str, controller: Controller, vehicle: VehicleParams) -> VehicleLoop:
+    """The vehicle loop of ``drive`` for ``controller`` (the paper's inner loop believes what the
+    controller believes, as the plant's ``PAP_*`` parameters do)."""
+    drive = Drive(drive)
+    if drive is Drive.INNER_LOOP:
+        params: ControllerParams | None = getattr(controller, "params", None)
+        if not isinstance(params, ControllerParams):
+            raise ValueError(f"the {controller.name} controller gives no tau~: drive {drive} is the paper's law's")
+        return PaperInnerLoop(params.inertia_kg_m2, params.euler_rate_form, controller.name)
+    if drive is Drive.HELD_TORQUE:
+        return HeldTorque(controller.name)
+    if drive is Drive.PX4:
+        return Px4AttitudeLoop(vehicle)
+    if not callable(getattr(controller, "actuation", None)):
+        raise ValueError(f"the {controller.name} controller has no attitude law of its own (drive {drive})")
+    return ControllerAttitudeLaw(controller)  # type: ignore[arg-type]
+
+
+def make_model(model: VehicleModel | str, vehicle: VehicleParams) -> Model:
+    """The simulated model of ``vehicle``: the paper's (eq. 13, 18) or the rigid body."""
+    if VehicleModel(model) is VehicleModel.PAPER:
+        return PaperModel(vehicle)
+    from sitl_plant.dynamics.rigid_body import RigidBodyModel
+
+    return RigidBodyModel(vehicle)
+
+
+def _diverged(sim: VehicleSim, euler_rad: np.ndarray, pos_ned_m: np.ndarray) -> str:
+    """Why the true state means the flight is lost ('' if it is not)."""
+    if not np.all(np.isfinite(sim.x)):
+        return "the simulated state is no longer finite"
+    phi, theta = float(euler_rad[0]), float(euler_rad[1])
+    if math.cos(phi) * math.cos(theta) <= 0.0:
+        return f"tilt past 90 degrees (roll {math.degrees(phi):.0f}, pitch {math.degrees(theta):.0f} deg)"
+    if float(np.max(np.abs(pos_ned_m))) > 1e4:
+        return "position beyond 10 km"
+    return ""
+
+
+@dataclass
+class FlightResult:
+    """What ``simulate`` returns: the record and what the flight cost.
+
+    Attributes
+    ----------
+    record : FlightRecord
+        One row per control sample, the true state (as the paper plots it).
+    step_cost_s : ndarray
+        Wall time of each controller step.
+    physics_wall_s : float
+        Wall time spent stepping the physics.
+    ended_at_s : float
+        Mission time of the last sample taken (where a lost flight was found lost).
+    """
+
+    record: FlightRecord
+    step_cost_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    physics_wall_s: float = 0.0
+    ended_at_s: float = 0.0
+
+    @property
+    def status(self) -> FlightStatus:
+        return self.record.status
+
+
+def simulate(
+    vehicle: VehicleParams,
+    controller: Controller,
+    trajectory: Trajectory,
+    *,
+    drive: Drive | str | VehicleLoop = Drive.PX4,
+    model: VehicleModel | str = VehicleModel.RIGID_BODY,
+    physics_dt_s: float = 1e-3,
+    duration_s: float | None = None,
+    sensors: SensorModel | None = None,
+    wind: WindField | None = None,
+    ground: bool = True,
+    initial_pos_ned_m: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+    initial_yaw_rad: float = 0.0,
+    hovering: bool = False,
+    fast: bool = False,
+    progress: Callable[[float], None] | None = None,
+    meta: dict[str, object] | None = None,
+) -> FlightResult:
+    """Fly ``trajectory`` with ``controller`` on a simulated ``vehicle`` (module docstring).
+
+    Parameters
+    ----------
+    vehicle : VehicleParams
+        The true vehicle.
+    controller : Controller
+        Stepped every ``controller.sample_time_s`` on the sensors' measurement.
+    trajectory : Trajectory
+        The references (NED).
+    drive : Drive, str or VehicleLoop
+        How the vehicle flies each command (``vehicle_loop``).
+    model : VehicleModel or str
+        ``rigid-body`` or ``paper``.
+    physics_dt_s : float
+        RK4 step; To must be a whole number of them.
+    duration_s : float, optional
+        The trajectory's duration by default.
+    sensors : SensorModel, optional
+        Clean (the truth) by default.
+    wind : WindField, optional
+    ground : bool
+        A ground plane at down = 0.
+    initial_pos_ned_m, initial_yaw_rad :
+        Where the vehicle starts, at rest.
+    hovering : bool
+        Rotors at hover speed at the start (rigid body), so a vehicle started in the air does
+        not fall first.
+    fast : bool
+        Step a rigid body by the compiled kernels (``FastRigidBodySim``; the same results to
+        rounding) instead of ``VehicleSim``.
+    progress : callable, optional
+        Called with the fraction flown after each sample.
+    meta : dict, optional
+        The record's metadata.
+    """
+    to = controller.sample_time_s
+    n_physics = steps_per_period(to, physics_dt_s)
+    sim_model = make_model(model, vehicle)
+    cls: type[VehicleSim] = VehicleSim
+    if fast:
+        from sitl_plant.dynamics.batch import FastRigidBodySim
+
+        cls = FastRigidBodySim
+    sim = cls(
+        sim_model,  # type: ignore[arg-type]
+        physics_dt_s=physics_dt_s,
+        wind=wind,
+        ground=ground,
+        initial_pos_ned_m=np.array(initial_pos_ned_m, dtype=float),
+        initial_yaw_rad=initial_yaw_rad,
+    )
+    if hovering and VehicleModel(model) is VehicleModel.RIGID_BODY and float(sim.x[2]) < 0.0:
+        from sitl_plant.dynamics.rigid_body import ROTORS, hover_rotor_speed
+
+        sim.x[ROTORS] = hover_rotor_speed(vehicle)
+    loop = drive if not isinstance(drive, str) else vehicle_loop(drive, controller, vehicle)
+    loop.bind(sim)
+    meter = sensors if sensors is not None else CleanSensors()
+    controller.reset()
+    duration = trajectory.duration_s if duration_s is None else duration_s
+    samples = int(round(duration / to))
+    rows = RecordBuilder()
+    costs = np.zeros(samples + 1)
+    physics_wall_s = 0.0
+    status, detail = FlightStatus.COMPLETE, ""
+    t = 0.0
+    for n in range(samples + 1):
+        t = n * to
+        ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
+        truth = sim.truth()
+        measured = meter.measure(truth)
+        start = time.perf_counter()
+        command = controller.step(measured, ref_n, ref_n1)
+        costs[n] = time.perf_counter() - start
+        why = _diverged(sim, truth.euler_rad, truth.pos_ned_m)
+        if why:
+            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}"
+            break
+        rows.append(**control_row(t, truth, ref_n, command))  # the truth, as the paper plots it
+        if not command.is_finite():
+            status, detail = FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite"
+            break
+        if n == samples:
+            break
+        sim.actuation = loop.actuation(command, sim)
+        try:
+            with np.errstate(divide="raise", over="raise", invalid="raise"):
+                start = time.perf_counter()
+                sim.step(n_physics)
+                physics_wall_s += time.perf_counter() - start
+        except (ArithmeticError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s the dynamics broke down ({type(exc).__name__})"
+            break
+        if progress is not None:
+            progress(t / duration)
+
+    record = rows.build(phases=trajectory.phases(), status=status, status_detail=detail,
+                        meta={"controller": controller.name, "model": str(model), **(meta or {})})  # fmt: skip
+    return FlightResult(record, costs[: len(record)], physics_wall_s, t)
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """Everything one reproducible in-process flight needs.
+    """Everything one reproducible in-process flight needs (``offboard simulate``'s file).
 
     Attributes
     ----------
@@ -46,11 +340,11 @@ class Scenario:
     vehicle : VehicleParams
         The true vehicle.
     controller : ControllerParams
-        What the controller (and the vehicle-side inner loop) believes, and its gains.
+        What the paper's controller (and the vehicle-side inner loop) believes, and its gains.
     model : str
         ``paper`` (eq. 13, 18) or ``rigid-body``.
     drive : str
-        ``inner-loop`` or ``held-torque`` (module docstring).
+        ``inner-loop``, ``held-torque`` or ``px4`` (module docstring).
     sensors, wind : str
         Specs for ``sitl_plant.dynamics.sensors.sensors_from_spec`` / ``wind.wind_from_spec``.
     """
@@ -74,8 +368,8 @@ class Scenario:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"model must be one of {MODELS}, got {self.model!r}")
-        if self.drive not in DRIVES:
-            raise ValueError(f"drive must be one of {DRIVES}, got {self.drive!r}")
+        if self.drive not in SCENARIO_DRIVES:
+            raise ValueError(f"drive must be one of {SCENARIO_DRIVES}, got {self.drive!r}")
         steps_per_period(self.controller.sample_time_s, self.physics_dt_s)
 
     @property
@@ -83,90 +377,27 @@ class Scenario:
         return self.trajectory.duration_s if self.duration_s is None else self.duration_s
 
 
-def make_model(name: str, vehicle: VehicleParams) -> Model:
-    if name == "paper":
-        return PaperModel(vehicle)
-    from sitl_plant.dynamics.rigid_body import RigidBodyModel
-
-    return RigidBodyModel(vehicle)
-
-
-def _diverged(x_state: tuple[float, ...], sim_state: np.ndarray) -> str:
-    if not np.all(np.isfinite(sim_state)):
-        return "the simulated state is no longer finite"
-    phi, theta = x_state[6], x_state[8]
-    if math.cos(phi) * math.cos(theta) <= 0.0:
-        return f"tilt past 90 degrees (roll {math.degrees(phi):.0f}, pitch {math.degrees(theta):.0f} deg)"
-    if max(abs(x_state[0]), abs(x_state[2]), abs(x_state[4])) > 1e4:
-        return "position beyond 10 km"
-    return ""
-
-
 def run_scenario(scenario: Scenario, progress: Callable[[float], None] | None = None) -> FlightRecord:
-    """Fly ``scenario`` in-process; returns one record row per control sample.
+    """Fly ``scenario`` in-process with the paper's controller; one record row per control sample.
 
     The record's positions and angles are the true ones (as the paper plots them); the
     controller sees only the sensor model's measurement.
     """
-    from sitl_plant.dynamics.sensors import sensors_from_spec
-    from sitl_plant.dynamics.wind import wind_from_spec
-
-    params: ControllerParams = scenario.controller
-    to = params.sample_time_s
-    n_physics = steps_per_period(to, scenario.physics_dt_s)
-    model = make_model(scenario.model, scenario.vehicle)
-    sim = VehicleSim(
-        model,
+    controller = PaperController(scenario.controller, vehicle_model=scenario.model)
+    result = simulate(
+        scenario.vehicle,
+        controller,
+        scenario.trajectory,
+        drive=scenario.drive,
+        model=scenario.model,
         physics_dt_s=scenario.physics_dt_s,
+        duration_s=scenario.flight_duration_s,
+        sensors=sensors_from_spec(scenario.sensors, scenario.seed),
         wind=None if scenario.wind == "none" else wind_from_spec(scenario.wind, scenario.seed),
         ground=scenario.ground,
-        initial_pos_ned_m=np.array(scenario.initial_pos_ned_m),
+        initial_pos_ned_m=scenario.initial_pos_ned_m,
         initial_yaw_rad=scenario.initial_yaw_rad,
+        progress=progress,
+        meta={"scenario": scenario.name, "drive": scenario.drive, "source": scenario.source},
     )
-    sensors = sensors_from_spec(scenario.sensors, scenario.seed)
-    controller = RosalesController(params)
-    believed_inertia = np.diag(params.inertia_kg_m2)
-    trajectory = scenario.trajectory
-    samples = int(round(scenario.flight_duration_s / to))
-    rows = RecordBuilder()
-    status, detail = FlightStatus.COMPLETE, ""
-
-    for n in range(samples + 1):
-        t = n * to
-        truth = sim.truth()
-        measured = sensors.measure(truth)
-        euler_rates = euler_rates_from_body_rates(measured.euler_rad, measured.body_rate_frd_rad_s, params.euler_rate_form)
-        x = paper_state(measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, euler_rates)
-        ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
-        out = controller.step(x, tracking_reference(ref_n, controller.params.reference_lead_s2), tracking_reference(ref_n1, controller.params.reference_lead_s2))
-        law = out.law
-        true_x = paper_state(truth.pos_ned_m, truth.vel_ned_m_s, truth.euler_rad, truth.euler_rate_rad_s)
-        why = _diverged(true_x, sim.x)
-        if why:
-            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}"
-            break
-        rows.append(**control_row(t, truth, ref_n, out))  # the truth, as the paper plots it
-        if not out.is_finite():
-            status, detail = FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite"
-            break
-        if n == samples:
-            break
-        if scenario.drive == "inner-loop":
-            sim.actuation = EulerAccelActuation(law.thrust_n, np.array(law.tau_tilde), believed_inertia, params.euler_rate_form)
-        else:
-            sim.actuation = HeldActuation(law.thrust_n, model.torque_from_generalized(sim.x, out.torques_nm))
-        try:
-            with np.errstate(divide="raise", over="raise", invalid="raise"):
-                sim.step(n_physics)
-        except (ArithmeticError, np.linalg.LinAlgError, FloatingPointError) as exc:
-            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s the dynamics broke down ({type(exc).__name__})"
-            break
-        if progress is not None:
-            progress(t / scenario.flight_duration_s)
-
-    return rows.build(
-        phases=trajectory.phases(),
-        status=status,
-        status_detail=detail,
-        meta={"scenario": scenario.name, "model": scenario.model, "drive": scenario.drive, "source": scenario.source},
-    )
+    return result.record

@@ -19,7 +19,7 @@ STEADY_FRACTION = 0.25  # steady-state error: mean over the last quarter of a ho
 #: A flight flown to its end is LOST_TRACK when its 3D error stayed above LOST_TRACK_M through the
 #: whole of its last LOST_TRACK_WINDOW_S (the smallest error of that second is compared, so a
 #: reference step in the last second, or one at the very last sample, does not count). Measured
-#: on the bundled scenarios (``end_error_m``, checked by tests/test_lost_track.py): flights that
+#: on the bundled scenarios (``end_error_m``, checked by tests/e2e/test_lost_track.py): flights that
 #: track end within 0.01 m (Simulations 1 and 3, the rigid body with the yaw-aware law), Table II's
 #: mass error leaves its closed-form 0.82 m, the deliberate worst case, Simulation 2's position
 #: integrated from 5 % noisy accelerations, has random-walked to 4.5 m, and the rigid body flown

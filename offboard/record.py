@@ -19,7 +19,7 @@ import numpy as np
 from offboard.trajectory.base import Phase, Reference
 
 if TYPE_CHECKING:
-    from offboard.controller.law import ControlOutput
+    from offboard.controller.command import Command
 
 
 class FlightStatus(enum.Enum):
@@ -76,9 +76,12 @@ class StateSample(Protocol):
     euler_rad: np.ndarray
 
 
-def control_row(t_s: float, state: StateSample, ref: Reference, out: ControlOutput) -> dict[str, object]:
+_NAN3 = (float("nan"),) * 3
+
+
+def control_row(t_s: float, state: StateSample, ref: Reference, command: Command) -> dict[str, object]:
     """One record row (``COLUMNS``) of a control sample: the state, the reference at n and the
-    law's output for it.
+    controller's command for it.
 
     The one place a sample becomes a row, for the in-process run, the MAVLink flight and the
     re-run of a log alike, so their records compare column for column.
@@ -91,11 +94,12 @@ def control_row(t_s: float, state: StateSample, ref: Reference, out: ControlOutp
         The vehicle's position and velocity (NED, m, m/s) and ZYX Euler angles (rad).
     ref : Reference
         The mission's reference at n (NED).
-    out : ControlOutput
-        The controller's output for sample n: u, the angle references x7ez, x9ez, x11d(n+1),
-        the eq. 16 torques and tau_tilde (eq. 40-42).
+    command : Command
+        The controller's command for sample n: u, the attitude asked for (the paper's x7ez,
+        x9ez, x11d(n+1)), the torques (the paper's eq. 16 torques; another controller's torque
+        command, NaN if it gives none) and tau_tilde (eq. 40-42; NaN for other controllers).
     """
-    law = out.law
+    torques = command.generalized_torque_nm if command.generalized_torque_nm is not None else command.torque_nm
     return {
         "t_s": t_s,
         "pos_ned_m": state.pos_ned_m,
@@ -103,10 +107,10 @@ def control_row(t_s: float, state: StateSample, ref: Reference, out: ControlOutp
         "euler_rad": state.euler_rad,
         "ref_pos_ned_m": ref.pos_ned_m,
         "ref_yaw_rad": ref.yaw_rad,
-        "ref_euler_rad": (law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
-        "thrust_n": law.thrust_n,
-        "torques_nm": out.torques_nm,
-        "tau_tilde": law.tau_tilde,
+        "ref_euler_rad": command.attitude_ref_euler_rad,
+        "thrust_n": command.thrust_n,
+        "torques_nm": _NAN3 if torques is None else torques,
+        "tau_tilde": _NAN3 if command.euler_accel_rad_s2 is None else command.euler_accel_rad_s2,
     }
 
 

@@ -42,6 +42,7 @@ from offboard import codec
 from offboard.errors import LogFormatError, ParameterFileError
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
 from offboard.trajectory.base import Phase, Trajectory
+from offboard.controller.params import ControllerParams
 from sitl_plant.dynamics.rotations import euler_from_quat
 
 MAX_TIMESTAMP_JUMP_US = 3 * 24 * 3600 * 1_000_000  # pymavlink's bound for a plausible tlog stamp
@@ -481,7 +482,9 @@ class LogScan:
             text = "".join(self._text_chunks.pop((src[0], chunk_id)))
         severity = int(msg.severity)
         label = SEVERITY_NAMES[severity] if 0 <= severity < len(SEVERITY_NAMES) else str(severity)
-        failsafe = "failsafe" in text.lower() or severity <= MAV_SEVERITY_CRITICAL
+        # PX4 sends its refusals of a command ("Arming denied: ...", "Disarming denied: not landed")
+        # as CRITICAL too: a refused command is not the vehicle failing safe
+        failsafe = "failsafe" in text.lower() or (severity <= MAV_SEVERITY_CRITICAL and "denied" not in text.lower())
         self.events.append(Event(t_s, "failsafe" if failsafe else "text", f"[{label}] {text}", src[0]))
 
     def _attitude(self, t_s: float, src: tuple[int, int], msg) -> None:
@@ -1209,11 +1212,12 @@ class _Msg:
 def rerun_controller(
     scan: LogScan,
     record: FlightRecord,
-    params: object,
+    params: ControllerParams,
     trajectory: Trajectory,
-    scaling: object,
+    scaling: codec.Scaling,
     model: str = "rigid-body",
     encoding: str | None = None,
+    kind: str = "paper",
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
 
@@ -1221,10 +1225,11 @@ def rerun_controller(
     (``rates`` travels in SET_ATTITUDE_TARGET like ``attitude``); None: the message's kind.
 
     Each sample: the ATTITUDE and LOCAL_POSITION_NED the logged command answered become the
-    controller's state by ``offboard.codec`` (``measured_state``, ``controller_state``), the
-    references are the mission's at ``t`` and ``t + To``, and the output becomes the message
-    fields by ``codec.law_setpoint`` (the encoding ``offboard fly`` sends) and
-    ``codec.setpoint_fields``, rounded to float32 as the message carries them.
+    controller's state by ``offboard.codec.measured_state``, the references are the mission's at
+    ``t`` and ``t + To``, the controller (``offboard.controllers.make_controller``, as ``offboard
+    fly`` builds it) steps, and its command becomes the message fields by
+    ``codec.command_setpoint`` (the encoding ``offboard fly`` sends) and ``codec.setpoint_fields``,
+    rounded to float32 as the message carries them.
 
     Parameters
     ----------
@@ -1237,10 +1242,11 @@ def rerun_controller(
     scaling : offboard.codec.Scaling
         The vehicle's scaling the commands were normalised by.
     model : str
-        ``rigid-body`` or ``paper`` (the actuator output's torque mapping).
+        ``rigid-body`` or ``paper`` (the attitude and torque forms).
+    kind : str
+        Which controller flew (``paper``, ``se3``, ``px4``).
     """
-    from offboard.controller import RosalesController
-    from offboard.frames import tracking_reference
+    from offboard.controllers import make_controller
     from offboard.record import RecordBuilder, control_row
 
     output = record.meta.get("commands")
@@ -1253,9 +1259,8 @@ def rerun_controller(
     grid = np.asarray(record.meta["time_boot_ms"], dtype=np.int64)
     i_att, i_pos, att_table, pos_table = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows])
     att, pos = att_table[i_att], pos_table[i_pos]
-    to = params.sample_time_s  # type: ignore[attr-defined]
-    controller = RosalesController(params)  # type: ignore[arg-type]
-    form = params.euler_rate_form  # type: ignore[attr-defined]
+    to = params.sample_time_s
+    controller = make_controller(kind, params, vehicle_model=model)
     t_all = record["t_s"]
     builder = RecordBuilder()
     logged = setpoints.values[rows]
@@ -1268,13 +1273,12 @@ def rerun_controller(
             _Msg(time_boot_ms=int(p[0]), x=p[1], y=p[2], z=p[3], vx=p[4], vy=p[5], vz=p[6]),
         )
         t = float(t_all[k])
-        x = codec.controller_state(measured, form)
         ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
-        out = controller.step(x, tracking_reference(ref_n, controller.params.reference_lead_s2), tracking_reference(ref_n1, controller.params.reference_lead_s2))
-        builder.append(**control_row(t, measured, ref_n, out))
-        if not out.is_finite():
+        command = controller.step(measured, ref_n, ref_n1)
+        builder.append(**control_row(t, measured, ref_n, command))
+        if not command.is_finite():
             continue
-        sp = codec.law_setpoint(out, measured.euler_rad, params, scaling, output=encoding or output, model=model)  # type: ignore[arg-type]
+        sp = codec.command_setpoint(command, scaling, output=encoding or output, model=model, controller=controller.name)
         rerun[k] = np.array(codec.setpoint_fields(sp), dtype=np.float32)
     steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
     gaps = int(np.sum(np.maximum(steps - 1, 0)))

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from offboard.controller.params import controller_from_table, load_controller
 from offboard.errors import ParameterFileError
-from offboard.inprocess import DRIVES, MODELS, Scenario
+from offboard.inprocess import MODELS, SCENARIO_DRIVES, Scenario
 from sitl_plant.tomlfile import Fields, read_toml
 from sitl_plant.vehicle import load_vehicle, vehicle_from_table
 
@@ -58,24 +58,22 @@ def load_scenario(path: str | Path) -> Scenario:
     controller = _table_or_file(top, "controller", base_dir, controller_from_table, load_controller)
     duration = s.raw("duration_s", None)
     initial_yaw_deg = s.number("initial_yaw_deg", 0.0)
+    fields = dict(
+        name=s.string("name", path.stem),
+        model=s.string("model", "paper", choices=tuple(sorted(MODELS))),
+        drive=s.string("drive", "inner-loop", choices=SCENARIO_DRIVES),
+        physics_dt_s=s.number("physics_dt_s", 1e-3, gt=0),
+        duration_s=None if duration is None else s.number("duration_s", gt=0),
+        sensors=s.string("sensors", "clean"),
+        wind=s.string("wind", "none"),
+        seed=int(s.number("seed", 0, ge=0)),
+        initial_pos_ned_m=s.vector("initial_pos_ned_m", 3, (0.0, 0.0, 0.0)),
+        initial_yaw_rad=math.radians(initial_yaw_deg),
+        ground=s.boolean("ground", True),
+    )
     try:
-        scenario = Scenario(
-            name=s.string("name", path.stem),
-            trajectory=mission.trajectory,
-            vehicle=vehicle,
-            controller=controller,
-            model=s.string("model", "paper", choices=MODELS),
-            drive=s.string("drive", "inner-loop", choices=DRIVES),
-            physics_dt_s=s.number("physics_dt_s", 1e-3, gt=0),
-            duration_s=None if duration is None else s.number("duration_s", gt=0),
-            sensors=s.string("sensors", "clean"),
-            wind=s.string("wind", "none"),
-            seed=int(s.number("seed", 0, ge=0)),
-            initial_pos_ned_m=s.vector("initial_pos_ned_m", 3, (0.0, 0.0, 0.0)),  # type: ignore[arg-type]
-            initial_yaw_rad=math.radians(initial_yaw_deg),
-            ground=s.boolean("ground", True),
-            source=str(path),
-        )
+        scenario = Scenario(trajectory=mission.trajectory, vehicle=vehicle, controller=controller, source=str(path),
+                            **fields)  # type: ignore[arg-type]
     except ValueError as exc:  # cross-field checks (e.g. To not a multiple of the physics step)
         raise ParameterFileError(f"{source}: scenario: {exc}") from None
     s.string("description", "")

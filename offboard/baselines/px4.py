@@ -27,9 +27,9 @@ import math
 from dataclasses import dataclass
 
 from offboard.baselines.se3 import AttitudeTarget
+from offboard.controller.command import Command, StateEstimate
 from offboard.trajectory.base import Reference
 from sitl_plant.inner_loops import bodyz_to_attitude
-from sitl_plant.state import VehicleState
 
 Vec3 = tuple[float, float, float]
 
@@ -72,7 +72,12 @@ class Px4PositionController:
     gains : Px4Gains
     thrust_min_n, thrust_max_n : float
         Collective thrust range, N.
+
+    As a ``Controller`` (``step(state, ref_n, ref_n1) -> Command``) it gives the attitude setpoint,
+    thrust and yaw-rate feed-forward only: PX4's attitude and rate controllers fly the rest.
     """
+
+    name = "px4"
 
     def __init__(
         self,
@@ -90,6 +95,7 @@ class Px4PositionController:
             raise ValueError("thrust_min_n must be below thrust_max_n")
         self.mass_kg = float(mass_kg)
         self.dt = float(sample_time_s)
+        self.sample_time_s = self.dt
         self.gains = gains or Px4Gains()
         self.gravity_m_s2 = gravity_m_s2
         self.thrust_min_n = thrust_min_n
@@ -101,7 +107,11 @@ class Px4PositionController:
         self._int = [0.0, 0.0, 0.0]
         self._prev_err: list[float] | None = None
 
-    def step(self, state: VehicleState, reference: Reference) -> AttitudeTarget:
+    def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
+        """The ``Controller`` step: ``target``'s attitude setpoint, thrust and yaw feed-forward."""
+        return self.target(state, ref_n).command()
+
+    def target(self, state: StateEstimate, reference: Reference) -> AttitudeTarget:
         """The attitude setpoint and thrust for the measured state (NED) and the reference."""
         k = self.gains
         g = self.gravity_m_s2

@@ -15,7 +15,7 @@ As in RotorPy's ``SE3Control`` (``rotorpy/controllers/quadrotor_control.py``), t
 gains are scaled by the inertia (``J k_R``, ``J k_W``), the desired body rate is
 ``W_d = (0, 0, psi_d_dot)`` and the terms of Lee's eq. 16 in ``W_d_dot`` are left out. The gains
 default to RotorPy's for its 0.5 kg Hummingbird, whose mass and inertia are within 4 % of the
-paper's vehicle. ``tests/test_baselines.py`` checks this module against ``SE3Control`` itself
+paper's vehicle. ``tests/unit/offboard/test_baselines.py`` checks this module against ``SE3Control`` itself
 through the NED/FRD <-> ENU/FLU conversion when RotorPy is installed.
 
 Added for a real airframe (the same limits the other controllers get): the tilt of ``b3_d``
@@ -33,8 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from offboard.controller.command import Command, StateEstimate
 from offboard.trajectory.base import Reference
-from sitl_plant.state import VehicleState
+from sitl_plant.dynamics.rotations import euler_from_quat
 
 Vec3 = tuple[float, float, float]
 
@@ -63,6 +64,18 @@ class AttitudeTarget:
     @property
     def yaw_rate_ff_rad_s(self) -> float:
         return self.body_rate_frd_rad_s[2]
+
+    def command(self, torque_nm: Vec3 | None = None) -> Command:
+        """This target as the controller interface's ``Command`` (the attitude form, and a torque
+        when the controller computes one)."""
+        roll, pitch, yaw = (float(v) for v in euler_from_quat(np.array(self.quat_wxyz)))
+        return Command(
+            thrust_n=self.thrust_n,
+            attitude_wxyz=self.quat_wxyz,
+            yaw_rate_ff_rad_s=self.yaw_rate_ff_rad_s,
+            attitude_ref_euler_rad=(roll, pitch, yaw),
+            torque_nm=torque_nm,
+        )
 
 
 @dataclass(frozen=True)
@@ -131,7 +144,15 @@ class SE3Controller:
         Bounds on the collective thrust.
     tilt_max_rad : float or None
         Bound on the angle between ``b3_d`` and the vertical.
+    sample_time_s : float
+        The control period of ``step`` (the paper's To by default).
+
+    As a ``Controller`` (``step(state, ref_n, ref_n1) -> Command``) it gives the attitude target
+    R_d with thrust f and the feed-forward psi_d_dot, and Lee's moment M at the measured attitude
+    as the torque command; ``actuation()`` flies M at the physics rate instead.
     """
+
+    name = "se3"
 
     def __init__(
         self,
@@ -143,6 +164,7 @@ class SE3Controller:
         thrust_min_n: float | None = None,
         thrust_max_n: float | None = None,
         tilt_max_rad: float | None = None,
+        sample_time_s: float = 0.05,
     ) -> None:
         if mass_kg <= 0 or min(inertia_kg_m2) <= 0:
             raise ValueError("mass and inertia must be > 0")
@@ -155,11 +177,18 @@ class SE3Controller:
         self.thrust_min_n = thrust_min_n
         self.thrust_max_n = thrust_max_n
         self.tilt_max_rad = tilt_max_rad
-        self.target: AttitudeTarget | None = None
+        self.sample_time_s = float(sample_time_s)
+        self.last_target: AttitudeTarget | None = None
 
     def reset(self) -> None:
         """The controller keeps no memory between samples but its last target."""
-        self.target = None
+        self.last_target = None
+
+    def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
+        """The ``Controller`` step: ``target`` and Lee's moment at the measured attitude."""
+        target = self.target(state, ref_n)
+        _, torque = self.thrust_and_torque(state.quat_wxyz, state.body_rate_frd_rad_s, target)
+        return target.command(torque)
 
     def _clip_thrust(self, thrust_n: float) -> float:
         if self.thrust_min_n is not None:
@@ -168,7 +197,7 @@ class SE3Controller:
             thrust_n = min(thrust_n, self.thrust_max_n)
         return thrust_n
 
-    def step(self, state: VehicleState, reference: Reference) -> AttitudeTarget:
+    def target(self, state: StateEstimate, reference: Reference) -> AttitudeTarget:
         """F, R_d and W_d for the measured state (NED/FRD) and the reference (Lee eq. 15)."""
         g = self.gains
         m = self.mass_kg
@@ -197,13 +226,13 @@ class SE3Controller:
         r_d = ((b1[0], b2[0], b3[0]), (b1[1], b2[1], b3[1]), (b1[2], b2[2], b3[2]))
         r = _matrix(state.quat_wxyz)
         thrust = -(f[0] * r[0][2] + f[1] * r[1][2] + f[2] * r[2][2])  # f = -F . R e3
-        self.target = AttitudeTarget(
+        self.last_target = AttitudeTarget(
             thrust_n=self._clip_thrust(thrust),
             quat_wxyz=_quat_from_matrix(r_d),
             body_rate_frd_rad_s=(0.0, 0.0, float(reference.yaw_rate_rad_s)),
             force_ned_n=(f[0], f[1], f[2]),
         )
-        return self.target
+        return self.last_target
 
     def thrust_and_torque(
         self, quat_wxyz: np.ndarray | tuple[float, ...], body_rate_frd_rad_s: np.ndarray | tuple[float, ...],
@@ -231,7 +260,7 @@ class SE3Controller:
 
     def actuation(self, target: AttitudeTarget | None = None) -> SE3Actuation:
         """A ``VehicleSim`` actuation running this attitude law at every physics step (rigid body)."""
-        return SE3Actuation(self, target if target is not None else self.target)
+        return SE3Actuation(self, target if target is not None else self.last_target)
 
 
 class SE3Actuation:
@@ -239,7 +268,7 @@ class SE3Actuation:
 
     def __init__(self, controller: SE3Controller, target: AttitudeTarget | None) -> None:
         if target is None:
-            raise ValueError("no target: call SE3Controller.step first")
+            raise ValueError("no target: call SE3Controller.step or .target first")
         self.controller = controller
         self.target = target
 

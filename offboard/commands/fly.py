@@ -21,10 +21,13 @@ from pathlib import Path
 from typing import TextIO
 
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.controller.command import VEHICLE_MODELS as MODELS
 
 #: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
 PAPER_KEYWORD = "paper"
 from offboard import jsonout
+#: ``--controller se3`` / ``px4``: a baseline (``offboard.controllers``) believing what the law would.
+BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
 from offboard.metrics import check_tracking, format_table, summarize
@@ -32,7 +35,6 @@ from offboard.record import FlightStatus
 from sitl_plant.clihelp import HelpFormatter
 from sitl_plant.paths import output_folder
 
-MODELS = ("rigid-body", "paper")
 
 
 class FlyArgumentError(UserError, ValueError):
@@ -73,10 +75,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
     ctl.add_argument("--model", choices=MODELS, default="rigid-body",
                      help="what the vehicle is: a rigid body (ZYX angles, W_eta zyx) or sitl-plant --model paper (the file's W_eta)")
-    ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper",
-                     help="controller file, or 'paper' for Table I's gains (default: with the attitude output on a "
-                          "rigid body, gains designed for the vehicle's inner loop from its parameters, believing its "
-                          "SIM_*/SIH_* mass and inertia (docs/controller-design.md); else Table I's)")
+    ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper|se3|px4",
+                     help="controller file, or 'paper' for Table I's gains, or a baseline: 'se3' (Lee's SE(3) controller) "
+                          "or 'px4' (PX4's position cascade), believing what the law would (default: with the attitude "
+                          "output on a rigid body, gains designed for the vehicle's inner loop from its parameters, "
+                          "believing its SIM_*/SIH_* mass and inertia (docs/controller-design.md); else Table I's)")
     ctl.add_argument("--design-latency", type=float, default=None, metavar="S",
                      help="latency the designed gains allow for (default: 0 in lockstep; in real time measured, the "
                           "TIMESYNC round trip plus one telemetry period)")
@@ -122,6 +125,16 @@ def _check(args: argparse.Namespace) -> None:
         value = getattr(args, name)
         if value is not None and not 1 <= value <= 255:
             raise FlyArgumentError(f"--{name.replace('_', '-')}: must be 1..255, got {value}")
+    kind = _baseline(args)
+    if kind is not None and (args.output != "attitude" or args.model != "rigid-body"):
+        raise FlyArgumentError(f"--controller {kind}: flies --output attitude on a --model rigid-body vehicle only "
+                               f"(it gives an attitude target, thrust and yaw-rate feed-forward)")
+
+
+def _baseline(args: argparse.Namespace) -> str | None:
+    """The baseline ``--controller`` names, or None (a file, the paper's law, the default)."""
+    name = None if args.controller is None else str(args.controller)
+    return name if name in BASELINE_KEYWORDS else None
 
 
 class _Console:
@@ -192,11 +205,13 @@ def run(args: argparse.Namespace) -> int:
 
     _check(args)
     mission = load_mission(args.mission)
-    from_file = args.controller is not None and str(args.controller) != PAPER_KEYWORD
+    kind = _baseline(args) or "paper"
+    from_file = args.controller is not None and str(args.controller) not in (PAPER_KEYWORD, *BASELINE_KEYWORDS)
     base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
     latency = 0.0 if args.lockstep and args.design_latency is None else args.design_latency
     choice = ControllerChoice(
         base=base,
+        kind=kind,
         from_file=from_file,
         # the design models an autopilot's attitude loop: what the attitude output drives on a rigid
         # body; the paper model's own inner loop and the actuator output fly the paper's gains
@@ -233,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {"mission": mission.name, "mission_source": mission.source, "mission_file": str(args.mission.resolve()),
             "controller_file": str(args.controller.resolve()) if from_file else None,
             "controller_choice": "file" if from_file else ("tuned" if choice.tuned else "paper"),
+            "controller_kind": kind,
             "output": args.output, "model": args.model, "lockstep": args.lockstep, "clock": args.clock,
             "connect": args.connect}  # fmt: skip
     started = time.monotonic()

@@ -323,8 +323,13 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
                                                   summary=None if args.controller is not None else summary_json)  # fmt: skip
     except ValueError as exc:
         raise ReplayArgumentError(f"--rerun: {exc}") from None
-    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding)
-    label = f"controller: {origin}; model {model}"
+    from offboard.controllers import CONTROLLER_KINDS
+
+    kind = str((summary_json or {}).get("controller_kind") or "paper") if args.controller is None else "paper"
+    if kind not in CONTROLLER_KINDS:
+        raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {kind!r} is none of {', '.join(CONTROLLER_KINDS)}")
+    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind)
+    label = f"controller: {origin}{'' if kind == 'paper' else f', {kind}'}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}
     return result, text, payload, args.controller is None and result.exact

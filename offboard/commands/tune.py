@@ -28,6 +28,7 @@ from offboard.controller.tuning import (
     design_for_vehicle,
     design_summary,
     paper_gains_summary,
+    se3_gains_summary,
     tuned_params,
     vehicle_values,
 )
@@ -191,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
             args.output.write_text(text)
         except OSError as exc:
             raise TuneArgumentError(f"--output {args.output}: {exc.strerror or exc}") from None
-    for line in (*design_summary(design), paper_gains_summary(design)):
+    for line in (*design_summary(design), paper_gains_summary(design), se3_gains_summary(design)):
         print(line, file=sys.stderr)
     if args.output is None:
         sys.stdout.write(text)

@@ -529,6 +529,21 @@ def analyse_axis(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -
                         tracking_lead_s2(plant, gains, to), poles)  # fmt: skip
 
 
+def pd_analysis(plant: DiscretePlant, k_pos_s2: float, k_vel_s: float, sample_time_s: float) -> tuple[float, float, float, float]:
+    """(|pole| max, gain margin, phase margin deg, delay margin s) of a static PD on one axis,
+    ``a_sp = -k_pos p - k_vel v`` sampled every To (the form of SE(3)'s position loop, Lee eq.
+    15, without its feed-forward), on the same discretised plant as the law: how a baseline's
+    gains sit against the design's margins through the same attitude loop."""
+    to = sample_time_s
+    k = np.array([[-k_pos_s2, -k_vel_s, 0.0]])
+    rho = float(np.max(np.abs(np.linalg.eigvals(plant.phi + plant.gamma @ k @ plant.c))))
+    w = _frequencies(to)
+    z = np.exp(1j * w * to)
+    loop = -(_plant_response(plant, z) @ k[0])
+    gm, pm, dm = _margins(loop[None], w)
+    return rho, float(gm[0]), float(pm[0]), float(dm[0])
+
+
 @dataclass(frozen=True)
 class Design:
     """Gains for every axis of the law, with the analysis that chose them.

@@ -123,6 +123,21 @@ def paper_gains_summary(design: Design) -> str:
     return f"{head} |pole| max {a.spectral_radius:.3f}, gain margin {a.gain_margin:.2f}, phase margin {a.phase_margin_deg:.1f} deg"
 
 
+def se3_gains_summary(design: Design) -> str:
+    """One line: SE(3)'s horizontal position loop (RotorPy's gains, ``offboard.baselines.SE3Gains``)
+    on the same model, for comparison (``design.pd_analysis``)."""
+    from offboard.baselines.se3 import SE3Gains
+    from offboard.controller.design import axis_plants, pd_analysis
+
+    gains = SE3Gains()
+    north, _, _ = axis_plants(design.model, design.sample_time_s)
+    rho, gm, pm, dm = pd_analysis(north, gains.kx[0], gains.kv[0], design.sample_time_s)
+    head = f"SE(3) (kx {gains.kx[0]:g}/s^2, kv {gains.kv[0]:g}/s) on this loop:"
+    if rho >= 1.0:
+        return f"{head} UNSTABLE, |pole| max {rho:.3f}"
+    return f"{head} |pole| max {rho:.3f}, gain margin {gm:.2f}, phase margin {pm:.1f} deg, delay margin {dm * 1000:.0f} ms"
+
+
 def _fmt(value: float) -> str:
     return repr(float(value)) if math.isfinite(value) else "nan"
 

@@ -17,7 +17,7 @@ module runs the **same equations** (the very same ``rigid_body._rates`` and
   compiled call. Any other actuation (a baseline's attitude loop, say) is called in Python at
   every physics step, as ``VehicleSim`` does, and only the mixer and RK4 are compiled.
 
-Results equal the reference to rounding (``tests/test_batch.py``: 1e-12). Wind is sampled
+Results equal the reference to rounding (``tests/unit/sitl_plant/test_batch.py``: 1e-12). Wind is sampled
 once per physics step at the step's start time, as ``VehicleSim`` does; every wind model of
 ``dynamics.wind`` depends on time only, so a sample's wind is drawn before the sample runs.
 
@@ -567,7 +567,7 @@ class FastRigidBodySim(VehicleSim):
     Same constructor, attributes (``model``, ``x``, ``time_s``, ``steps``, ``on_ground``,
     ``actuation``) and methods (``step``, ``truth``, ``truth_position_ned``) as
     ``VehicleSim``, of which it is a subclass, and the same results to rounding
-    (``tests/test_batch.py``).
+    (``tests/unit/sitl_plant/test_batch.py``).
 
     ``HeldActuation`` and ``EulerAccelActuation`` run a whole ``step(n)`` in one compiled
     call, and so does an actuation with an ``advance_rigid_body(sim, n_steps, winds) -> bool``

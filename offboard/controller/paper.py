@@ -1,0 +1,113 @@
+"""The paper's law behind the controller interface: NED/FRD state in, a ``Command`` out.
+
+``PaperController`` is ``RosalesController`` (the law of eq. 28-42 and the real torques of eq.
+16, in the paper's z-up frame) with the conversions at its edges:
+
+- in: the measured Euler rates from the body rates by eq. 3 (``W_eta`` of the controller's form),
+  the 12-state of eq. 22 and the references in the paper's frame (``offboard.frames``), led by
+  ``[law] reference_lead_s2`` when it is set;
+- out (``paper_command``): the attitude target (the law's thrust axis at the heading x11d(n+1)
+  on a rigid body, ``frames.setpoint_attitude``), the yaw-rate feed-forward, the body-rate
+  target ``W_eta(eta(n)) (x8ref, x10ref, x12ref)`` (eq. 3), the torque input of the vehicle
+  model (the eq. 16 torques as body torques ``solve(W_eta^T, tau)`` on a rigid body, as they are
+  on the paper's model) and tau~ itself for the paper's inner loop.
+
+Which vehicle it talks to (``vehicle_model``: ``rigid-body``, any real vehicle, or the paper's
+model of eq. 13) sets the attitude and torque forms; the law is the same.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from offboard.controller.command import VEHICLE_MODELS, Command, StateEstimate
+from offboard.controller.law import ControlOutput, RosalesController
+from offboard.controller.params import ControllerParams
+from offboard.frames import (
+    body_rates_from_euler_rates,
+    body_torque_from_generalized,
+    euler_rates_from_body_rates,
+    paper_state,
+    setpoint_attitude,
+    tracking_reference,
+)
+from offboard.trajectory.base import Reference
+
+def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:
+    return (float(values[0]), float(values[1]), float(values[2]))
+
+
+def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: str) -> Command:
+    """The ``Command`` of one sample of the law (module docstring).
+
+    Parameters
+    ----------
+    out : ControlOutput
+        The law's output for sample n.
+    euler_rad : ndarray (3,)
+        The measured attitude of sample n, where eq. 3 maps the Euler-rate references.
+    params : ControllerParams
+        The controller that produced ``out`` (its W_eta form, whether it is yaw-aware).
+    vehicle_model : str
+        ``rigid-body`` or ``paper``.
+    """
+    if vehicle_model not in VEHICLE_MODELS:
+        raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
+    law = out.law
+    form = params.euler_rate_form
+    heading = float(euler_rad[2]) if params.yaw_aware else 0.0
+    q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, vehicle_model)
+    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), form)  # eq. 3
+    torque: np.ndarray | tuple[float, ...] = out.torques_nm
+    if vehicle_model == "rigid-body":
+        try:
+            torque = body_torque_from_generalized(out.torques_nm, euler_rad, form)
+        except np.linalg.LinAlgError:  # W_eta singular (pitch 90 deg): no torque to give
+            torque = (float("nan"),) * 3
+    return Command(
+        thrust_n=law.thrust_n,
+        attitude_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+        yaw_rate_ff_rad_s=float(law.yaw_rate_ff_rad_s),
+        attitude_ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
+        body_rate_frd_rad_s=_floats(rates),
+        torque_nm=_floats(torque),
+        euler_accel_rad_s2=law.tau_tilde,
+        generalized_torque_nm=_floats(out.torques_nm),
+        law=out,
+    )
+
+
+class PaperController:
+    """The paper's controller (eq. 28-42, 16) as a ``Controller``: ``step(state, ref_n, ref_n1)``.
+
+    Parameters
+    ----------
+    params : ControllerParams
+        Gains, belief, limits and the switchable extensions (``offboard/controller/paper.toml``
+        is the paper's law exactly).
+    vehicle_model : str
+        ``rigid-body`` (default) or ``paper`` (module docstring).
+    name : str
+        How records and tables call it.
+    """
+
+    def __init__(self, params: ControllerParams, *, vehicle_model: str = "rigid-body", name: str = "paper") -> None:
+        if vehicle_model not in VEHICLE_MODELS:
+            raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
+        self.name = name
+        self.params = params
+        self.vehicle_model = vehicle_model
+        self.sample_time_s = params.sample_time_s
+        self.law = RosalesController(params)
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
+        p = self.params
+        euler = state.euler_rad
+        rates = euler_rates_from_body_rates(euler, state.body_rate_frd_rad_s, p.euler_rate_form)  # eq. 3
+        x = paper_state(state.pos_ned_m, state.vel_ned_m_s, euler, rates)
+        lead = p.reference_lead_s2
+        out = self.law.step(x, tracking_reference(ref_n, lead), tracking_reference(ref_n1, lead))
+        return paper_command(out, euler, p, self.vehicle_model)

@@ -1,0 +1,77 @@
+"""``bench/run.py --quick``: the harness runs end to end and writes a complete report.
+
+Tiny sizes, so this checks the harness and the agreements it measures (closed form = pseudo-
+inverse, compiled = reference physics), never a speed: speed is only ever printed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from helpers import REPO
+
+
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]
+
+
+def _finite_positive(value: float) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench") / "RESULTS.md"
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "bench" / "run.py"), "--quick", "--workers", "1", "--output", str(out)],
+        capture_output=True, text=True, timeout=600, cwd=REPO,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out, json.loads((out.parent / "results.json").read_text())
+
+
+def test_report_has_every_section(quick_run):
+    out, _ = quick_run
+    text = out.read_text()
+    for heading in ("# Benchmarks", "## Speed", "### Controller step", "### Physics: one vehicle",
+                    "### Physics: many vehicles", "### MAVLink lockstep loop", "### Real-time loop",
+                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop"):  # fmt: skip
+        assert heading in text, heading
+    assert "Machine:" in text and "python bench/run.py --quick" in text
+    assert (out.parent / "img" / "tracking-helix.png").stat().st_size > 1000
+
+
+def test_speed_figures_and_agreements(quick_run):
+    _, results = quick_run
+    c, p = results["speed"]["controller"], results["speed"]["physics"]
+    for key in ("law_step_us", "law_step_yaw_aware_limits_us", "controller_step_us", "pinv_us"):
+        assert _finite_positive(c[key]), key
+    assert c["pinv_max_difference"] < 1e-9  # eq. 39-42 solve eq. 35 exactly
+    for key in ("fast_x_realtime", "fast_physics_only_x_realtime", "vehicle_sim_x_realtime", "no_numba_x_realtime"):
+        assert _finite_positive(p[key]), key
+    assert p["max_position_difference_m"] < 1e-9  # the fast simulator flies as the reference
+    assert [row["vehicles"] for row in results["speed"]["batch"]] == [1, 10]
+    assert all(_finite_positive(row["compiled_per_s"]) for row in results["speed"]["batch"])
+
+
+def test_tracking_flies_every_controller_in_every_condition(quick_run):
+    _, results = quick_run
+    flights = results["tracking"]["flights"]
+    combos = {(f["loop"], f["condition"], f["controller"]) for f in flights}
+    assert len(combos) == len(flights) == 32  # 4 conditions x 4 controllers x 2 loops
+    assert {f["controller"] for f in flights if f["loop"] == "px4-attitude"} == {"paper", "paper-designed", "se3", "px4"}
+    for f in flights:
+        assert f["diverged_at_s"] is None, f
+        assert f["flown_s"] == pytest.approx(0.5)
+        assert 0.0 <= f["rms_m"] <= f["max_m"] < 5.0
+
+
+def test_bad_option_is_one_line():
+    proc = subprocess.run([sys.executable, str(REPO / "bench" / "run.py"), "--only", "speed,warp"],
+                          capture_output=True, text=True, cwd=REPO)  # fmt: skip
+    assert proc.returncode == 2
+    assert "unknown part 'warp'" in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,54 @@
+"""``offboard fly`` against a real PX4 v1.16 SITL (SIH quadrotor), with no controller file.
+
+The offboard reads SIH's vehicle (SIH_MASS, SIH_T_MAX x rotors, SIH_I**, SIH_KDV) and PX4's
+MC_* gains, designs the law's gains for that inner loop (docs/controller-design.md) and flies.
+Before the design, Table I's gains flew an attitude limit cycle of +-20-36 deg in every hold.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from offboard.missions import MISSIONS_DIR
+from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from helpers.flights import ENV, PY
+
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
+              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+
+
+def test_the_paper_helix_flies_smoothly_through_px4s_attitude_loop(tmp_path):
+    run = tmp_path / "run"
+    with running_px4(tmp_path / "px4") as px4:
+        flown = subprocess.run(
+            [PY, "-m", "offboard.cli", "fly", str(MISSIONS_DIR / "paper-helix.toml"), "--connect",
+             f"udpin:127.0.0.1:{px4.api_listen_port}", "--run-dir", str(run), "--no-plots", "--json"],
+            capture_output=True, text=True, env=ENV, timeout=240,
+        )  # fmt: skip
+    assert flown.returncode == 0, flown.stderr
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["controller_choice"] == "tuned"
+    c = summary["controller"]
+    # SIH's vehicle, read from PX4: 1 kg, 4 x 5 N, its inertia and drag; no --thrust-max-n needed
+    assert c["mass_kg"] == pytest.approx(1.0) and c["thrust_max_n"] == pytest.approx(20.0)
+    assert c["inertia_kg_m2"] == pytest.approx([0.025, 0.025, 0.03]) and c["linear_drag_n_s_m"] == pytest.approx(1.0)
+    assert c["gains"]["kx1"] != 0.78  # designed, not Table I's
+    d = np.genfromtxt(run / "series.csv", delimiter=",", names=True)
+    t = d["t_s"]
+    tilt = np.degrees(np.arccos(np.cos(d["euler_rad_0"]) * np.cos(d["euler_rad_1"])))
+    err = np.linalg.norm(np.stack([d[f"pos_ned_m_{i}"] - d[f"ref_pos_ned_m_{i}"] for i in range(3)], 1), axis=1)
+    hold = (t >= 18.5) & (t < 25.0)  # the second half of the hold at 12 m
+    helix = (t >= 5.0) & (t < 11.9)
+    helix_rms = float(np.sqrt(np.mean(err[helix] ** 2)))
+    print(f"\nreal PX4: hold tilt max {tilt[hold].max():.2f} deg, helix 5-11.9 s RMS {helix_rms:.3f} m")
+    # no limit cycle: Table I rang at 20-36 deg here; the design keeps a few degrees of
+    # estimator noise (the issue's target: 5 deg)
+    assert tilt[hold].max() < 5.0
+    # The design predicts 0.05 m; PX4 SITL in real time flew 0.09-0.25 m over this session's runs
+    # (its EKF and the machine's load move it). 0.5 m still catches a wrong frame, sign or scale,
+    # any of which costs metres; the hold's tilt above is what tells Table I (49 deg) apart.
+    assert helix_rms < 0.5

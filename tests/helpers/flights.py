@@ -1,0 +1,180 @@
+"""Flights for the end-to-end tests: real processes on free loopback ports.
+
+``fly()`` starts ``offboard fly`` first (listening, so it hears the plant's very first packets),
+then ``sitl-plant`` aimed at it, lets the test act while they fly (``during``), and always stops
+both. ``UdpProxy`` sits between them when a test needs to cut the link. The few tests at the
+end check the helpers themselves.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from bench.linkdelay import DelayedLink
+from offboard.demo import free_udp_ports, stop_process
+
+PY = sys.executable
+ENV = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
+
+
+def write_mission(path: Path, segments: str, name: str = "test-mission") -> Path:
+    """A parametric mission file (paper frame, z up) from its ``[[mission.segment]]`` tables."""
+    path.write_text(
+        f'[mission]\nname = "{name}"\nframe = "paper-zup"\nangle_unit = "rad"\nstart = [0, 0, 0]\nstart_yaw = 0\n\n'
+        + segments
+    )
+    return path
+
+
+def hover_mission(path: Path, height_m: float = 2.0, duration_s: float = 3.0) -> Path:
+    return write_mission(path, f'[[mission.segment]]\ntype = "hold"\nname = "hover"\nposition = [0, 0, {height_m}]\n'
+                               f"yaw = 0\nuntil_s = {duration_s}\n")
+
+
+@dataclass
+class Context:
+    """What a test can reach while the two processes fly."""
+
+    fly: subprocess.Popen
+    plant: subprocess.Popen
+    plant_port: int
+    offboard_port: int
+    gcs_port: int | None
+    stderr_path: Path
+    proxy: UdpProxy | None = None
+
+    def stderr(self) -> str:
+        return self.stderr_path.read_text(errors="replace")
+
+    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+        """Block until ``offboard fly`` has printed ``text`` on stderr (or fail)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if text in self.stderr():
+                return
+            if self.fly.poll() is not None:
+                pytest.fail(f"offboard fly exited ({self.fly.returncode}) before printing {text!r}:\n{self.stderr()}")
+            time.sleep(0.02)
+        pytest.fail(f"offboard fly did not print {text!r} within {timeout_s} s:\n{self.stderr()}")
+
+
+@dataclass
+class Flown:
+    returncode: int
+    stdout: str
+    stderr: str
+    run_dir: Path
+    tlog: Path
+    plant_tlog: Path
+    plant_returncode: int | None
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def status(self) -> str:
+        return str(self.summary.get("status", ""))
+
+
+class UdpProxy(DelayedLink):
+    """Forwards datagrams between the plant and ``offboard fly`` at once; ``drop`` cuts both ways.
+
+    The plant sends to ``port`` (its ``--api-remote``), which forwards to the offboard's port;
+    whatever the offboard answers goes back to the plant, so each process sees one peer, as
+    without the proxy (``bench/linkdelay.py`` with no delay).
+    """
+
+    def __init__(self, plant_port: int, offboard_port: int) -> None:
+        super().__init__(plant_port, offboard_port, delay_s=0.0)
+
+
+def fly(
+    tmp_path: Path,
+    mission: Path | str,
+    *,
+    fly_args: tuple[str, ...] = (),
+    plant_args: tuple[str, ...] = (),
+    lockstep: bool = True,
+    gcs: bool = False,
+    proxy: bool = False,
+    during: Callable[[Context], None] | None = None,
+    timeout_s: float = 240.0,
+    name: str = "run",
+) -> Flown:
+    """Fly ``mission`` with ``offboard fly`` against ``sitl-plant``, both real processes."""
+    run_dir = tmp_path / name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    plant_port, offboard_port, gcs_port = free_udp_ports(3)
+    stderr_path = run_dir / "offboard.stderr"
+    tlog, plant_tlog = run_dir / "flight.tlog", run_dir / "plant.tlog"
+    fly_cmd = [PY, "-m", "offboard.cli", "fly", str(mission), "--connect", f"udpin:127.0.0.1:{offboard_port}",
+               "--run-dir", str(run_dir), "--log", str(tlog), "--no-plots", "--json", *fly_args]
+    if lockstep:
+        fly_cmd.append("--lockstep")
+    plant_cmd = [PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--quiet", "--log", str(plant_tlog),
+                 *(["--gcs-bind", f"127.0.0.1:{gcs_port}", "--gcs-remote", "none"] if gcs else ["--gcs-bind", "none"]),
+                 *plant_args]
+    if lockstep:
+        plant_cmd.append("--lockstep")
+    proxy_obj = UdpProxy(plant_port, offboard_port) if proxy else None
+    plant_cmd += ["--api-remote", f"127.0.0.1:{proxy_obj.port if proxy_obj else offboard_port}"]
+    fly_proc = plant_proc = None
+    stdout = ""
+    try:
+        if proxy_obj is not None:
+            proxy_obj.__enter__()
+        with stderr_path.open("w") as err:
+            fly_proc = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=ENV)
+        ctx = Context(fly_proc, None, plant_port, offboard_port, gcs_port if gcs else None, stderr_path, proxy_obj)  # type: ignore[arg-type]
+        ctx.wait_for("listening on", 30)
+        plant_proc = subprocess.Popen(plant_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV)
+        ctx.plant = plant_proc
+        if during is not None:
+            during(ctx)
+        try:
+            stdout, _ = fly_proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            fly_proc.kill()
+            stdout, _ = fly_proc.communicate()
+            pytest.fail(f"offboard fly did not finish within {timeout_s} s:\n{stderr_path.read_text()}")
+    finally:
+        if fly_proc is not None and fly_proc.poll() is None:
+            stop_process(fly_proc)
+        plant_code = stop_process(plant_proc) if plant_proc is not None else None
+        if proxy_obj is not None:
+            proxy_obj.__exit__(None, None, None)
+    summary_path = run_dir / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    return Flown(fly_proc.returncode, stdout, stderr_path.read_text(errors="replace"), run_dir, tlog, plant_tlog, plant_code, summary)
+
+
+def read_tlog(path: Path) -> list:
+    """Every message of a tlog, as pymavlink reads it (the whole file must parse)."""
+    log = mavutil.mavlink_connection(str(path), dialect="common", robust_parsing=False)
+    out = []
+    while True:
+        msg = log.recv_match()
+        if msg is None:
+            break
+        out.append(msg)
+    return out
+
+
+def series(flown: Flown) -> dict:
+    """The record of a flight (series.csv) as arrays."""
+    import numpy as np
+
+    with (flown.run_dir / "series.csv").open() as fh:
+        header = fh.readline().strip().split(",")
+        data = np.loadtxt(fh, delimiter=",", ndmin=2)
+    return {name: data[:, i] for i, name in enumerate(header)}

@@ -1,0 +1,299 @@
+"""The gain design of docs/controller-design.md: the inner-loop model, the closed loop, the search.
+
+Pure tests (no processes): the discretisation against a fine simulation, the law's state space
+against ``law_step`` itself, Table I's margins through an autopilot's attitude loop (the limit
+cycle the issue measured), and the designed gains' margins.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from offboard.controller import PAPER_CONTROLLER_FILE, LawMemory, TrackingReference, law_step, load_controller
+from offboard.controller.design import (
+    AxisGains,
+    MarginSpec,
+    TiltLoop,
+    analyse_axis,
+    axis_plants,
+    closed_loop,
+    design_gains,
+    discretise,
+    inner_loop_from_params,
+    law_state_space,
+    reference_response,
+    tilt_axis_plant,
+    vertical_plant,
+)
+from offboard.controller.params import ActionLimits
+from sitl_plant.params import plant_params
+from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from helpers import SHARED
+
+PX4_PARAMS_JSON = SHARED / "px4-sitl" / "params.json"
+TO = 0.05
+
+
+def plant_vehicle_params() -> dict[str, float]:
+    table = plant_params(load_vehicle(PAPER_VEHICLE_FILE))
+    return {name: table[name] for name in table}
+
+
+def sih_params() -> dict[str, float]:
+    """PX4 SIH's published values (its README), as a vehicle publishes them."""
+    if PX4_PARAMS_JSON.is_file():
+        return {k: float(v["value"]) for k, v in json.loads(PX4_PARAMS_JSON.read_text()).items()}
+    return {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_IXX": 0.025, "SIH_IYY": 0.025, "SIH_IZZ": 0.03, "SIH_L_ROLL": 0.2,
+            "SIH_L_PITCH": 0.2, "SIH_T_TAU": 0.05, "MC_ROLL_P": 6.5, "MC_PITCH_P": 6.5}  # fmt: skip
+
+
+def simulate(a: np.ndarray, b: np.ndarray, inputs: np.ndarray, to: float, latency: float, steps: int = 2000) -> np.ndarray:
+    """x(n) of dx/dt = A x + B u with u(n) acting from n To + latency, by fine RK4."""
+    h = to / steps
+    x = np.zeros(a.shape[0])
+    out = [x.copy()]
+    for n in range(len(inputs)):
+        for k in range(steps):
+            t = n * to + k * h
+            idx = math.floor((t - latency) / to + 1e-9)
+            u = inputs[idx] if idx >= 0 else 0.0
+            f = lambda s: a @ s + b[:, 0] * u  # noqa: E731
+            k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)  # noqa: E702
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out.append(x.copy())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("latency", [0.0, 0.013, 0.05, 0.071])
+def test_discretisation_with_latency_matches_a_fine_simulation(latency):
+    a, b = tilt_axis_plant(TiltLoop(torque_per_unit_nm=1.18, motor_time_constant_s=0.02))
+    plant = discretise(a, b, TO, latency, tilt_state=2)
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=12)
+    fine = simulate(a, b, u, TO, latency, steps=200)
+    x = np.zeros(plant.phi.shape[0])
+    for n in range(len(u)):
+        x = plant.phi @ x + plant.gamma[:, 0] * u[n]
+        assert_allclose(x[:6], fine[n + 1], rtol=1e-6, atol=1e-9)
+    assert_allclose(plant.c @ x, fine[-1][[0, 1, 2]], rtol=1e-6, atol=1e-9)
+
+
+def test_vertical_plant_is_a_double_integrator_behind_the_motor_lag():
+    plant = discretise(*vertical_plant(1e-6), TO, 0.0)  # no lag: the exact ZOH double integrator
+    assert_allclose(plant.phi[:2, :2], [[1.0, TO], [0.0, 1.0]], atol=1e-9)
+    x = plant.phi @ np.zeros(plant.phi.shape[0]) + plant.gamma[:, 0]
+    assert_allclose(x[:2], [TO**2 / 2, TO], rtol=5e-3)  # the model floors the lag at 0.1 ms
+
+
+@pytest.mark.parametrize("lead", [0.0, 0.75])
+def test_the_state_space_is_the_law_itself_on_one_axis(lead):
+    """law_state_space (linear, one axis) gives the acceleration law_step asks for (small signals)."""
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(tilt_lead=lead)
+    g, to = params.gravity_m_s2, params.sample_time_s
+    p, v, vd_prev, pitch = 1e-3, -2e-3, 5e-4, 1e-4  # north position, speed, memory x2d(n), pitch
+    x = (p, v, 0, 0, 0, 0, 0, 0, pitch, 0, 0, 0)
+    memory = LawMemory(vd_prev, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, pitch)
+    ref = TrackingReference(0.0, 0.0, 0.0, 0.0)
+    out, mem = law_step(params, memory, x, ref, ref)
+    # paper pitch accelerates towards -x: a = -g tan(pitch); the model's tilt is v_dot / g = -pitch
+    a_law = -g * math.tan(out.pitch_setpoint_rad)
+    ss = law_state_space(AxisGains(params.gains.kx1, params.gains.kx2, lead), to, g)
+    y = np.array([p, v, -pitch])
+    a_ss = float(ss["c"][0] @ np.array([vd_prev]) + ss["d"][0] @ y)
+    vd_next = float(ss["a"][0] @ np.array([vd_prev]) + ss["b"][0] @ y)
+    assert a_law == pytest.approx(a_ss, rel=1e-4)
+    assert mem.x2d == pytest.approx(vd_next, rel=1e-9)
+
+
+def test_table_one_rings_through_an_autopilot_attitude_loop():
+    """Table I through the plant's PX4 loop has almost no margin (the demo's +-30 deg limit
+    cycle), and through PX4 SIH's slower rate loop and motors it is unstable (PX4's)."""
+    table1 = AxisGains(0.78, 0.8)
+    north, _, up = axis_plants(inner_loop_from_params(plant_vehicle_params()), TO)
+    a = analyse_axis(north, table1, TO)
+    assert a.spectral_radius < 1.0 and a.gain_margin < 1.3 and a.phase_margin_deg < 10.0
+    north_sih, _, _ = axis_plants(inner_loop_from_params(sih_params()), TO)
+    assert analyse_axis(north_sih, table1, TO).spectral_radius > 1.0
+    # the vertical loop (thrust lag only) is not the problem
+    assert analyse_axis(up, AxisGains(0.9, 0.95), TO).phase_margin_deg > 45.0
+
+
+@pytest.mark.parametrize("params", ["plant", "sih"])
+@pytest.mark.parametrize("to, latency", [(0.05, 0.0), (0.05, 0.07), (0.02, 0.01)])
+def test_designed_gains_keep_the_stated_margins(params, to, latency):
+    spec = MarginSpec()
+    values = plant_vehicle_params() if params == "plant" else sih_params()
+    design = design_gains(inner_loop_from_params(values, latency), to, spec)
+    for axis in (design.north, design.east, design.up):
+        assert axis.meets(spec), axis
+        g = axis.gains
+        assert 0.0 < float(g.k_pos) < 1.0 and 0.0 < float(g.k_vel) < 1.0  # Appendix A's range
+    # the same gains a second time (a pure function of the model)
+    assert design_gains(inner_loop_from_params(values, latency), to, spec).horizontal == design.horizontal
+
+
+def test_a_margin_the_loop_cannot_keep_is_one_clear_error():
+    with pytest.raises(ValueError, match="no gains .* keep gain margin 50"):
+        design_gains(inner_loop_from_params(plant_vehicle_params()), TO, MarginSpec(gain_margin=50.0))
+
+
+def test_reference_response_passes_position_and_velocity_exactly():
+    """T(1) = 1 and T'(0) = 0: eq. 32 hands the reference's velocity on; what is left at low
+    frequency is c2 s^2 (``reference_lead_s2``), and handing the law r - c2 r'' removes it."""
+    north, _, _ = axis_plants(inner_loop_from_params(plant_vehicle_params()), TO)
+    design = design_gains(inner_loop_from_params(plant_vehicle_params()), TO)
+    w = np.array([1e-4, 0.05])
+    t = reference_response(north, design.horizontal, TO, w)
+    assert abs(t[0] - 1.0) < 1e-6
+    c2 = design.north.reference_lead_s2
+    assert t[1] == pytest.approx(1.0 + c2 * (1j * w[1]) ** 2, abs=1e-5)
+    s = 1j * 0.3
+    lead_on = reference_response(north, design.horizontal, TO, np.array([0.3]))[0] * (1.0 - c2 * s**2)
+    assert abs(lead_on - 1.0) < abs(t[1] - 1.0) * 40 and abs(lead_on - 1.0) < 1e-3
+
+
+def test_the_integral_state_removes_a_constant_disturbance():
+    """With integral action the closed loop's position returns to the reference under a
+    constant acceleration disturbance (modelled as a constant input offset)."""
+    north, _, _ = axis_plants(inner_loop_from_params(plant_vehicle_params()), TO)
+    for ki, settles in ((0.0, False), (0.3, True)):
+        m, _ = closed_loop(north, AxisGains(0.93, 0.93, 0.0, ki), TO)
+        x = np.zeros(m.shape[0])
+        n = north.phi.shape[0]
+        for _ in range(2000):
+            x = m @ x
+            x[:n] += north.gamma[:, 0] * 0.5  # 0.5 m/s^2 of disturbance each sample
+        assert bool(abs(x[0]) < 1e-3) is settles
+
+
+def test_inner_loop_from_sih_params_uses_px4s_allocation_scale():
+    m = inner_loop_from_params(sih_params())
+    # 4 rotors at L_ROLL 0.2 m, T_MAX 5 N, each taking 1/sqrt(2) of a unit roll command
+    assert m.roll.torque_per_unit_nm == pytest.approx(0.2 * 5.0 * 4 / math.sqrt(2), rel=1e-6)
+    assert m.roll.inertia_kg_m2 == pytest.approx(0.025) and m.thrust_time_constant_s == pytest.approx(0.05)
+    with pytest.raises(KeyError, match="SIM_TQ_RP_MAX nor SIH_T_MAX"):
+        inner_loop_from_params({"MC_ROLL_P": 6.5})
+
+
+# --- the law's extensions the design uses ---------------------------------------------------------
+
+
+def hover_state(**kw: float) -> tuple[float, ...]:
+    x = [0.0] * 12
+    for i, v in kw.items():
+        x[int(i[1:]) - 1] = v
+    return tuple(x)
+
+
+def test_tilt_cone_bounds_the_thrust_axis_not_each_angle():
+    base = load_controller(PAPER_CONTROLLER_FILE)
+    x = hover_state(x5=5.0)
+    far = TrackingReference(30.0, 30.0, 5.0, 0.0)
+    tilt = lambda out: math.degrees(math.acos(math.cos(out.roll_ref_rad) * math.cos(out.pitch_ref_rad)))  # noqa: E731
+    per_axis = base.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(35)))
+    out, _ = law_step(per_axis, LawMemory.from_state(x), x, far, far)
+    assert tilt(out) == pytest.approx(47.8, abs=0.2)  # 35 deg on both angles
+    cone = base.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(35), tilt_cone=True))
+    out_c, _ = law_step(cone, LawMemory.from_state(x), x, far, far)
+    assert tilt(out_c) == pytest.approx(35.0, abs=1e-9)
+    # the horizontal direction of the thrust axis is kept: (-sin theta, cos theta sin phi)
+    d = lambda o: math.atan2(math.cos(o.pitch_ref_rad) * math.sin(o.roll_ref_rad), -math.sin(o.pitch_ref_rad))  # noqa: E731
+    unbounded, _ = law_step(base.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(89), tilt_cone=True)),
+                            LawMemory.from_state(x), x, far, far)  # fmt: skip
+    assert d(out_c) == pytest.approx(d(unbounded), abs=1e-9)
+
+
+def test_speed_limits_bound_the_desired_speeds_of_eq_32():
+    limits = ActionLimits(speed_xy_max_m_s=2.0, speed_up_max_m_s=3.0, speed_down_max_m_s=1.5)
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(limits=limits)
+    x = hover_state(x5=12.0)
+    for ref, check in (
+        (TrackingReference(40.0, -30.0, 12.0, 0.0), lambda m: math.hypot(m.x2d, m.x4d) == pytest.approx(2.0)),
+        (TrackingReference(0.0, 0.0, 0.0, 0.0), lambda m: m.x6d == pytest.approx(-1.5)),
+        (TrackingReference(0.0, 0.0, 40.0, 0.0), lambda m: m.x6d == pytest.approx(3.0)),
+    ):
+        _, memory = law_step(params, LawMemory.from_state(x), x, ref, ref)
+        assert check(memory)
+    # inside the bounds nothing changes
+    near = TrackingReference(0.01, 0.0, 12.0, 0.0)
+    free, _ = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, near, near)
+    bounded, _ = law_step(params, LawMemory.from_state(x), x, near, near)
+    assert free == bounded
+
+
+def test_the_believed_drag_is_made_up_by_the_thrust():
+    params = load_controller(PAPER_CONTROLLER_FILE)
+    x = hover_state(x2=2.0, x5=5.0)  # flying north at 2 m/s
+    ref_n, ref_n1 = TrackingReference(0.0, 0.0, 5.0, 0.0), TrackingReference(0.1, 0.0, 5.0, 0.0)
+    memory = LawMemory.from_state(x)
+    plain, _ = law_step(params, memory, x, ref_n, ref_n1)
+    dragged, _ = law_step(params.with_changes(linear_drag_n_s_m=1.0), memory, x, ref_n, ref_n1)
+    # tan(pitch) (dx6 + g To) = -dx2: the drag adds To d/m x2 = 0.05 * 1 / 0.5 * 2 = 0.2 m/s to dx2
+    vertical = params.gravity_m_s2 * params.sample_time_s
+    assert -math.tan(dragged.pitch_ref_rad) * vertical == pytest.approx(-math.tan(plain.pitch_ref_rad) * vertical + 0.2)
+
+
+def test_yaw_rate_feed_forward_is_the_references_own():
+    params = load_controller(PAPER_CONTROLLER_FILE)
+    x = hover_state(x5=2.0)
+    out, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 2, 0.0), TrackingReference(0, 0, 2, math.pi, 0.0))
+    assert out.yaw_rate_ff_rad_s == 0.0 and abs(out.euler_rate_ref_rad_s[2]) > 50.0  # the pi step: 63 rad/s of x12ref
+    out, _ = law_step(params, LawMemory.from_state(x), x, TrackingReference(0, 0, 2, 0.0, 0.5), TrackingReference(0, 0, 2, 0.025, 0.5))
+    assert out.yaw_rate_ff_rad_s == 0.5
+
+
+def test_the_tilt_lead_leads_the_setpoint_past_the_measured_angle():
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(tilt_lead=1.5)
+    x = hover_state(x5=5.0, x7=0.05)
+    ref = TrackingReference(0.0, 0.3, 5.0, 0.0)
+    out, _ = law_step(params, LawMemory.from_state(x), x, ref, ref)
+    assert out.roll_setpoint_rad == pytest.approx(out.roll_ref_rad + 1.5 * (out.roll_ref_rad - 0.05))
+    plain, _ = law_step(params.with_changes(tilt_lead=0.0), LawMemory.from_state(x), x, ref, ref)
+    assert plain.roll_setpoint_rad == plain.roll_ref_rad and plain.pitch_setpoint_rad == plain.pitch_ref_rad
+    assert plain.thrust_n == out.thrust_n and plain.roll_ref_rad == out.roll_ref_rad  # the law itself is unchanged
+
+
+def test_the_batch_law_gives_the_same_extensions():
+    from offboard.controller.law import NUMPY_OPS
+
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(
+        tilt_lead=0.5, linear_drag_n_s_m=0.3,
+        limits=ActionLimits(tilt_max_rad=math.radians(30), tilt_cone=True, speed_xy_max_m_s=2.0, speed_down_max_m_s=1.0),
+    )  # fmt: skip
+    rng = np.random.default_rng(5)
+    xs = rng.normal(scale=0.3, size=(12, 6))
+    refs = [TrackingReference(*rng.normal(scale=3, size=3), 0.0) for _ in range(2)]
+    batch_ref = [TrackingReference(*(np.full(6, v) for v in r)) for r in refs]
+    out_b, _ = law_step(params, LawMemory.from_state(xs), xs, *batch_ref, ops=NUMPY_OPS)
+    for k in range(6):
+        x = tuple(float(v) for v in xs[:, k])
+        out, _ = law_step(params, LawMemory.from_state(x), x, *refs)
+        assert out_b.roll_setpoint_rad[k] == pytest.approx(out.roll_setpoint_rad, abs=1e-12)
+        assert out_b.thrust_n[k] == pytest.approx(out.thrust_n, abs=1e-9)
+
+
+def test_a_bounded_yaw_rate_slews_the_yaw_reference():
+    """A pi step under yaw_rate_max: the reference turns at the bound, its rate is the
+    feed-forward, and it arrives; without the bound the step passes in one sample (the paper)."""
+    rate = math.radians(45.0)
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(limits=ActionLimits(yaw_rate_max_rad_s=rate))
+    x = hover_state(x5=5.0)
+    ref = TrackingReference(0.0, 0.0, 5.0, math.pi - 1e-9)
+    memory = LawMemory.from_state(x)
+    yaws = []
+    for _ in range(90):
+        out, memory = law_step(params, memory, x, ref, ref)
+        yaws.append(out.yaw_ref_rad)
+        if len(yaws) == 1:
+            assert out.yaw_rate_ff_rad_s == pytest.approx(rate) and abs(out.euler_rate_ref_rad_s[2]) < 5.0
+    steps = np.diff([0.0, *yaws])
+    assert np.all(steps <= rate * 0.05 + 1e-12) and yaws[-1] == pytest.approx(math.pi - 1e-9)
+    assert sum(s > 0 for s in steps) == math.ceil(math.pi / (rate * 0.05))  # 80 samples: 4 s
+    unbounded, _ = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, ref, ref)
+    assert unbounded.yaw_ref_rad == ref.yaw_rad

@@ -1,0 +1,357 @@
+"""Replay of MAVLink logs the project did not write, damaged logs, statistics and streaming.
+
+The "foreign" log is written here with pymavlink, as a PX4 vehicle seen by a ground station
+would leave it: another system id, no setpoints, ATTITUDE and LOCAL_POSITION_NED at different
+rates and stamps, POSITION_TARGET_LOCAL_NED, mode changes, a failsafe, a telemetry gap and
+packets missing from the sequence.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import struct
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+from offboard.cli import main
+from offboard.errors import LogFormatError
+from offboard.replay import (
+    LoggedMessage,
+    SeqCounter,
+    TlogReader,
+    build_record,
+    log_report,
+    px4_mode_name,
+    scan_log,
+    stream_log,
+)
+
+from helpers.logs import EPOCH_US, VEHICLE, MODE_HOLD, MODE_OFFBOARD, MODE_LAND, POSITION_AND_YAW, DROPPED, ForeignLog, f32, write_foreign_log
+
+
+@pytest.fixture(scope="module")
+def foreign(tmp_path_factory) -> ForeignLog:
+    return write_foreign_log(tmp_path_factory.mktemp("foreign") / "px4-gcs.tlog")
+
+
+@pytest.fixture(scope="module")
+def foreign_scan(foreign):
+    reader = TlogReader(foreign.path)
+    return reader, scan_log(reader)
+
+
+# --- reading ------------------------------------------------------------------------------------
+
+
+def test_reader_reads_every_record_with_its_offset(foreign):
+    records = list(TlogReader(foreign.path))
+    assert [r.offset for r in records] == foreign.offsets
+    assert records[0].time_s == pytest.approx(EPOCH_US / 1e6)
+
+
+def cut(path: Path, data: bytes, name: str) -> Path:
+    out = path.parent / name
+    out.write_bytes(data)
+    return out
+
+
+@pytest.mark.parametrize("shortfall", [1, 5, 12])
+def test_truncated_log_is_read_up_to_its_last_whole_record(foreign, shortfall):
+    data = foreign.path.read_bytes()
+    path = cut(foreign.path, data[: len(data) - shortfall], f"truncated-{shortfall}.tlog")
+    reader = TlogReader(path)
+    records = list(reader)
+    assert len(records) == len(foreign.offsets) - 1
+    assert len(reader.damages) == 1
+    damage = reader.damages[0]
+    assert damage.offset == foreign.offsets[-1] and damage.resumed_at is None
+    line = reader.describe_damage()
+    assert f"byte {foreign.offsets[-1]}" in line and "\n" not in line and "mid-packet" in line
+
+
+@pytest.mark.parametrize("where", ["checksum", "header", "timestamp"])
+def test_corrupted_record_is_skipped_and_reading_resumes(foreign, where):
+    data = bytearray(foreign.path.read_bytes())
+    k = len(foreign.offsets) // 2
+    start = foreign.offsets[k]
+    # byte 8 is the packet's start marker, 9 its length, the last byte its checksum, byte 0
+    # the high byte of the timestamp (a jump of years)
+    position = {"checksum": foreign.offsets[k + 1] - 1, "header": start + 8, "timestamp": start}[where]
+    data[position] ^= 0x5A
+    path = cut(foreign.path, bytes(data), f"corrupt-{where}.tlog")
+    reader = TlogReader(path)
+    records = list(reader)
+    assert [r.offset for r in records] == foreign.offsets[:k] + foreign.offsets[k + 1 :]
+    assert [(d.offset, d.resumed_at) for d in reader.damages] == [(start, foreign.offsets[k + 1])]
+    assert f"byte {start}" in reader.describe_damage()
+
+
+def test_garbage_in_the_middle_is_skipped(foreign):
+    data = foreign.path.read_bytes()
+    k = len(foreign.offsets) // 3
+    start = foreign.offsets[k]
+    junk = bytes(range(256)) * 3  # holds 0xFD and 0xFE markers that are no packets
+    path = cut(foreign.path, data[:start] + junk + data[start:], "garbage.tlog")
+    reader = TlogReader(path)
+    records = list(reader)
+    assert len(records) == len(foreign.offsets)
+    assert reader.damages[0].offset == start and reader.damages[0].resumed_at == start + len(junk)
+
+
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        (b"", "empty file"),
+        (b"this is a text file, not a log\n" * 40, "not a MAVLink telemetry log"),
+        (b"ULog\x01\x12\x35\x01" + bytes(200), "ULog"),
+        (b"\xa3\x95\x80\x80" + bytes(200), "DataFlash"),
+    ],
+)
+def test_a_file_that_is_not_a_tlog_is_a_log_format_error(tmp_path, content, expected):
+    path = tmp_path / "not.tlog"
+    path.write_bytes(content)
+    with pytest.raises(LogFormatError, match=expected):
+        list(TlogReader(path))
+
+
+# --- what the scan finds --------------------------------------------------------------------------
+
+
+def test_packet_loss_from_sequence_numbers(foreign_scan):
+    _, scan = foreign_scan
+    vehicle = scan.seq[(VEHICLE, 1)]
+    assert vehicle.lost == DROPPED
+    assert vehicle.duplicates == 0 and vehicle.streams == 1
+    assert scan.seq[(255, 190)].lost == 0
+
+
+@pytest.mark.parametrize(
+    "sequence, lost, duplicates, counters",
+    [
+        ([0, 1, 2, 3], 0, 0, 1),
+        ([0, 1, 4, 5], 2, 0, 1),
+        ([254, 255, 0, 1], 0, 0, 1),  # wrap-around
+        ([0, 1, 1, 2], 0, 1, 1),  # a repeat
+        ([10, 11, 0, 12, 1, 13, 2], 0, 0, 2),  # two interleaved counters (a plant logging two links)
+        ([10, 11, 0, 12, 1, 15, 2], 2, 0, 2),
+    ],
+)
+def test_seq_counter(sequence, lost, duplicates, counters):
+    counter = SeqCounter()
+    for seq in sequence:
+        counter.add(seq)
+    assert (counter.received, counter.lost, counter.duplicates, counter.streams) == (len(sequence), lost, duplicates, counters)
+
+
+def test_rates_and_gaps(foreign, foreign_scan):
+    reader, scan = foreign_scan
+    record = build_record(scan)
+    report = log_report(reader, scan, float(record.meta["start_log_time_s"]))
+    rates = {(r.system, r.message): r for r in report.rates}
+    att = rates[(VEHICLE, "ATTITUDE")]
+    assert att.count == len(foreign.attitude)
+    span_s = (foreign.attitude[-1][0] - foreign.attitude[0][0]) / 1000.0
+    assert att.rate_hz == pytest.approx((att.count - 1) / span_s)  # 50 Hz less the 1 s gap
+    assert att.max_gap_s == pytest.approx(1.02, abs=1e-6)  # 2.98 -> 4.00
+    assert att.max_gap_at_s == pytest.approx(2.98 - 0.01, abs=1e-6)  # t = 0 is the first position sample (10 ms)
+    assert rates[(VEHICLE, "LOCAL_POSITION_NED")].rate_hz == pytest.approx(25.0, rel=0.05)
+    sources = {(s.system, s.component): s for s in report.sources}
+    assert sources[(VEHICLE, 1)].role == "vehicle" and sources[(255, 190)].role == "ground station"
+    assert sources[(VEHICLE, 1)].received == len(foreign.vehicle_messages)
+    assert sources[(VEHICLE, 1)].lost == DROPPED
+    assert sources[(VEHICLE, 1)].loss_percent == pytest.approx(100.0 * DROPPED / (len(foreign.vehicle_messages) + DROPPED))
+
+
+def test_mode_changes_and_failsafes_with_their_times(foreign_scan):
+    _, scan = foreign_scan
+    modes = [(round(e.time_s - EPOCH_US / 1e6, 2), e.text) for e in scan.events if e.kind == "mode"]
+    assert modes == [(0.0, "Hold"), (1.0, "Offboard"), (5.0, "Land")]
+    failsafes = [(round(e.time_s - EPOCH_US / 1e6, 2), e.text) for e in scan.events if e.kind == "failsafe"]
+    assert failsafes == [(4.0, "system status CRITICAL"), (4.5, "[CRITICAL] Failsafe activated: no offboard signal")]
+    assert any(e.kind == "armed" and round(e.time_s - EPOCH_US / 1e6, 2) == 1.0 for e in scan.events)
+    texts = [e.text for e in scan.events if e.kind == "text"]
+    assert texts == ["[INFO] Takeoff detected", "[CRITICAL] Disarming denied: not landed"]
+
+
+@pytest.mark.parametrize(
+    "custom_mode, name",
+    [(MODE_HOLD, "Hold"), (MODE_OFFBOARD, "Offboard"), (MODE_LAND, "Land"), (3 << 16, "Position"), ((4 << 16) | (4 << 24), "Mission")],
+)
+def test_px4_mode_names(custom_mode, name):
+    assert px4_mode_name(custom_mode) == name
+
+
+# --- the record of a foreign log ------------------------------------------------------------------
+
+
+def test_foreign_log_record_is_the_telemetry(foreign, foreign_scan):
+    _, scan = foreign_scan
+    record = build_record(scan)
+    assert record.meta["vehicle_sysid"] == VEHICLE
+    assert record.meta["commands"] == "none" and record.meta["references"] == "POSITION_TARGET_LOCAL_NED"
+    pos = np.array(foreign.position)
+    assert len(record) == len(pos)
+    assert_allclose(record["t_s"], (pos[:, 0] - pos[0, 0]) / 1000.0)
+    assert_allclose(record["pos_ned_m"], pos[:, 1:4])
+    assert_allclose(record["vel_ned_m_s"], pos[:, 4:7])
+    att = np.array(foreign.attitude)
+    latest = np.searchsorted(att[:, 0], pos[:, 0], side="right") - 1  # the ATTITUDE at or before each position
+    assert_allclose(record["euler_rad"], att[latest, 1:4])
+    assert_allclose(record["ref_pos_ned_m"][:, 0], pos[:, 1] + np.float32(0.1), atol=1e-6)
+    assert_allclose(record["ref_yaw_rad"], np.float32(0.25))
+    assert np.all(np.isnan(record["thrust_n"])) and np.all(np.isnan(record["torques_nm"]))
+    assert [p.name for p in record.phases] == ["Hold", "Offboard", "Land"]
+
+
+def test_foreign_log_with_a_mission_takes_its_references(foreign_scan):
+    from offboard.trajectory import Hold
+
+    _, scan = foreign_scan
+    record = build_record(scan, trajectory=Hold((1.0, 2.0, -3.0), 0.5, 2.0, name="point"))
+    assert record["t_s"][-1] <= 2.0
+    assert_allclose(record["ref_pos_ned_m"], np.tile([1.0, 2.0, -3.0], (len(record), 1)))
+    assert [p.name for p in record.phases] == ["point"]
+
+
+def test_no_attitude_and_position_is_a_log_format_error(tmp_path):
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    with open(tmp_path / "hb.tlog", "wb") as fh:
+        for k in range(3):
+            fh.write(struct.pack(">Q", EPOCH_US + k * 1_000_000))
+            fh.write(mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3).pack(mav))
+            mav.seq += 1
+    scan = scan_log(TlogReader(tmp_path / "hb.tlog"))
+    with pytest.raises(LogFormatError, match="no ATTITUDE and LOCAL_POSITION_NED"):
+        build_record(scan)
+
+
+# --- the command line on a foreign log ------------------------------------------------------------
+
+
+def test_cli_report_of_a_foreign_log(foreign, tmp_path, capsys):
+    run_dir = tmp_path / "report"
+    code = main(["replay", str(foreign.path), "--run-dir", str(run_dir), "--json"])
+    assert code == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["vehicle_sysid"] == VEHICLE and payload["samples"] == len(foreign.position)
+    assert {p.name for p in run_dir.iterdir()} >= {"path3d.png", "position.png", "attitude.png", "errors.png",
+                                                    "actions.png", "series.csv", "summary.txt", "summary.json"}
+    sources = {(s["system"], s["component"]): s for s in payload["log_report"]["sources"]}
+    assert sources[(VEHICLE, 1)]["lost"] == DROPPED
+    assert [e["text"] for e in payload["log_report"]["events"] if e["kind"] == "mode"] == ["Hold", "Offboard", "Land"]
+    header = (run_dir / "series.csv").read_text().splitlines()[0].split(",")
+    assert header[:4] == ["t_s", "pos_ned_m_0", "pos_ned_m_1", "pos_ned_m_2"]
+    assert len((run_dir / "series.csv").read_text().splitlines()) == len(foreign.position) + 1
+
+
+def test_cli_damaged_log_warns_once_and_reports(foreign, tmp_path, capsys):
+    data = foreign.path.read_bytes()
+    path = cut(foreign.path, data[:-9], "cut.tlog")
+    code = main(["replay", str(path), "--run-dir", str(tmp_path / "r"), "--no-plots"])
+    err = capsys.readouterr().err
+    assert code == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"byte {foreign.offsets[-1]}" in lines[0] and "warning" in lines[0]
+    assert (tmp_path / "r" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"definitely not a tlog\n" * 30])
+def test_cli_not_a_tlog_is_one_line_and_exit_2(tmp_path, capsys, content):
+    path = tmp_path / "bad.tlog"
+    path.write_bytes(content)
+    code = main(["replay", str(path), "--run-dir", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "bad.tlog" in err and "Traceback" not in err
+
+
+def test_cli_missing_file_is_one_line(tmp_path, capsys):
+    code = main(["replay", str(tmp_path / "nope.tlog")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "nope.tlog" in err
+
+
+def test_cli_rerun_without_mission_or_controller_misuse(foreign, tmp_path, capsys):
+    assert main(["replay", str(foreign.path), "--controller", "x.toml"]) == 2
+    assert "--controller: only with --rerun" in capsys.readouterr().err
+    assert main(["replay", str(foreign.path), "--rerun", "--run-dir", str(tmp_path / "r")]) == 2
+    assert "--mission" in capsys.readouterr().err
+    assert main(["replay", str(foreign.path), "--to", "/dev/null"]) == 2
+    assert "--to" in capsys.readouterr().err
+
+
+# --- streaming --------------------------------------------------------------------------------------
+
+
+def test_stream_keeps_the_original_timing_scaled_by_speed(foreign):
+    sent: list[bytes] = []
+    now = [0.0]
+    sleeps: list[float] = []
+
+    def sleep(dt: float) -> None:
+        sleeps.append(dt)
+        now[0] += dt
+
+    count = stream_log(iter(TlogReader(foreign.path)), sent.append, speed=4.0, systems={VEHICLE}, clock=lambda: now[0], sleep=sleep)
+    assert count == len(sent) == len(foreign.vehicle_messages)
+    first, last = foreign.vehicle_messages[0][0], foreign.vehicle_messages[-1][0]
+    assert now[0] == pytest.approx((last - first) / 4.0, abs=1e-9)
+    assert all(dt > 0 for dt in sleeps)
+
+
+def test_stream_skips_copies_of_a_message_logged_once_per_link():
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    msgs = []
+    for k, tb in enumerate((0, 0, 50, 50)):  # the same ATTITUDE logged from two links
+        m = mavlink.MAVLink_attitude_message(tb, 0.1, 0.2, 0.3, 0, 0, 0)
+        packet = m.pack(mav)
+        mav.seq += 1
+        parsed = mavlink.MAVLink(None).parse_buffer(packet)[0]
+        msgs.append(LoggedMessage(tb / 1000.0, k, parsed))
+    out: list[bytes] = []
+    assert stream_log(iter(msgs), out.append, speed=1e6) == 2
+    parser = mavlink.MAVLink(None)
+    decoded = [parser.parse_buffer(p)[0] for p in out]
+    assert [d.time_boot_ms for d in decoded] == [0, 50]
+    assert [d.get_seq() for d in decoded] == [0, 1]  # one counter, as one live link
+
+
+def test_cli_streams_the_vehicle_messages_over_udp(foreign, capsys):
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", 0))
+    listener.settimeout(1.0)
+    port = listener.getsockname()[1]
+    received: list = []
+
+    def listen() -> None:  # a pymavlink parser on the port, reading while the replay sends
+        parser = mavlink.MAVLink(None)
+        while True:
+            try:
+                data, _ = listener.recvfrom(65535)
+            except (socket.timeout, OSError):
+                return
+            received.extend(m for m in parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA")
+
+    thread = threading.Thread(target=listen)
+    thread.start()
+    try:
+        code = main(["replay", str(foreign.path), "--to", f"udpout:127.0.0.1:{port}", "--speed", "20", "--quiet"])
+    finally:
+        thread.join()
+        listener.close()
+    assert code == 0
+    assert [m.get_type() for m in received] == [kind for _, kind in foreign.vehicle_messages]
+    assert all(m.get_srcSystem() == VEHICLE for m in received)
+    positions = [(m.time_boot_ms, m.x, m.y, m.z) for m in received if m.get_type() == "LOCAL_POSITION_NED"]
+    assert positions == [p[:4] for p in foreign.position]
+    seqs = [m.get_seq() for m in received]
+    assert all((b - a) % 256 == 1 for a, b in zip(seqs, seqs[1:]))
