@@ -1,35 +1,47 @@
 # Two commands do all the set-up from a fresh clone: `make demo` and `make test`.
-# Both create .venv when it is missing and install the project into it.
+# Both create .venv when it is missing and install the project into it: `make demo` only what
+# the demo needs (pymavlink, numpy, matplotlib), `make test` also the [test] extra (pytest,
+# MAVProxy, RotorPy: a few hundred MB). Each install leaves a stamp, so it runs once, and again
+# only when pyproject.toml changes; demo then test, or test then demo, both work.
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
 RUN    ?= runs/demo-$(shell date +%Y%m%d-%H%M%S)
+PIP    := $(PY) -m pip install --disable-pip-version-check --progress-bar off
 export MPLBACKEND := Agg
 
 .PHONY: demo test test-fast bench install clean
 
 $(STAMP): pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
-	touch $(STAMP)
+	@test -x $(PY) || { echo "make: creating the virtual environment $(VENV)"; $(PYTHON) -m venv $(VENV); }
+	@echo "make: installing rosales-offboard and what it needs to fly (pymavlink, numpy, matplotlib) into $(VENV)"
+	$(PIP) --quiet --upgrade pip
+	$(PIP) -e .
+	@touch $(STAMP)
+
+$(TEST_STAMP): $(STAMP)
+	@echo "make: installing the test tools (pytest; MAVProxy, a real ground station; RotorPy, the SE(3) reference) into $(VENV)"
+	$(PIP) -e '.[test]'
+	@touch $(TEST_STAMP)
 
 install: $(STAMP)
 
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(PY) -m pytest -q
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
-test-fast: $(STAMP)
+test-fast: $(TEST_STAMP)
 	$(PY) -m pytest -q tests/unit -m "not slow and not e2e"
 
 # the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
 bench: $(STAMP)
-	$(PY) -m pip install --quiet -e '.[bench]'
+	@echo "make: installing the benchmark tools (numba, RotorPy, py-spy) into $(VENV)"
+	$(PIP) --quiet -e '.[bench]'
 	$(PY) -m sitl_plant.px4_kernel
 	$(PY) bench/run.py --output bench/RESULTS.md
 

@@ -607,7 +607,7 @@ def markdown(result: dict) -> str:
         "",
         "The paper helix (801 samples of 0.05 s) on the rigid body, PX4 inner loop, attitude output: "
         "`sitl-plant --lockstep` and `offboard fly --lockstep` as two processes over loopback UDP "
-        "(`make demo --lockstep`'s configuration). Cycles/s = the offboard's samples over the wall time "
+        "(`python -m offboard.demo --lockstep`'s configuration). Cycles/s = the offboard's samples over the wall time "
         "from its first to its last sample (flight only). Floor: two bare pymavlink processes, "
         "ATTITUDE + LOCAL_POSITION_NED stamped T one way, SET_ATTITUDE_TARGET echoing T back, nothing else. "
         f"Plant physics and PX4 attitude/rate loop compiled with numba: {'yes' if result.get('compiled_plant') else 'no'}.",

@@ -1,4 +1,4 @@
-"""``make bench``: every benchmark of issue 7 in one run, written to ``bench/RESULTS.md``.
+"""``make bench``: every benchmark of docs/benchmarks.md in one run, written to ``bench/RESULTS.md``.
 
 Speed figures stand next to their floor or peer measured in the same run (the pseudo-inverse
 law, RotorPy's ``Multirotor``, the numpy batch, a bare pymavlink ping-pong); tracking flies
@@ -7,7 +7,8 @@ numbers go to ``results.json`` beside the output, the tracking plots to ``img/``
 
     python bench/run.py [--output bench/RESULTS.md] [--quick] [--workers 2] [--only speed,loop,tracking]
 
-``--quick`` shrinks every measurement (seconds, not minutes): for the smoke test, not for figures.
+``--quick`` shrinks every measurement (about a minute in all: 54 s wall on a shared 2-core machine):
+for the smoke test, not for figures.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from offboard.errors import UserError
+from sitl_plant.clihelp import HelpFormatter, add_version
 
 # Modules that register sub-commands, in the order --help lists them.
 COMMAND_MODULES = (
@@ -29,8 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="offboard",
         description="Fly the Rosales et al. tracking controller: in-process, or over MAVLink.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
+    add_version(parser, "offboard")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         try:
@@ -40,12 +42,25 @@ def build_parser() -> argparse.ArgumentParser:
                 continue
             raise
         module.register(sub)
+    _remember_parsers(parser)
     return parser
+
+
+def _remember_parsers(parser: argparse.ArgumentParser) -> None:
+    """Each sub-command's parser in its own namespace (the innermost wins), so an unknown option
+    is reported with the usage of the command it was given to, not the top-level one."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for subparser in action.choices.values():
+                subparser.set_defaults(_usage_parser=subparser)
+                _remember_parsers(subparser)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        getattr(args, "_usage_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return int(args.func(args))
     except UserError as exc:

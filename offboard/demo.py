@@ -23,7 +23,10 @@ import sys
 import time
 from pathlib import Path
 
+from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
+from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.paths import output_folder
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
 STOP_TIMEOUT_S = 5.0
@@ -65,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m offboard.demo",
         description="Fly the paper's helix over MAVLink: sitl-plant and offboard fly as two processes.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--run-dir", type=Path, default=None, help="run folder (default: runs/demo-<time>)")
     parser.add_argument("--mission", type=Path, default=PAPER_HELIX, help="mission file")
@@ -78,14 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     run_dir: Path = args.run_dir or Path("runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
-    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        output_folder(run_dir, "--run-dir")
+    except UserError as exc:
+        print(f"demo: error: {exc}", file=sys.stderr)
+        return 2
     plant_port, offboard_port = free_udp_ports(2)
     python = sys.executable
     plant_cmd = [
         python, "-m", "sitl_plant.cli", "--model", args.model,
         "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote", f"127.0.0.1:{offboard_port}",
-        "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"), "--quiet",
-    ]  # fmt: skip
+        "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"),
+    ]  # fmt: skip  (not --quiet: plant.log keeps its banner, a status line every 10 s and its summary)
     fly_cmd = [
         python, "-m", "offboard.cli", "fly", str(args.mission), "--model", args.model,
         "--connect", f"udpin:127.0.0.1:{offboard_port}", "--run-dir", str(run_dir),
@@ -141,10 +148,28 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(s, handler)
     files = sorted(p.name for p in run_dir.iterdir() if p.is_file())
     print(f"demo: run folder {run_dir.resolve()}: {', '.join(files)}", file=sys.stderr)
+    verdict = _verdict(run_dir / "summary.json")
+    if verdict:
+        print(f"demo: {verdict}", file=sys.stderr)
     if (run_dir / "summary.txt").is_file():
         print(f"demo: summary in {run_dir / 'summary.txt'}, figures {run_dir}/*.png, logs flight.tlog (offboard) "
               f"and plant.tlog (plant)", file=sys.stderr)
     return code if code >= 0 else 128 - code
+
+
+def _verdict(summary_json: Path) -> str:
+    """The flight's one-line verdict from its summary.json ('' without one)."""
+    import json
+
+    try:
+        data = json.loads(summary_json.read_text())
+    except (OSError, ValueError):
+        return ""
+    verdict = data.get("verdict") if isinstance(data, dict) else None
+    limit = ((data.get("controller") or {}).get("tilt_max_deg")) if isinstance(data, dict) else None
+    if not isinstance(verdict, str):
+        return ""
+    return verdict + (f" (limit {limit:g} deg)" if isinstance(limit, (int, float)) else "") + f", status {data.get('status')}"
 
 
 if __name__ == "__main__":

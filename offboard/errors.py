@@ -9,6 +9,7 @@ from __future__ import annotations
 from sitl_plant.errors import ParameterFileError, UserError
 
 __all__ = [
+    "ClockMismatch",
     "CommandRejected",
     "LinkTimeout",
     "LockstepMismatch",
@@ -39,6 +40,10 @@ class CommandRejected(UserError, RuntimeError):
 
 class LogFormatError(UserError, ValueError):
     """A flight log cannot be read at all (not a tlog, empty)."""
+
+
+class ClockMismatch(UserError, ValueError):
+    """The vehicle's clock runs at another rate than ours while we sample on ours."""
 
 
 class LockstepMismatch(UserError, ValueError):

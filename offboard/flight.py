@@ -43,12 +43,13 @@ from typing import Protocol
 import numpy as np
 
 from offboard import codec
+from offboard.clockrate import STALLED_RATE, ClockRateMeter
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ActionLimits, ControllerParams
 from offboard.controller.command import Controller
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
-from offboard.errors import CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.controllers import make_controller
+from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
@@ -393,7 +394,12 @@ class FlightResult:
 
 @dataclass(frozen=True)
 class Progress:
-    """One live-progress sample: what the one-line display shows."""
+    """One live-progress sample: what the one-line display shows.
+
+    During the mission: its phase, mission time and the 3D error (m). During the landing: phase
+    ``"landing"``, the vehicle's seconds since the landing began, and ``error_m`` NaN (the vehicle
+    lands by itself: there is no reference).
+    """
 
     phase: str
     t_s: float
@@ -520,6 +526,8 @@ class Flight:
         self._next_tick_s: float | None = None
         self._next_tick_ms: float | None = None  # on the vehicle's clock
         self._prev_sample_ms: int | None = None
+        self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
+        self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self._next_heartbeat: float = 0.0
         self._next_heartbeat_ms = 0
         # supervision
@@ -550,6 +558,10 @@ class Flight:
         self.armed_by_us = False
         self.landed = False
         self.disarmed = False
+        # on our own clock in real time: the vehicle's clock must run at our rate (offboard.clockrate)
+        self._clock_meter: ClockRateMeter | None = None
+        if not (self.config.lockstep or self.config.vehicle_clock):
+            self._clock_meter = ClockRateMeter()
 
     # -- public ----------------------------------------------------------------------------------
 
@@ -684,6 +696,7 @@ class Flight:
     def _stream_and_arm(self) -> None:
         target = self._samples_sent + self.config.prestream_samples
         self._pump(lambda: self._samples_sent >= target)
+        self._check_clock_rate()
         command, params = codec.set_mode_offboard_params()
         self._command(command, params)
         self._expect_offboard = True
@@ -842,6 +855,25 @@ class Flight:
             self.trajectory = shifted
             self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
 
+    def _check_clock_rate(self) -> None:
+        """Before OFFBOARD, on our own clock: refuse a vehicle whose clock runs at another rate
+        (``offboard.clockrate``); we keep streaming while the measurement completes."""
+        meter = self._clock_meter
+        if meter is None:
+            return
+        self._pump(lambda: meter.measure() is not None, 10.0)
+        measured = meter.measure()
+        self._clock_meter = None  # measured once; no more pairs kept
+        if measured is None:
+            return  # no telemetry to measure with: the telemetry watch reports that
+        self.meta["clock_rate"] = measured.rate
+        if measured.real_time:
+            return
+        if measured.rate < STALLED_RATE:
+            raise ClockMismatch(f"{measured.describe()}: a lockstep vehicle waits for our setpoints; fly it with --lockstep")
+        raise ClockMismatch(f"{measured.describe()}, so a sample time of {self.to * 1000:g} ms of ours would be "
+                            f"{self.to * measured.rate * 1000:.0f} ms of the vehicle's: fly it with --clock vehicle")
+
     def _now_ns(self) -> int:
         """Our TIMESYNC time: the latest telemetry stamp in lockstep (reproducible), else the clock."""
         if self.config.lockstep:
@@ -980,6 +1012,8 @@ class Flight:
         try:
             if msg.get_type() == "ATTITUDE":
                 codec.check_attitude(msg)
+                if self._att is None or int(msg.time_boot_ms) != int(self._att.time_boot_ms):
+                    self._stamps_since_sample += 1  # a lockstep vehicle: one a period
                 self._att = msg
                 self._recent_att[int(msg.time_boot_ms)] = msg
                 if len(self._recent_att) > 16:
@@ -994,6 +1028,8 @@ class Flight:
             self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
         now = self.clock()
         self._last_telemetry_wall = now
+        if self._clock_meter is not None and msg.get_type() == "ATTITUDE":
+            self._clock_meter.add(now, int(msg.time_boot_ms))
         if self._outage_since is not None and self._att is not None and self._lpn is not None:
             self._telemetry_back(now)
         self._lockstep_sample_if_due()
@@ -1041,11 +1077,17 @@ class Flight:
         if self._prev_sample_ms is not None:
             step = t_ms - self._prev_sample_ms
             if step != int(round(self.to * 1000)) and self._samples_sent > 1:
+                if self._stamps_since_sample > 1:
+                    # a lockstep vehicle sends one stamp a period and waits; this one did not wait
+                    raise LockstepMismatch(f"the vehicle is not in lockstep: its ATTITUDE advanced {self._stamps_since_sample} "
+                                           f"stamps ({step} ms) without waiting for our setpoint; start sitl-plant with "
+                                           "--lockstep, or fly without --lockstep")  # fmt: skip
                 raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
                                        f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
         if self._next_heartbeat_ms <= t_ms:
             self._send_heartbeat()
         if self._sample(self.clock()):  # unanswered (nothing to send yet): the plant still waits for it
+            self._stamps_since_sample = 0
             self._prev_sample_ms = t_ms
             self._answered_ms = t_ms
             self._tick += 1
@@ -1112,6 +1154,11 @@ class Flight:
         thrust = 0.0
         if self.params is not None and self.scaling is not None and self.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
             thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
+        if self._progress is not None:  # the landing's progress: seconds since it began, where the vehicle is
+            if self._landing_ms is None:
+                self._landing_ms = measured.time_boot_ms
+            self._progress(Progress("landing", (measured.time_boot_ms - self._landing_ms) / 1000.0,
+                                    tuple(float(v) for v in measured.pos_ned_m), math.nan))  # type: ignore[arg-type]
         return self._setpoint_message(codec.hold_setpoint(measured.euler_rad, thrust), measured.time_boot_ms)
 
     def _mission_source(self, measured: MeasuredState) -> mavlink.MAVLink_message | None:

@@ -1,6 +1,6 @@
 """The one place where MAVLink's NED/FRD meets the paper's frame.
 
-The paper's frame (eq. 18, NOTES.md): x north, y east, z **up**; its angles (phi, theta, psi) are
+The paper's frame (eq. 18; docs/model.md, "Frames and conventions"): x north, y east, z **up**; its angles (phi, theta, psi) are
 FRD roll, pitch and yaw. So, at psi = 0, positive pitch accelerates towards -x (south) and
 positive roll towards +y (east), as in NED/FRD. Body rates (p, q, r) and Euler-angle rates are
 related by ``omega = W_eta @ eta_dot`` (eq. 3) with the W_eta form the controller believes in.

@@ -8,7 +8,7 @@ command into the thrust and torque the physics applies until the next sample:
 - ``inner-loop``: the paper's tau~ held for the sample, eq. 16 applied at the physics rate with
   the model the autopilot believes (``EulerAccelActuation``): what the ``paper`` inner loop of
   ``sitl-plant`` does with the rate setpoint, so a MAVLink flight reproduces this run
-  (NOTES.md, "What a careful reproduction runs into");
+  (docs/reproduction.md);
 - ``held-torque``: the real torques of eq. 16 computed once per sample and held for the whole
   sample (``HeldActuation``), a literal reading of the paper;
 - ``px4``: the attitude target flown by PX4's attitude and rate controllers at the physics rate

@@ -21,6 +21,8 @@ log interleaves what we sent and what we received in the order the flight acted 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import select
 import time
 from collections import deque
@@ -112,7 +114,10 @@ class MavLink:
             raise LinkError(f"--connect {connect!r}: expected a pymavlink connection string such as "
                             "udpin:0.0.0.0:14540, udpout:127.0.0.1:14580, tcp:127.0.0.1:5760 or a serial device")
         try:
-            self.conn = mavutil.mavlink_connection(connect, source_system=sysid, source_component=compid, dialect="common")
+            # pymavlink prints "[Errno 111] Connection refused sleeping" on stdout between its tcp
+            # retries: the one line below says it once
+            with contextlib.redirect_stdout(io.StringIO()):
+                self.conn = mavutil.mavlink_connection(connect, source_system=sysid, source_component=compid, dialect="common")
         except (OSError, ValueError) as exc:
             reason = getattr(exc, "strerror", None) or str(exc)
             raise LinkError(f"--connect {connect}: cannot open the link: {reason}") from None
@@ -130,7 +135,7 @@ class MavLink:
         if tlog_path is not None:
             try:
                 self._tlog = TlogWriter(tlog_path)
-            except LinkError:
+            except OSError:  # LinkError, OutputPathError: the socket is ours to close
                 self.conn.close()
                 raise
         port = getattr(self.conn, "port", None)

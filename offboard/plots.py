@@ -31,7 +31,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from offboard.record import FlightRecord
+from offboard.record import FlightRecord, FlightStatus
 from sitl_plant.dynamics.rotations import wrap_pi
 
 #: File stems of the figures ``write_figures`` writes, in order.
@@ -73,6 +73,24 @@ def _phase_lines(record: FlightRecord, axes: list) -> None:
                 phase.name, xy=(max(phase.start_s, 0.0), 1.0), xycoords=("data", "axes fraction"),
                 xytext=(2, -2), textcoords="offset points", fontsize=7, color="0.45", va="top",
             )
+
+
+def _end_mark(record: FlightRecord, axes: list) -> None:
+    """Where a flight that did not complete ended (diverged, NaN command, link lost ...): a red
+    dotted line at its last sample, with the status."""
+    if record.status is FlightStatus.COMPLETE or not len(record):
+        return
+    t_end = float(record["t_s"][-1])
+    for ax in axes:
+        ax.axvline(t_end, color="tab:red", linewidth=0.9, linestyle=":", zorder=4)
+    axes[0].annotate(f"{record.status.value} at {t_end:.2f} s", xy=(t_end, 0.0), xycoords=("data", "axes fraction"),
+                     xytext=(-3, 3), textcoords="offset points", fontsize=7, color="tab:red", ha="right", va="bottom")
+
+
+def _no_data(ax, values: np.ndarray, why: str) -> None:
+    """A panel with nothing to draw says why instead of staying blank."""
+    if not np.any(np.isfinite(np.asarray(values, dtype=float))):
+        ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center", fontsize=8, color="0.4")
 
 
 def _up(ned: np.ndarray) -> np.ndarray:
@@ -122,6 +140,7 @@ def position_figure(record: FlightRecord, title: str = "") -> Figure:
         _finish(ax, label)
     axes[0].legend(loc="upper right", fontsize=8)
     _phase_lines(record, axes)
+    _end_mark(record, axes)
     return fig
 
 
@@ -156,8 +175,10 @@ def errors_figure(record: FlightRecord, title: str = "") -> Figure:
     for ax, values, label in zip(axes, series, labels):
         ax.axhline(0.0, color="0.6", linewidth=0.6)
         ax.plot(t, values, label=label, **FLOWN, **style)
+        _no_data(ax, values, "no references: replay it with --mission FILE")
         _finish(ax, label)
     _phase_lines(record, axes)
+    _end_mark(record, axes)
     return fig
 
 
@@ -171,8 +192,11 @@ def actions_figure(record: FlightRecord, title: str = "") -> Figure:
     labels = ("u [N]", "tau_phi [N m]", "tau_theta [N m]", "tau_psi [N m]")
     for ax, values, label in zip(axes, series, labels):
         ax.plot(t, values, label=label, **FLOWN, **style)
+        _no_data(ax, values, "not in the log (attitude setpoints carry no torques): replay --rerun recomputes them"
+                 if label.startswith("tau") else "no thrust in the log")
         _finish(ax, label)
     _phase_lines(record, axes)
+    _end_mark(record, axes)
     return fig
 
 

@@ -33,6 +33,8 @@ class FlightStatus(enum.Enum):
     MODE_CHANGED = "mode_changed"  # someone else took the vehicle out of OFFBOARD
     REJECTED = "rejected"  # a command was refused
     INTERRUPTED = "interrupted"  # Ctrl-C: landed and disarmed on request
+    LOST_TRACK = "lost_track"  # flown to the end, but ended far off the reference (metrics.LOST_TRACK_M)
+    INCOMPLETE = "incomplete"  # replay: the log ends before the mission does (cut short, stopped early)
 
     @property
     def exit_code(self) -> int:
@@ -44,6 +46,8 @@ class FlightStatus(enum.Enum):
             FlightStatus.FAILSAFE: 6,
             FlightStatus.MODE_CHANGED: 7,
             FlightStatus.REJECTED: 8,
+            FlightStatus.LOST_TRACK: 9,
+            FlightStatus.INCOMPLETE: 10,
             FlightStatus.INTERRUPTED: 130,
         }[self]
 

@@ -48,6 +48,10 @@ def load_scenario(path: str | Path) -> Scenario:
     source = path.name
     top = Fields(read_toml(path), source)
     base_dir = path.resolve().parent
+    if not top.has("scenario") and top.has("mission"):
+        raise ParameterFileError(f"{source}: a mission file ([mission]), not a scenario ([scenario]): fly it with "
+                                 f"`offboard fly {path}`, or name it in a scenario, as missions/paper-sim1.toml names "
+                                 "paper-helix.toml")  # fmt: skip
     s = top.sub("scenario")
     mission = resolve_mission(s.raw("mission"), f"{source}: scenario", base_dir)
     vehicle = _table_or_file(top, "vehicle", base_dir, vehicle_from_table, load_vehicle)

@@ -15,6 +15,7 @@ from typing import TextIO
 
 from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
 from sitl_plant.codec import Home
+from sitl_plant.clihelp import HelpFormatter, add_version
 from sitl_plant.errors import UserError
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
@@ -24,19 +25,12 @@ from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
 GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link
+#: PX4 SITL's -i N gives the vehicle MAV_SYS_ID N + 1, at most 255.
+MAX_INSTANCE = 254
 
 
 class ArgumentError(UserError, ValueError):
     """An option's value is well-formed for argparse but meaningless (e.g. ``--speed 0``)."""
-
-
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows defaults, except where there is none to show (flags, unset options)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default in (None, "", False) or action.default is argparse.SUPPRESS:
-            return action.help
-        return super()._get_help_string(action)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,8 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="sitl-plant",
         description="A simulated PX4-style quadrotor autopilot speaking MAVLink 2 over UDP. "
         "Connect an offboard program with udpin:0.0.0.0:14540 (plus --instance), a ground station on UDP 14550.",
-        formatter_class=_Formatter,
+        formatter_class=HelpFormatter,
     )
+    add_version(parser, "sitl-plant")
     sim = parser.add_argument_group("simulation")
     sim.add_argument("--model", choices=MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
     sim.add_argument("--vehicle", metavar="FILE", type=Path, default=PAPER_VEHICLE_FILE, help="vehicle parameter file (TOML)")
@@ -62,7 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     timing.add_argument("--lockstep-period", metavar="S", type=float, default=0.05, help="lockstep period, seconds: a whole number of milliseconds and of physics steps")
     timing.add_argument("--duration", metavar="S", type=float, default=None, help="stop after S seconds of simulation time (default: run until Ctrl-C)")
     net = parser.add_argument_group("links")
-    net.add_argument("--instance", metavar="N", type=int, default=0, help="added to the default ports, as PX4 SITL's -i N (the GCS remote stays 14550)")
+    net.add_argument("--instance", metavar="N", type=int, default=0,
+                     help="added to the default ports, as PX4 SITL's -i N (the GCS remote stays 14550); 10 and 40 or more "
+                          "would send the API link to 14550 or another instance's port: refused without --api-remote")
     net.add_argument("--api-bind", metavar="HOST:PORT", default=None, help=f"offboard/API link local address (default 0.0.0.0:{API_BIND_PORT}+instance)")
     net.add_argument("--api-remote", metavar="HOST:PORT", default=None, help=f"where the API link sends until a client talks (default 127.0.0.1:{API_REMOTE_PORT}+instance; 'none': wait to be talked to)")
     net.add_argument("--gcs-bind", metavar="HOST:PORT", default=None, help=f"ground-station link local address (default 0.0.0.0:{GCS_BIND_PORT}+instance; 'none' switches the link off)")
@@ -79,14 +76,27 @@ def build_parser() -> argparse.ArgumentParser:
 def _check(args: argparse.Namespace) -> None:
     if not 1 <= args.sysid <= 255:
         raise ArgumentError(f"--sysid: must be 1..255, got {args.sysid}")
-    if not 0 <= args.instance <= 1000:
-        raise ArgumentError(f"--instance: must be 0..1000, got {args.instance}")
+    if not 0 <= args.instance <= MAX_INSTANCE:
+        raise ArgumentError(f"--instance: must be 0..{MAX_INSTANCE} (PX4 SITL's -i N flies system id N + 1), got {args.instance}")
     if not args.speed > 0 or args.speed != args.speed:
         raise ArgumentError(f"--speed: must be > 0, got {args.speed}")
     if not args.physics_dt > 0:
         raise ArgumentError(f"--physics-dt: must be > 0, got {args.physics_dt}")
     if args.duration is not None and not args.duration > 0:
         raise ArgumentError(f"--duration: must be > 0, got {args.duration}")
+
+
+def _instance_collision(n: int) -> str | None:
+    """Where PX4's port layout (``px4-rc.mavlink``) makes instance ``n``'s API link send to a port
+    that is someone else's: the ground stations' 14550 (n = 10), or another instance's API bind
+    port (n >= 40: 14540 + n = 14580 + (n - 40)). None when it does not collide."""
+    remote = API_REMOTE_PORT + n
+    if remote == GCS_REMOTE_PORT:
+        return f"{remote}, the ground stations' port (QGroundControl listens there)"
+    if API_BIND_PORT <= remote <= API_BIND_PORT + MAX_INSTANCE:
+        other = remote - API_BIND_PORT
+        return f"{remote}, instance {other}'s own API port ({API_BIND_PORT} + {other})"
+    return None
 
 
 def _address(text: str | None, default: str, what: str) -> tuple[str, int] | None:
@@ -153,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     _check(args)
     n = args.instance
+    collision = _instance_collision(n) if args.api_remote is None else None
+    if collision is not None:
+        raise ArgumentError(f"--instance {n}: the API link would send to 127.0.0.1:{collision}, as PX4 SITL's -i {n} "
+                            f"would; choose an instance in 0..9 or 11..39, or give --api-remote HOST:PORT")
     api_bind = _address(args.api_bind, f"0.0.0.0:{API_BIND_PORT + n}", "--api-bind")
     api_remote = _address(args.api_remote, f"127.0.0.1:{API_REMOTE_PORT + n}", "--api-remote")
     gcs_bind = _address(args.gcs_bind, f"0.0.0.0:{GCS_BIND_PORT + n}", "--gcs-bind")
@@ -230,6 +244,7 @@ def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
         lines.append(f"  lockstep, period {args.lockstep_period:g} s (physics {args.physics_dt:g} s)")
     else:
         lines.append(f"  real time x{args.speed:g} (physics {args.physics_dt:g} s)")
+    lines.append(f"  wind {args.wind}, sensors {args.noise}" + (f" (seed {args.seed})" if args.wind != "none" or args.noise != "clean" else ""))
     if args.log is not None:
         lines.append(f"  logging to {args.log}")
     print("\n".join(lines), file=sys.stderr, flush=True)

@@ -36,6 +36,7 @@ from typing import BinaryIO
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.errors import UserError
+from sitl_plant.paths import output_file_problem
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
 KEEPALIVE_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT})  # whose latest packet a keepalive may resend
@@ -68,6 +69,9 @@ class TlogWriter:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        problem = output_file_problem(self.path)  # the rule of every output file (sitl_plant/paths.py)
+        if problem is not None:
+            raise LinkError(f"--log {self.path}: cannot write the log: {problem}")
         try:
             self._fh: BinaryIO | None = self.path.open("wb")
         except OSError as exc:

@@ -55,7 +55,8 @@ class Fields:
         self._used.add(key)
         if key not in self.table:
             if default is ...:
-                raise self.error(key, "missing")
+                near = near_name(key, (k for k in self.table if k not in self._used))
+                raise self.error(key, "missing" + (f" (is {near!r} meant to be {key}?)" if near else ""))
             return default
         return self.table[key]
 
@@ -122,4 +123,17 @@ class Fields:
         """Raise on keys nobody asked for: a typo must not be silently ignored."""
         unknown = sorted(set(self.table) - self._used)
         if unknown:
-            raise self.error(unknown[0], "unknown field")
+            near = near_name(unknown[0], self._used)
+            raise self.error(unknown[0], "unknown field" + (f"; did you mean {near}?" if near else ""))
+
+
+def near_name(name: str, candidates: Any) -> str | None:
+    """The candidate a typo of ``name`` most likely is (``radius`` for ``radius_m``), or None."""
+    import difflib
+
+    names = [str(c) for c in candidates]
+    close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
+    if close:
+        return close[0]
+    prefixed = [c for c in names if c.startswith(name) or name.startswith(c)]  # radius / radius_m
+    return prefixed[0] if len(prefixed) == 1 else None

@@ -5,15 +5,14 @@ Against ``sitl-plant`` or a PX4 SITL, exactly as MAVSDK users fly PX4: listen on
 stream setpoints, switch to OFFBOARD, arm, fly, land, disarm. See docs/offboard.md.
 
 Exit code: ``FlightStatus.exit_code`` (0 complete, 3 diverged, 4 NaN command, 5 link lost,
-6 failsafe, 7 mode changed, 8 command rejected, 130 interrupted); 2 for a bad argument or file,
-or no vehicle at all.
+6 failsafe, 7 mode changed, 8 command rejected, 9 lost track, 130 interrupted); 2 for a bad
+argument or file, no vehicle at all, or a vehicle whose clock runs at another rate than ours.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import signal
 import sys
@@ -26,12 +25,15 @@ from offboard.controller.command import VEHICLE_MODELS as MODELS
 
 #: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
 PAPER_KEYWORD = "paper"
+from offboard import jsonout
 #: ``--controller se3`` / ``px4``: a baseline (``offboard.controllers``) believing what the law would.
 BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
-from offboard.metrics import format_table, summarize
+from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
+from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.paths import output_folder
 
 
 
@@ -46,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Connect to a vehicle, stream setpoints, switch to OFFBOARD, arm, fly MISSION with the "
         "Rosales et al. controller, land and disarm; print the tracking table and leave the log, "
         "figures and summary in a run folder. The exit code says how the flight ended.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("mission", type=Path, help="mission file: parametric .toml, QGC WPL .waypoints or .plan")
     link = parser.add_argument_group("link")
@@ -159,7 +161,10 @@ class _Console:
             return
         self._last = now
         n, e, d = p.pos_ned_m
-        self.stream.write(f"\r{p.phase:<14.14} t={p.t_s:7.2f} s  N {n:7.2f}  E {e:7.2f}  D {d:7.2f} m  error {p.error_m:6.3f} m\x1b[K")
+        # the mission: its time and the 3D error; the landing (no reference): time since it began
+        tail = f"  error {p.error_m:6.3f} m" if math.isfinite(p.error_m) else f"  {-d:6.2f} m above home"
+        clock = f"t={p.t_s:7.2f} s" if math.isfinite(p.error_m) else f"+{p.t_s:6.2f} s"
+        self.stream.write(f"\r{p.phase:<14.14} {clock}  N {n:7.2f}  E {e:7.2f}  D {d:7.2f} m{tail}\x1b[K")
         self.stream.flush()
         self._shown = True
 
@@ -196,7 +201,6 @@ class _Interrupts:
 
 
 def run(args: argparse.Namespace) -> int:
-    from offboard.link import MavLink
     from offboard.missions import load_mission
 
     _check(args)
@@ -233,10 +237,8 @@ def run(args: argparse.Namespace) -> int:
         connect=args.connect,
     )
     run_dir = args.run_dir or Path("runs") / f"fly-{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FlyArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    created = [p for p in (run_dir, *run_dir.parents) if not p.exists()]  # ours to remove if nothing is flown
+    output_folder(run_dir, "--run-dir")
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
     log_clock = LogClock(args.lockstep)
     console = _Console(sys.stderr, args.quiet)
@@ -250,6 +252,29 @@ def run(args: argparse.Namespace) -> int:
             "output": args.output, "model": args.model, "lockstep": args.lockstep, "clock": args.clock,
             "connect": args.connect}  # fmt: skip
     started = time.monotonic()
+    try:
+        return _fly(args, mission, choice, config, meta, run_dir, tlog, log_clock, console, started)
+    except UserError:
+        _remove_if_empty(tlog, created)
+        raise
+
+
+def _remove_if_empty(tlog: Path, created: list[Path]) -> None:
+    """After a flight that never started (no vehicle, a refused link): no 0-byte log and no empty
+    run folder left behind; a log with packets in it stays, for the diagnosis."""
+    try:
+        if tlog.is_file() and tlog.stat().st_size == 0:
+            tlog.unlink()
+        for folder in created:  # deepest first
+            folder.rmdir()  # only if empty
+    except OSError:
+        pass
+
+
+def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: FlightConfig, meta: dict, run_dir: Path,
+         tlog: Path, log_clock: LogClock, console: _Console, started: float) -> int:
+    from offboard.link import MavLink
+
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
     try:
@@ -269,9 +294,11 @@ def run(args: argparse.Namespace) -> int:
         console.end()
         link.close()
     wall = time.monotonic() - started
+    if result.status is FlightStatus.COMPLETE and check_tracking(result.record).status is not FlightStatus.COMPLETE:
+        result = dataclasses.replace(result, status=result.record.status, detail=result.record.status_detail)
     payload, table = _report(result, link.stats.to_dict(), wall, run_dir, tlog, meta, args.no_plots)
     if args.json:
-        print(json.dumps(payload, allow_nan=True))
+        print(jsonout.dumps(payload))
     else:
         if table:
             print(table)
@@ -318,6 +345,14 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
     }
 
 
+def format_timesync(offset_ms: float, rtt_ms: float) -> str:
+    """The TIMESYNC line: offset = the vehicle's clock minus ours (MAVLink's TIMESYNC), which only
+    says where the two clocks started (its boot, our monotonic clock's origin), not an error."""
+    side = "ahead of" if offset_ms >= 0 else "behind"
+    return (f"timesync: the vehicle's clock is {abs(offset_ms) / 1000:.3f} s {side} ours (offset {offset_ms:.3f} ms: "
+            f"where the two clocks started, not an error), round trip {rtt_ms:.3f} ms")  # fmt: skip
+
+
 def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = False) -> str:
     """The lines under the tracking table: messages, loop timing, outages, landing.
 
@@ -338,7 +373,7 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
     if extra["link_outages_s"]:
         lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
     if extra["timesync"]:
-        lines.append(f"timesync: offset {extra['timesync']['offset_ms']:.3f} ms, round trip {extra['timesync']['rtt_ms']:.3f} ms")
+        lines.append(format_timesync(extra["timesync"]["offset_ms"], extra["timesync"]["rtt_ms"]))
     landing = "landed and disarmed" if extra["landed"] and extra["disarmed"] else (
         "landed, still armed" if extra["landed"] else "landing not confirmed")
     lines.append(f"{landing}; {extra['wall_time_s']:.1f} s wall in all")
@@ -364,5 +399,5 @@ def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path
         table = format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
     payload.update(extra)
     (run_dir / "summary.txt").write_text(table + "\n")
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2) + "\n")
     return payload, table

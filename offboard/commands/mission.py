@@ -17,11 +17,17 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-from offboard.errors import MissionFormatError
+from offboard.errors import MissionFormatError, UserError
 from offboard.missions import Mission, load_mission
 from offboard.missions.plan import write_plan
 from offboard.missions.wpl import write_wpl
 from offboard.trajectory.sampling import DEFAULT_DT_S, summarize
+from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.paths import output_file
+
+
+class MissionArgumentError(UserError, ValueError):
+    """An argument of ``offboard mission`` is well-formed for argparse but unusable."""
 
 
 def _positive_seconds(text: str) -> float:
@@ -44,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub = parser.add_subparsers(dest="mission_command", required=True, metavar="ACTION")
 
     show = sub.add_parser(
-        "show", help="summary table of a mission (and a plot with --plot)", formatter_class=argparse.ArgumentDefaultsHelpFormatter
+        "show", help="summary table of a mission (and a plot with --plot)", formatter_class=HelpFormatter
     )
     show.add_argument("file", type=Path, help="mission file")
     show.add_argument("--plot", type=Path, metavar="PNG", default=None, help="also write a picture of the path to PNG")
@@ -68,7 +74,22 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plot_format(path: Path) -> None:
+    """Refuse, before any work, a picture name whose suffix matplotlib cannot write."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    formats = FigureCanvasAgg.get_supported_filetypes()
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in formats:
+        given = f"'.{suffix}'" if suffix else "a name without a suffix"
+        raise MissionArgumentError(f"--plot {path}: cannot tell a picture format from {given}; end the name in .png "
+                                   f"(or {', '.join('.' + f for f in sorted(formats) if f != 'png')})")
+
+
 def _show(args: argparse.Namespace) -> int:
+    if args.plot is not None:
+        _plot_format(args.plot)
+        output_file(args.plot, "--plot")
     mission = load_mission(args.file)
     print_summary(mission, sys.stdout, args.dt)
     if args.plot is not None:
@@ -80,6 +101,7 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    output_file(args.output, "output")
     mission = load_mission(args.file)
     if mission.items is None:
         raise MissionFormatError(f"{args.file.name}: only waypoint files (QGC WPL 110, .plan) convert; a parametric mission has no MAVLink items")
@@ -100,7 +122,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     w = out.write
     w(f"mission   {mission.name}  ({mission.source})\n")
     if mission.description:
-        w(f"          {mission.description}\n")
+        w(_wrapped("          ", mission.description))
     if mission.home is not None:
         lat, lon, alt = mission.home
         w(f"home      {lat:.7f} deg, {lon:.7f} deg, {alt:.2f} m AMSL (origin of the local NED frame)\n")
@@ -113,7 +135,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
         f"start     vehicle at N {n0:.2f} E {e0:.2f} D {d0:.2f} m, yaw {math.degrees(mission.start_yaw_rad):.1f} deg; "
         f"reference starts {gap:.2f} m from it\n\n"
     )
-    header = ("#", "segment", "type", "kind", "start s", "duration s", "length m", "max v m/s", "max a m/s2", "max yaw rate deg/s")
+    header = ("#", "segment", "type", "kind", "start s", "dur s", "len m", "max v m/s", "max a m/s2", "max yaw deg/s")
     rows = [
         (
             str(k),
@@ -124,7 +146,7 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
             f"{r.duration_s:.2f}",
             f"{r.length_m:.2f}",
             f"{r.max_speed_m_s:.2f}",
-            f"{r.max_accel_m_s2:.2f}",
+            f"{r.max_accel_m_s2:.2f}" if not any(v.where == r.name for v in s.velocity_steps) else "steps",
             f"{math.degrees(r.max_yaw_rate_rad_s):.1f}",
         )
         for k, r in enumerate(s.segments, start=1)
@@ -136,10 +158,16 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
     w(f"\ntotal     {s.duration_s:.2f} s, {s.length_m:.2f} m of path ({len(s.segments)} segments)\n")
     lo, hi = s.min_ned_m, s.max_ned_m
     w(f"bounds    north [{lo[0]:.2f}, {hi[0]:.2f}]  east [{lo[1]:.2f}, {hi[1]:.2f}]  down [{lo[2]:.2f}, {hi[2]:.2f}] m (NED)\n")
-    w(
-        f"peaks     speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2, "
-        f"yaw rate {math.degrees(s.max_yaw_rate_rad_s):.1f} deg/s (sampled every {dt_s * 1000:g} ms)\n"
-    )
+    w(_wrapped(
+        "peaks     ",
+        f"speed {s.max_speed_m_s:.2f} m/s, acceleration {s.max_accel_m_s2:.2f} m/s^2"
+        f"{' between the velocity steps' if s.velocity_steps else ''}, "
+        f"yaw rate {math.degrees(s.max_yaw_rate_rad_s):.1f} deg/s (sampled every {dt_s * 1000:g} ms)"
+    ))
+    if s.velocity_steps:
+        listed = ", ".join(f"t = {v.t_s:.2f} s {v.speed_change_m_s:.2f} m/s ({v.where})" for v in s.velocity_steps[:8])
+        more = f" and {len(s.velocity_steps) - 8} more" if len(s.velocity_steps) > 8 else ""
+        w(_wrapped("speed     ", f"the velocity reference steps (unbounded acceleration, not smoothed): {listed}{more}"))
     if s.jumps:
         w("jumps     the reference steps between segments (not smoothed):\n")
         for j in s.jumps:
@@ -149,4 +177,11 @@ def print_summary(mission: Mission, out: TextIO, dt_s: float = DEFAULT_DT_S) -> 
             )
     else:
         w("jumps     none: the reference is continuous in position and yaw\n")
-    w("phases    " + ", ".join(f"{p.name} [{p.start_s:.1f}, {p.end_s:.1f}) {p.kind}" for p in traj.phases()) + "\n")
+    w(_wrapped("phases    ", ", ".join(f"{p.name} [{p.start_s:.1f}, {p.end_s:.1f}) {p.kind}" for p in traj.phases())))
+
+
+def _wrapped(label: str, text: str, width: int = 100) -> str:
+    """A long report line, wrapped at ``width`` under its label."""
+    import textwrap
+
+    return textwrap.fill(text, width, initial_indent=label, subsequent_indent=" " * len(label), break_on_hyphens=False) + "\n"

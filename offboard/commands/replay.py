@@ -24,7 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from offboard import jsonout
 from offboard.errors import UserError
+from sitl_plant.paths import output_folder
 
 #: pymavlink connection strings ``--to`` accepts (network outputs only).
 STREAM_SCHEMES = ("udpout:", "udpbcast:", "udpin:", "tcp:", "tcpin:")
@@ -113,16 +115,30 @@ def _warn(text: str) -> None:
     print(f"offboard replay: warning: {text}", file=sys.stderr)
 
 
-def _flight_summary(log: Path) -> dict | None:
-    """``offboard fly``'s summary.json beside the log, if it describes this log."""
+def _flight_summary(log: Path, vehicle: int | None) -> tuple[dict | None, str]:
+    """``offboard fly``'s summary.json beside the log, if it describes this flight, and a note
+    when it names another log (None, '' otherwise).
+
+    It describes this flight when it names this log, or when it names another log of the same
+    vehicle in the same folder (the demo's ``plant.tlog`` beside ``flight.tlog``: the vehicle's
+    side of the same run), or a log no longer there (this one, renamed).
+    """
     path = log.parent / "summary.json"
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
-        return None
-    if not isinstance(data, dict) or Path(str(data.get("log", ""))).name != log.name:
-        return None
-    return data
+        return None, ""
+    if not isinstance(data, dict) or "log" not in data:
+        return None, ""
+    named = Path(str(data["log"])).name
+    if named == log.name:
+        return data, ""
+    flown_by = (data.get("vehicle") or {}).get("system") if isinstance(data.get("vehicle"), dict) else None
+    if vehicle is None or flown_by != vehicle:
+        return None, f"summary.json beside it describes {named}, a flight of another vehicle"
+    if (log.parent / named).is_file():
+        return data, f"summary.json of {named}, the same run's log of vehicle {vehicle}"
+    return data, f"summary.json of {named} (not there: this log, renamed?)"
 
 
 def _mission(args: argparse.Namespace, summary: dict | None):
@@ -191,12 +207,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace, reader, scan) -> int:
     from offboard import replay
-    from offboard.metrics import format_table, summarize
+    from offboard.metrics import check_complete, check_tracking, format_table, summarize
     from offboard.trajectory.shifted import shift_trajectory
 
-    summary_json = _flight_summary(args.log)
-    mission, mission_note = _mission(args, summary_json)
     vehicle = args.sysid if args.sysid is not None else scan.vehicle_sysid()
+    summary_json, summary_note = _flight_summary(args.log, vehicle)
+    mission, mission_note = _mission(args, summary_json)
+    if mission is not None and summary_note and args.mission is None:
+        mission_note += f"; {summary_note}"
     trajectory, offset = None, None
     if mission is not None:
         offset, offset_note = _mission_offset(mission, scan, vehicle, summary_json)
@@ -210,6 +228,12 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
     record = replay.build_record(scan, sysid=args.sysid, trajectory=trajectory, scaling=scaling, source=str(args.log),
                                  sample_time_s=recorded_to)  # fmt: skip
     log_report = replay.log_report(reader, scan, float(record.meta["start_log_time_s"]))  # type: ignore[arg-type]
+    if record.meta["references"] == "none":
+        why = summary_note or "no summary.json beside it describing this log"
+        _warn(f"{args.log.name}: no references, so no tracking errors (no --mission; {why}; no POSITION_TARGET_LOCAL_NED "
+              "in the log): pass --mission FILE")
+    if mission is not None:
+        check_complete(record, mission.trajectory.duration_s)
 
     exit_code = 0
     rerun_text, rerun_payload, rerun_result = "", None, None
@@ -223,12 +247,9 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         elif args.controller is None:
             exit_code = 1
 
-    summary = summarize(record)
+    summary = summarize(check_tracking(record))
     run_dir = args.run_dir or Path("runs") / f"replay-{args.log.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ReplayArgumentError(f"--run-dir {run_dir}: cannot create it: {exc.strerror}") from None
+    output_folder(run_dir, "--run-dir")
     record.write_csv(run_dir / "series.csv")
     figures = []
     title = args.log.name
@@ -244,7 +265,8 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         rerun_result.record.write_csv(run_dir / "rerun.csv")
 
     head = (f"{args.log}: vehicle {record.meta['vehicle_sysid']}, {len(record)} samples, commands {record.meta['commands']}, "
-            f"references {record.meta['references']}" + (f" ({mission_note})" if mission_note else ""))
+            f"references {record.meta['references']}" + (f" ({mission_note})" if mission_note else "")
+            + (" (pass --mission FILE for the tracking errors)" if record.meta["references"] == "none" else ""))
     table = format_table(summary) if len(record) else "no samples to tabulate"
     text = "\n\n".join(part for part in (head, table, rerun_text, replay.format_log_report(log_report)) if part)
     (run_dir / "summary.txt").write_text(text + "\n")
@@ -261,9 +283,9 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         "rerun": rerun_payload,
         "figures": [str(p) for p in figures],
     }
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True, default=str) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2, default=str) + "\n")
     if args.json:
-        print(json.dumps(payload, allow_nan=True, default=str))
+        print(jsonout.dumps(payload, default=str))
     else:
         print(text)
         print(f"\nrun folder: {run_dir}" + (f" ({len(figures)} figures)" if figures else ""))

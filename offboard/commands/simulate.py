@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
+from offboard import jsonout
 from offboard.inprocess import MODELS, SCENARIO_DRIVES, run_scenario
-from offboard.metrics import format_table, summarize
+from offboard.metrics import check_tracking, format_table, summarize
+from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
+from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.paths import output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fly a scenario file in-process (controller + simulated vehicle) and report it",
         description="Fly a scenario (mission + vehicle + controller + sensors) in one process, print the "
         "tracking table and write the paper's figures, a CSV and the summary into a run folder.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("scenario", type=Path, help="scenario file, e.g. missions/paper-sim1.toml")
     parser.add_argument("--run-dir", type=Path, default=None,
@@ -44,21 +47,20 @@ def run(args: argparse.Namespace) -> int:
     def progress(fraction: float) -> None:
         sys.stderr.write(f"\r{scenario.name}: {100 * fraction:5.1f} %")
 
+    run_dir = output_folder(args.run_dir or Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}", "--run-dir")
     started = time.perf_counter()
     record = run_scenario(scenario, progress if show_progress else None)
     wall = time.perf_counter() - started
     if show_progress:
         sys.stderr.write("\r" + " " * 40 + "\r")
-    summary = summarize(record)
+    summary = summarize(check_tracking(record))
 
-    run_dir = args.run_dir or Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    run_dir.mkdir(parents=True, exist_ok=True)
     record.write_csv(run_dir / "series.csv")
     table = format_table(summary)
     (run_dir / "summary.txt").write_text(table + "\n")
     payload = {"scenario": scenario.name, "source": scenario.source, "model": scenario.model,
                "drive": scenario.drive, "wall_time_s": wall, **summary.to_dict()}
-    (run_dir / "summary.json").write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2) + "\n")
     figures: list[Path] = []
     if not args.no_plots and len(record):
         from offboard.plots import write_figures
@@ -66,10 +68,12 @@ def run(args: argparse.Namespace) -> int:
         figures = write_figures(record, run_dir, title=f"{scenario.name} ({scenario.model}, {scenario.drive})")
 
     if args.json:
-        print(json.dumps(payload, allow_nan=True))
+        print(jsonout.dumps(payload))
     else:
         print(f"{scenario.name}: model {scenario.model}, drive {scenario.drive}, sensors {scenario.sensors}, "
               f"wind {scenario.wind}  ({wall:.2f} s wall)")
         print(table)
         print(f"run folder: {run_dir}" + (f" ({len(figures)} figures)" if figures else ""))
+    if record.status is not FlightStatus.COMPLETE:
+        print(f"offboard simulate: {record.status.name}: {record.status_detail}", file=sys.stderr)
     return record.status.exit_code

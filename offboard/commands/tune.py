@@ -33,6 +33,8 @@ from offboard.controller.tuning import (
     vehicle_values,
 )
 from offboard.errors import LinkTimeout, UserError
+from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.paths import output_file
 
 
 class TuneArgumentError(UserError, ValueError):
@@ -46,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Model the vehicle's attitude loop, rate loop, motors, sample-and-hold and latency, and "
         "choose the law's gains kx1..kx6 for the fastest closed loop that keeps the stated margins "
         "(docs/controller-design.md). Writes a controller file for offboard fly --controller.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--params", type=Path, metavar="FILE",
@@ -156,6 +158,9 @@ def _check(args: argparse.Namespace) -> None:
             raise TuneArgumentError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
+    for option, path in (("--output", args.output), ("--plot", args.plot)):
+        if path is not None:
+            output_file(path, option)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ Everything here is in the paper's frame (x north, y east, z **up**; phi, theta, 
     x = (x, x_dot, y, y_dot, z, z_dot, phi, phi_dot, theta, theta_dot, psi, psi_dot)
          x1  x2    x3  x4    x5  x6    x7   x8       x9     x10        x11  x12
 
-One sample of the law (NOTES.md, steps 1-6), given the measured state x(n), the references
+One sample of the law (steps 1-6; docs/reproduction.md for the choices where the paper is silent), given the measured state x(n), the references
 (x1d, x3d, x5d, x11d) at n and n+1, and the controller's memory of the previous sample:
 
 1. desired speeds, eq. 32: ``x2d(n+1) = (x1d(n+1) - kx1 (x1d(n) - x1(n)) - x1(n)) / To`` ...

@@ -50,6 +50,7 @@ from offboard.trajectory import (
 )
 from offboard.trajectory.sampling import sample
 from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S
+from sitl_plant.tomlfile import near_name
 
 FRAMES = ("ned", "paper-zup")
 ANGLE_UNITS = ("rad", "deg")
@@ -462,8 +463,10 @@ def read_parametric(path: Path, table: dict[str, Any]) -> ParsedMission:
         hint = ""
         if isinstance(scenario, dict) and isinstance(scenario.get("mission"), str):
             hint = f" (this looks like a scenario file: its mission is {scenario['mission']!r})"
+        else:
+            near = near_name("mission", table)
+            hint = f" (is [{near}] meant to be [mission]?)" if near else ""
         raise f.error("mission", f"missing; expected a [mission] table{hint}")
     mission_table = f.raw("mission")
-    parsed = parse_mission_table(mission_table, path.name, "mission.", path.stem)
-    f.reject_unknown()
-    return parsed
+    f.reject_unknown()  # first: a misspelt top-level table is named as such, not as missing fields
+    return parse_mission_table(mission_table, path.name, "mission.", path.stem)

@@ -82,6 +82,5 @@ def plot_path(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    fig.savefig(path)  # into an existing folder: the rule of every output file (sitl_plant/paths.py)
     return path

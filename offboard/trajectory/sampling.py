@@ -77,6 +77,21 @@ class Jump:
 
 
 @dataclass(frozen=True)
+class VelocityStep:
+    """A jump of the velocity reference (an unbounded acceleration: a corner flown without
+    blending, or the speed changing between segments), sampled."""
+
+    t_s: float
+    speed_change_m_s: float  # |v after - v before|
+    where: str  # the segment, or "from -> to" between segments
+
+
+#: A sampled velocity change counts as a step when it exceeds what the analytic acceleration
+#: explains over the grid step by this much (m/s).
+VELOCITY_STEP_M_S = 0.01
+
+
+@dataclass(frozen=True)
 class Summary:
     """A trajectory at a glance; bounds are NED metres, [min, max] per axis."""
 
@@ -89,6 +104,18 @@ class Summary:
     max_speed_m_s: float
     max_accel_m_s2: float
     max_yaw_rate_rad_s: float
+    velocity_steps: tuple[VelocityStep, ...] = ()
+
+
+def _velocity_steps(s: Samples, t0_s: float, where: str) -> list[VelocityStep]:
+    """Steps inside a segment; its last sample is left out (a segment at its end reports the
+    state it stops in: the hand-over to the next segment is checked apart)."""
+    vel, acc, t = s.vel_ned_m_s[:-1], s.acc_ned_m_s2[:-1], s.t_s[:-1]
+    dv = np.linalg.norm(np.diff(vel, axis=0), axis=1)
+    accel = np.linalg.norm(acc, axis=1)
+    explained = 0.5 * (accel[:-1] + accel[1:]) * np.diff(t)
+    steps = np.nonzero(dv > 2.0 * explained + VELOCITY_STEP_M_S)[0]
+    return [VelocityStep(t0_s + float(t[k + 1]), float(dv[k]), where) for k in steps]
 
 
 def _segments(traj: Trajectory) -> list[tuple[float, Trajectory]]:
@@ -112,8 +139,11 @@ def summarize(traj: Trajectory, dt_s: float = DEFAULT_DT_S) -> Summary:
     hi = np.full(3, -np.inf)
     prev_end = None
     prev_name = ""
+    steps: list[VelocityStep] = []
+    prev_end_vel = np.zeros(3)
     for t0, seg in _segments(traj):
         s = sample(seg, dt_s)
+        steps.extend(_velocity_steps(s, t0, getattr(seg, "name", type(seg).__name__)))
         speed = np.linalg.norm(s.vel_ned_m_s, axis=1)
         accel = np.linalg.norm(s.acc_ned_m_s2, axis=1)
         length = float(np.linalg.norm(np.diff(s.pos_ned_m, axis=0), axis=1).sum())
@@ -133,7 +163,11 @@ def summarize(traj: Trajectory, dt_s: float = DEFAULT_DT_S) -> Summary:
             dyaw = wrap_pi(start.yaw_rad - prev_end.yaw_rad)
             if dp > 1e-3 or abs(dyaw) > 1e-3:
                 jumps.append(Jump(t0, dp, dyaw, prev_name, name))
+            dv = float(np.linalg.norm(start.vel_ned_m_s - prev_end_vel))
+            if dv > VELOCITY_STEP_M_S:
+                steps.append(VelocityStep(t0, dv, f"{prev_name} -> {name}"))
         prev_end = seg.reference(seg.duration_s)
+        prev_end_vel = seg.reference(max(seg.duration_s - 1e-6, 0.0)).vel_ned_m_s  # the speed it hands over
         prev_name = name
     return Summary(
         segments=tuple(rows),
@@ -145,4 +179,5 @@ def summarize(traj: Trajectory, dt_s: float = DEFAULT_DT_S) -> Summary:
         max_speed_m_s=max(r.max_speed_m_s for r in rows),
         max_accel_m_s2=max(r.max_accel_m_s2 for r in rows),
         max_yaw_rate_rad_s=max(r.max_yaw_rate_rad_s for r in rows),
+        velocity_steps=tuple(sorted(steps, key=lambda v: v.t_s)),
     )

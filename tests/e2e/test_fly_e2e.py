@@ -201,6 +201,45 @@ def test_no_vehicle_is_one_line_naming_the_address(tmp_path):
     assert f"udpin:127.0.0.1:{port}" in lines[0] and "heartbeat" in lines[0] and "0.5 s" in lines[0]
 
 
+def test_a_flight_that_never_started_leaves_no_empty_run_folder(tmp_path):
+    (port,) = free_udp_ports(1)
+    run_dir = tmp_path / "runs" / "fly-hover"
+    proc = subprocess.run(
+        [PY, "-m", "offboard.cli", "fly", str(hover_mission(tmp_path / "hover.toml")), "--connect", f"udpin:127.0.0.1:{port}",
+         "--heartbeat-timeout", "0.3", "--run-dir", str(run_dir), "--quiet"],
+        capture_output=True, text=True, env=ENV, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "no vehicle heartbeat" in proc.stderr
+    assert not (tmp_path / "runs").exists()  # neither the 0-byte flight.tlog nor the folders it made
+
+
+def test_a_refused_tcp_connection_is_one_line(tmp_path):
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.run(
+        [PY, "-m", "offboard.cli", "fly", str(hover_mission(tmp_path / "hover.toml")), "--connect", f"tcp:127.0.0.1:{port}",
+         "--run-dir", str(tmp_path / "run"), "--quiet"],
+        capture_output=True, text=True, env=ENV, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stdout == ""  # pymavlink's "[Errno 111] Connection refused sleeping" lines
+    assert proc.stderr.splitlines() == [f"offboard fly: error: --connect tcp:127.0.0.1:{port}: cannot open the link: Connection refused"]
+
+
+def test_lockstep_against_a_real_time_plant_says_the_plant_is_not_in_lockstep(tmp_path):
+    """The issue: this advised --lockstep-period 0.05, which was not what was wrong."""
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 1.0, 2.0), lockstep=False, fly_args=("--lockstep",))
+    assert flown.returncode == 2, flown.stderr
+    lines = [line for line in flown.stderr.splitlines() if line.startswith("offboard fly:")]
+    assert len(lines) == 1 and "Traceback" not in flown.stderr
+    assert lines[0].startswith("offboard fly: error: the vehicle is not in lockstep: its ATTITUDE advanced ")
+    assert lines[0].endswith("start sitl-plant with --lockstep, or fly without --lockstep")
+    assert "--lockstep-period" not in flown.stderr
+
+
 @pytest.mark.parametrize(
     "args, expected",
     [

@@ -49,3 +49,12 @@ def test_stop_process_ends_a_child_that_ignores_sigint():
     time.sleep(0.3)
     code = stop_process(child, signal.SIGINT, timeout_s=0.5)
     assert child.poll() is not None and code == -signal.SIGKILL
+
+
+def test_the_timesync_line_says_what_the_offset_is():
+    from offboard.commands.fly import format_timesync
+
+    assert format_timesync(-326423.490, 0.329) == (
+        "timesync: the vehicle's clock is 326.423 s behind ours (offset -326423.490 ms: where the two clocks started, "
+        "not an error), round trip 0.329 ms")  # fmt: skip
+    assert "2.500 s ahead of ours" in format_timesync(2500.0, 1.0)

@@ -487,6 +487,35 @@ def test_bad_arguments_are_one_line_and_exit_2(args, needle, capsys):
     assert len(err) == 1 and needle in err[0] and err[0].startswith("sitl-plant: error:")
 
 
+@pytest.mark.parametrize(
+    ("instance", "message"),
+    [
+        (10, "sitl-plant: error: --instance 10: the API link would send to 127.0.0.1:14550, the ground stations' port "
+             "(QGroundControl listens there), as PX4 SITL's -i 10 would; choose an instance in 0..9 or 11..39, or give "
+             "--api-remote HOST:PORT"),
+        (45, "sitl-plant: error: --instance 45: the API link would send to 127.0.0.1:14585, instance 5's own API port (14580 + 5)"),
+        (255, "sitl-plant: error: --instance: must be 0..254 (PX4 SITL's -i N flies system id N + 1), got 255"),
+    ],
+)  # fmt: skip
+def test_instances_whose_ports_collide_are_refused(instance, message, capsys):
+    """As real processes: PX4's layout sends instance 10's API link to the ground station's port."""
+    proc = subprocess.run([sys.executable, "-m", "sitl_plant.cli", "--instance", str(instance), "--api-bind", "127.0.0.1:0",
+                           "--gcs-bind", "none", "--duration", "0.1"],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), lines
+
+
+def test_a_colliding_instance_with_its_own_api_remote_runs_and_the_banner_shows_wind_and_noise():
+    proc = subprocess.run([sys.executable, "-m", "sitl_plant.cli", "--instance", "10", "--api-remote", "none",
+                           "--api-bind", "127.0.0.1:0", "--gcs-bind", "none", "--duration", "0.2", "--speed", "4",
+                           "--wind", "constant:1,0,0", "--noise", "paper", "--seed", "3"],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "  wind constant:1,0,0, sensors paper (seed 3)" in proc.stderr.splitlines()
+
+
 def test_bad_argument_as_a_real_process():
     proc = subprocess.run([sys.executable, "-m", "sitl_plant.cli", "--physics-dt", "-1"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2

@@ -432,3 +432,54 @@ def test_without_summary_the_logged_home_position_places_a_geo_mission(flown_geo
     assert_allclose(payload["mission_offset_ned_m"], flown.summary["mission_offset_ned_m"], rtol=0, atol=0)
     replayed = np.array([[float(r[f"ref_pos_ned_m_{i}"]) for i in range(3)] for r in csv.DictReader((run_dir / "series.csv").open())])
     assert_allclose(replayed, _series_refs(flown), rtol=0, atol=0)
+
+
+# --- logs that are not the flight.tlog their summary.json describes (the issue's item 2) ---------
+
+
+@pytest.mark.parametrize("flown", ["attitude"], indirect=True)
+def test_the_plants_log_beside_the_flights_summary_takes_its_mission(flown, tmp_path, capsys):
+    """The demo's run folder: flight.tlog, plant.tlog and flight.tlog's summary.json side by side."""
+    folder = tmp_path / "demo"
+    folder.mkdir()
+    for name in ("flight.tlog", "summary.json"):
+        (folder / name).write_bytes((flown.run_dir / name).read_bytes())
+    (folder / "plant.tlog").write_bytes(flown.plant_log.read_bytes())
+    code, payload = replay_json(capsys, str(folder / "plant.tlog"), "--run-dir", str(tmp_path / "r"))
+    assert code == 0
+    assert payload["references"] == "mission" and "summary.json of flight.tlog, the same run" in payload["mission"]
+    whole = payload["phases"][0]["axes"]["3d"]
+    assert whole["rms_m"] == pytest.approx(flown.summary["phases"][0]["axes"]["3d"]["rms_m"], rel=0.05)
+
+
+@pytest.mark.parametrize("flown", ["attitude"], indirect=True)
+def test_a_copied_log_without_references_says_how_to_get_them(flown, tmp_path, capsys):
+    log = tmp_path / "copy-of-flight.tlog"
+    log.write_bytes(flown.flight_log.read_bytes())
+    run_dir = tmp_path / "r"
+    assert main(["replay", str(log), "--run-dir", str(run_dir), "--no-plots"]) == 0
+    captured = capsys.readouterr()
+    warnings = captured.err.strip().splitlines()
+    assert len(warnings) == 1 and "no references" in warnings[0] and warnings[0].endswith("pass --mission FILE")
+    assert "references none (pass --mission FILE for the tracking errors)" in captured.out
+    assert "no tracking errors: no references" in captured.out and " nan " not in captured.out
+    payload = json.loads((run_dir / "summary.json").read_text())
+    assert payload["phases"][0]["axes"]["3d"]["rms_m"] is None
+    # --mission FILE fixes it
+    code, payload = replay_json(capsys, str(log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r2"))
+    assert code == 0 and payload["references"] == "mission" and payload["phases"][0]["axes"]["3d"]["rms_m"] > 0
+
+
+@pytest.mark.parametrize("flown", ["attitude"], indirect=True)
+def test_a_log_cut_in_half_is_not_a_complete_flight(flown, tmp_path, capsys):
+    data = flown.flight_log.read_bytes()
+    log = tmp_path / "half.tlog"
+    log.write_bytes(data[: len(data) // 2])
+    code, payload = replay_json(capsys, str(log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r"))
+    assert code == 0
+    assert payload["status"] == "incomplete", payload["status_detail"]
+    assert payload["status_detail"].endswith("before the mission's end at 6.00 s")
+    assert payload["duration_s"] < 6.0
+    # the whole log: complete
+    code, payload = replay_json(capsys, str(flown.flight_log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r2"))
+    assert payload["status"] == "complete"

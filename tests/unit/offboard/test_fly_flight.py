@@ -142,6 +142,19 @@ def test_the_flight_sequence():
     assert result.vehicle_params["SIM_THR_MAX"] == pytest.approx(19.6, rel=1e-6)
 
 
+def test_the_landing_has_a_progress_line_too():
+    shown = []
+    link = PlantLink(make_plant(), FakeClock())
+    flight, _ = make_flight(link, progress=shown.append)
+    assert flight.run().status is FlightStatus.COMPLETE
+    landing = [p for p in shown if p.phase == "landing"]
+    mission = [p for p in shown if p.phase != "landing"]
+    assert mission and landing and shown.index(landing[0]) > shown.index(mission[-1])
+    assert all(math.isnan(p.error_m) for p in landing) and all(math.isfinite(p.error_m) for p in mission)
+    assert landing[0].t_s == 0.0 and landing[-1].t_s > 1.0  # seconds since the landing began
+    assert landing[-1].pos_ned_m[2] > landing[0].pos_ned_m[2]  # down grows: it came down
+
+
 def test_every_setpoint_echoes_the_telemetry_it_answers():
     link = PlantLink(make_plant(), FakeClock())
     flight, _ = make_flight(link)

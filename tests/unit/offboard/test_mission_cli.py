@@ -66,6 +66,7 @@ def test_show_writes_a_plot(tmp_path, capsys):
     from matplotlib.image import imread
 
     png = tmp_path / "figs" / "box.png"
+    png.parent.mkdir()  # output files go into existing folders (sitl_plant/paths.py: the one rule, as --log's)
     assert main(["mission", "show", str(MISSIONS_DIR / "px4-sitl-box.waypoints"), "--plot", str(png)]) == 0
     assert f"plot: {png}" in capsys.readouterr().out
     image = imread(png)
@@ -88,3 +89,21 @@ def test_bad_arguments_exit_2(argv, capsys):
         main(argv)
     assert info.value.code == 2
     assert "usage:" in capsys.readouterr().err
+
+
+def test_show_names_the_velocity_steps_of_the_square(capsys):
+    """The issue: "max a 0.00" for a square whose velocity steps at every corner."""
+    assert main(["mission", "show", str(MISSIONS_DIR / "paper-square.toml")]) == 0
+    out = capsys.readouterr().out
+    square = next(line.split() for line in out.splitlines() if line.startswith("1  square"))
+    assert square[8] == "steps"  # the max a column
+    assert ("speed the velocity reference steps (unbounded acceleration, not smoothed): t = 5.00 s 1.41 m/s (square), "
+            "t = 10.00 s 1.41 m/s (square), t = 15.00 s 1.41 m/s (square), t = 20.00 s 1.00 m/s (square -> hold)") in " ".join(out.split())
+    assert max(len(line) for line in out.splitlines()) <= 100
+    assert "acceleration 0.00 m/s^2 between the velocity steps" in out
+
+
+def test_show_lists_no_velocity_step_where_the_reference_is_smooth(capsys):
+    assert main(["mission", "show", str(MISSIONS_DIR / "px4-sitl-box.waypoints")]) == 0
+    out = capsys.readouterr().out
+    assert "velocity reference steps" not in out and "steps" not in out

@@ -142,6 +142,13 @@ MALFORMED = [
     ("scenario.toml", '[scenario]\nmission = "paper-helix.toml"\n', ["mission: missing; expected a [mission] table (this looks like a scenario file: its mission is 'paper-helix.toml')"]),
     ("lissajous.toml", toml('[[mission.segment]]\ntype = "lissajous"\ncenter = [0, 0, -5]\namplitude_m = [2, 0, 0]\nangular_rate = [30, 30, 30]\nduration_s = 5\nyaw = "along-path"\n'),
      ["mission.segment #1 (lissajous): lissajous: along-path yaw needs horizontal motion throughout"]),
+    # typos name the near name (the issue: "[misson]" said "mission.frame: missing")
+    ("misson.toml", toml(HOLD).replace("[mission]\n", "[misson]\n", 1), ["misson: unknown field; did you mean mission?"]),
+    ("misson-only.toml", TOML_HEAD.replace("[mission]", "[misson]"), ["mission: missing; expected a [mission] table (is [misson] meant to be [mission]?)"]),
+    ("radius-typo.toml", toml('[[mission.segment]]\ntype = "circle"\ncenter = [0, 0, -5]\nradius = 2\nangular_rate = 30\nduration_s = 5\n'),
+     ["mission.segment #1 (circle): radius_m: missing (is 'radius' meant to be radius_m?)"]),
+    ("duration-typo.toml", toml('[[mission.segment]]\ntype = "line"\nto = [5, 0, -2]\nspeed_m_s = 1\nspede_m_s = 2\n'),
+     ["mission.segment #1 (line): spede_m_s: unknown field; did you mean speed_m_s?"]),
     # --- any kind ---
     ("unknown.kml", "<kml/>", ["unknown mission file kind; expected .toml (parametric), .plan (QGroundControl) or a 'QGC WPL 110' waypoint file"]),
 ]

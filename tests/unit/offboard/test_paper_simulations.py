@@ -201,6 +201,15 @@ def test_bad_scenario_files_give_one_line(tmp_path, capsys, edit, message):
     assert len(err) == 1 and message in err[0]
 
 
+def test_a_mission_given_as_a_scenario_says_what_to_do(capsys):
+    """The issue: `offboard simulate paper-helix.toml` said only "scenario: missing"."""
+    assert main(["simulate", str(MISSIONS / "paper-helix.toml"), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"offboard simulate: error: paper-helix.toml: a mission file ([mission]), not a scenario ([scenario]): fly it "
+                   f"with `offboard fly {MISSIONS / 'paper-helix.toml'}`, or name it in a scenario, as "
+                   "missions/paper-sim1.toml names paper-helix.toml"]  # fmt: skip
+
+
 def test_every_bundled_scenario_loads():
     files = sorted(MISSIONS.glob("paper-sim*.toml"))
     assert len(files) >= 3

@@ -161,3 +161,29 @@ def test_empty_record_plots_without_failing(tmp_path):
     record = RecordBuilder().build()
     paths = write_figures(record, tmp_path)
     assert len(paths) == len(FIGURE_NAMES) and all(p.stat().st_size > 0 for p in paths)
+
+
+def _texts(fig) -> list[str]:
+    return [t.get_text() for ax in fig.axes for t in ax.texts]
+
+
+def test_empty_panels_say_why():
+    """A log replayed without references, or attitude setpoints without torques: no blank panel."""
+    from offboard.plots import actions_figure, errors_figure
+
+    record = synthetic_record(nan_columns=("ref_pos_ned_m", "torques_nm"))
+    assert any("--mission FILE" in text for text in _texts(errors_figure(record)))
+    assert sum("replay --rerun recomputes them" in text for text in _texts(actions_figure(record))) == 3
+    full = synthetic_record()
+    assert not any("--mission" in text or "--rerun" in text for text in _texts(errors_figure(full)) + _texts(actions_figure(full)))
+
+
+def test_a_flight_that_did_not_complete_is_marked_where_it_ended():
+    from offboard.plots import errors_figure, position_figure
+    from offboard.record import FlightStatus
+
+    record = synthetic_record()
+    record.status = FlightStatus.DIVERGED
+    for fig in (position_figure(record), errors_figure(record)):
+        assert any(text.startswith("diverged at 9.95 s") for text in _texts(fig))
+    assert not any("diverged" in text for text in _texts(position_figure(synthetic_record())))

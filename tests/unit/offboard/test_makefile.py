@@ -1,0 +1,81 @@
+"""`make demo` installs what the demo needs, `make test` what the tests need, each once
+(`make -n`: what make would run, with a virtual environment of our own; nothing is installed)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from helpers import REPO
+
+pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="no make on this machine")
+
+
+def dry_run(target: str, venv: Path) -> list[str]:
+    # run from `make test` itself: the outer make's flags would add "make[1]: Entering directory" lines
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS", "MAKEOVERRIDES")}
+    proc = subprocess.run(["make", "--no-print-directory", "-n", target, f"VENV={venv}"], cwd=REPO, capture_output=True,
+                          text=True, timeout=60, env=env)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.splitlines()
+
+
+def installs(lines: list[str]) -> list[str]:
+    return [line.split(" -e ", 1)[1] for line in lines if "pip install" in line and " -e " in line]
+
+
+def stamp(path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.touch()
+    later = time.time() + 5  # newer than pyproject.toml, whatever the file system's resolution
+    os.utime(path, (later, later))
+
+
+def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
+    lines = dry_run("demo", tmp_path / "venv")
+    assert installs(lines) == ["."]
+    assert any("-m venv" in line for line in lines) and any("offboard.demo" in line for line in lines)
+
+
+def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
+    lines = dry_run("test", tmp_path / "venv")
+    assert installs(lines) == [".", "'.[test]'"]
+    assert lines[-1].endswith("-m pytest -q")
+
+
+def test_demo_then_test_installs_only_the_test_extra(tmp_path):
+    venv = tmp_path / "venv"
+    stamp(venv / ".installed")  # what `make demo` leaves
+    assert installs(dry_run("demo", venv)) == []
+    assert installs(dry_run("test", venv)) == ["'.[test]'"]
+    stamp(venv / ".installed-test")  # and then `make test`
+    assert installs(dry_run("test", venv)) == [] and installs(dry_run("demo", venv)) == []
+
+
+def test_a_changed_pyproject_installs_again(tmp_path):
+    venv = tmp_path / "venv"
+    for name in (".installed", ".installed-test"):
+        stamp(venv / name)
+        earlier = (REPO / "pyproject.toml").stat().st_mtime - 60
+        os.utime(venv / name, (earlier, earlier))  # older than pyproject.toml: it changed since
+    assert installs(dry_run("test", venv)) == [".", "'.[test]'"]
+
+
+def test_the_installs_say_what_they_do(tmp_path):
+    text = "\n".join(dry_run("test", tmp_path / "venv"))
+    assert "installing rosales-offboard and what it needs to fly" in text and "installing the test tools" in text
+    assert " -e ." in text and "--quiet -e" not in text  # pip's own lines show the progress
+
+
+def test_the_license_is_an_spdx_expression():
+    """A table (`{ text = "MIT" }`) made setuptools warn three times per install."""
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())
+    assert project["project"]["license"] == "MIT"
+    assert any(r.replace(" ", "").startswith("setuptools>=77") for r in project["build-system"]["requires"])
