@@ -64,6 +64,10 @@ MODELS = VEHICLE_MODELS
 #: SET_ACTUATOR_CONTROL_TARGET torques.
 OUTPUTS = ("attitude", "rates", "actuator")
 
+#: How many recent ATTITUDE messages ``offboard fly`` keeps to pair one with a position's instant
+#: (``Flight._sample``), and how far back a re-run looks for it.
+RECENT_ATTITUDES = 16
+
 FORCE_ARM_MAGIC = 21196  # PX4: param2 of ARM_DISARM that skips the checks (not used by default)
 
 

@@ -1016,7 +1016,7 @@ class Flight:
                     self._stamps_since_sample += 1  # a lockstep vehicle: one a period
                 self._att = msg
                 self._recent_att[int(msg.time_boot_ms)] = msg
-                if len(self._recent_att) > 16:
+                if len(self._recent_att) > codec.RECENT_ATTITUDES:
                     del self._recent_att[next(iter(self._recent_att))]
             else:
                 codec.check_local_position(msg)

@@ -728,14 +728,35 @@ class Scaling:
         )
 
 
+def sample_numbers(elapsed_s: np.ndarray, sample_time_s: float) -> np.ndarray:
+    """Sample numbers n of commands logged ``elapsed_s`` after the first, one command a sample.
+
+    ``rint(elapsed / To)``, exact in lockstep. In real time a command goes out late now and then
+    (the scheduler's jitter, a busy machine): one more than half a period late rounds onto the
+    next sample's number, which then appears twice while its own number is "missing". Two
+    commands never share a sample, so a collision is undone by moving the earlier one back to a
+    free number (it was late), else the later one on (it was early); a real gap (no command for
+    whole periods, a telemetry outage) keeps its numbers.
+    """
+    n = np.rint(np.asarray(elapsed_s, dtype=float) / sample_time_s).astype(np.int64)
+    for k in range(len(n) - 1):
+        if n[k + 1] != n[k]:
+            continue
+        if k == 0 and n[k] > 0 or k > 0 and n[k - 1] < n[k] - 1:
+            n[k] -= 1
+        elif k + 2 >= len(n) or n[k + 2] > n[k + 1] + 1:
+            n[k + 1] += 1
+    return n
+
+
 def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample_time_s: float | None,
                   duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float]:
     """(rows of ``setpoints`` flown as the mission, their sample numbers n, To).
 
     The mission starts with the first command sent after the vehicle accepted the arm command
     (``offboard fly`` starts mission time there), or, without one in the log, with the first
-    command once the vehicle reports OFFBOARD. n counts sample periods from there (tlog time /
-    To, which is exact in lockstep and the tick count in real time). It ends after
+    command once the vehicle reports OFFBOARD. n counts sample periods from there
+    (``sample_numbers``: tlog time / To, exact in lockstep, the tick count in real time). It ends after
     ``duration_s`` (the mission's), or when the controller sends its next command (land,
     mode) or the vehicle leaves OFFBOARD.
     """
@@ -762,7 +783,7 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
         sample_time_s = round(1000.0 * span / (count - start - 1)) / 1000.0 if count - start > 1 else math.nan
         if not sample_time_s > 0:
             sample_time_s = 0.05
-    n = np.rint((setpoints.time_s[start:] - setpoints.time_s[start]) / sample_time_s).astype(np.int64)
+    n = sample_numbers(setpoints.time_s[start:] - setpoints.time_s[start], sample_time_s)
     rows = np.arange(start, count)
     if duration_s is not None:
         keep = n <= int(round(duration_s / sample_time_s))
@@ -1194,6 +1215,14 @@ def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, befor
         i_att = np.searchsorted(att[:, 8], before, side="left") - 1
         echoed = (i_att >= 0) & (att[np.maximum(i_att, 0), 0] == time_boot_ms)
         if len(echoed) and np.mean(echoed) >= 0.99:
+            # offboard fly samples the attitude of the position's own instant when it has it
+            # (``Flight._sample``): an ATTITUDE newer than the position may be logged before the
+            # command that answered an older one; the command's echo names which it was
+            for j in np.flatnonzero(~echoed & (i_att >= 0)):
+                for k in range(int(i_att[j]) - 1, max(int(i_att[j]) - codec.RECENT_ATTITUDES, -1), -1):
+                    if att[k, 0] == time_boot_ms[j]:
+                        i_att[j] = k
+                        break
             return i_att, np.searchsorted(pos[:, 8], before, side="left") - 1, att, pos  # type: ignore[return-value]
         # not the controller's own log (a plant's, in real time: telemetry newer than what the
         # command answered is logged before it): the command's echo of time_boot_ms decides

@@ -355,3 +355,48 @@ def test_cli_streams_the_vehicle_messages_over_udp(foreign, capsys):
     assert positions == [p[:4] for p in foreign.position]
     seqs = [m.get_seq() for m in received]
     assert all((b - a) % 256 == 1 for a, b in zip(seqs, seqs[1:]))
+
+
+def test_sample_numbers_undo_a_late_command_and_keep_a_real_gap():
+    from offboard.replay import sample_numbers
+
+    to = 0.05
+    exact = np.arange(10) * to
+    assert sample_numbers(exact, to).tolist() == list(range(10))
+    late = exact.copy()
+    late[4] += 0.03  # sent 0.6 To late: rounds onto sample 5, which then seems doubled
+    assert np.rint(late / to).astype(int).tolist().count(5) == 2
+    assert sample_numbers(late, to).tolist() == list(range(10))
+    early = exact.copy()
+    early[6] -= 0.03  # 0.6 To early: onto sample 5
+    assert sample_numbers(early, to).tolist() == list(range(10))
+    gap = np.concatenate([exact[:4], exact[7:]])  # no command for samples 4-6 (an outage)
+    assert sample_numbers(gap, to).tolist() == [0, 1, 2, 3, 7, 8, 9]
+
+
+def test_the_rerun_takes_the_attitude_the_command_answered_not_a_newer_one():
+    """offboard fly pairs the position with the ATTITUDE of its own instant: a newer ATTITUDE may
+    be logged before the command that answered the older one (real time)."""
+    from types import SimpleNamespace
+
+    from offboard.replay import _telemetry_rows
+
+    def att(ms, roll, msgno):
+        return (ms, roll, 0.0, 0.0, 0.0, 0.0, 0.0, ms / 1000.0, msgno)
+
+    def pos(ms, msgno):
+        return (ms, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, ms / 1000.0, msgno)
+
+    # samples at 100, 150, ..., each command logged right after its pair; at 300 the ATTITUDE of
+    # 308 arrives (and is logged) before the command that answered 300
+    attitudes, positions, commands, stamps = [], [], [], []
+    msgno = 0
+    for ms in range(100, 10100, 50):  # 200 samples: one odd one in 200 is the flight's own log (>= 99 % echoed)
+        attitudes.append(att(ms, ms / 1e4, msgno)); positions.append(pos(ms, msgno + 1)); msgno += 2
+        if ms == 300:
+            attitudes.append(att(308, 9.0, msgno)); msgno += 1
+        commands.append(msgno); stamps.append(ms); msgno += 1
+    scan = SimpleNamespace(attitude={1: attitudes}, local_position={1: positions})
+    i_att, i_pos, att_table, _ = _telemetry_rows(scan, 1, np.array(stamps), np.array(commands))
+    assert att_table[i_att, 0].tolist() == stamps  # every sample's own ATTITUDE, 300 included
+    assert 9.0 not in att_table[i_att, 1]
