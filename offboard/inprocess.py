@@ -41,7 +41,7 @@ from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
-from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, Model, PaperModel, VehicleSim, WindField
+from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, VehicleSim, WindField, make_model
 from sitl_plant.vehicle import VehicleParams
 
 
@@ -161,15 +161,6 @@ def vehicle_loop(drive: Drive | str, controller: Controller, vehicle: VehiclePar
     return ControllerAttitudeLaw(controller)  # type: ignore[arg-type]
 
 
-def make_model(model: VehicleModel | str, vehicle: VehicleParams) -> Model:
-    """The simulated model of ``vehicle``: the paper's (eq. 13, 18) or the rigid body."""
-    if VehicleModel(model) is VehicleModel.PAPER:
-        return PaperModel(vehicle)
-    from sitl_plant.dynamics.rigid_body import RigidBodyModel
-
-    return RigidBodyModel(vehicle)
-
-
 def _diverged(sim: VehicleSim, euler_rad: np.ndarray, pos_ned_m: np.ndarray) -> str:
     """Why the true state means the flight is lost ('' if it is not)."""
     if not np.all(np.isfinite(sim.x)):
@@ -265,7 +256,7 @@ def simulate(
     """
     to = controller.sample_time_s
     n_physics = steps_per_period(to, physics_dt_s)
-    sim_model = make_model(model, vehicle)
+    sim_model = make_model(str(VehicleModel(model)), vehicle)
     cls: type[VehicleSim] = VehicleSim
     if fast:
         from sitl_plant.dynamics.batch import FastRigidBodySim

@@ -39,7 +39,7 @@ from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
-from sitl_plant.simulation import Model, PaperModel, VehicleSim
+from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
 from sitl_plant.state import VehicleState
 from sitl_plant.vehicle import VehicleParams
 
@@ -48,18 +48,6 @@ KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry whi
 LOCKSTEP_EPOCH_S = 1_577_836_800  # 2020-01-01T00:00:00Z: tlog and SYSTEM_TIME origin in lockstep
 API, GCS = 0, 1
 MAX_DISTANCE_M = 1e7  # beyond this from home the simulation is taken as broken down
-MODELS = ("rigid-body", "paper")
-
-
-def make_model(kind: str, vehicle: VehicleParams) -> Model:
-    """The simulated vehicle: ``rigid-body`` (default) or the ``paper`` model (eq. 13, 18)."""
-    if kind == "paper":
-        return PaperModel(vehicle)
-    if kind == "rigid-body":
-        from sitl_plant.dynamics.rigid_body import RigidBodyModel
-
-        return RigidBodyModel(vehicle)
-    raise ValueError(f"model must be one of {MODELS}, got {kind!r}")
 
 
 def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleSim:

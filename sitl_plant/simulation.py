@@ -111,6 +111,21 @@ class PaperModel:
         )
 
 
+#: The simulated vehicles: the rigid body with rotors (the default) and the paper's model.
+MODELS = ("rigid-body", "paper")
+
+
+def make_model(kind: str, vehicle: VehicleParams) -> Model:
+    """The simulated vehicle: ``rigid-body`` (default) or the ``paper`` model (eq. 13, 18)."""
+    if kind == "paper":
+        return PaperModel(vehicle)
+    if kind == "rigid-body":
+        from sitl_plant.dynamics.rigid_body import RigidBodyModel
+
+        return RigidBodyModel(vehicle)
+    raise ValueError(f"model must be one of {MODELS}, got {kind!r}")
+
+
 # --- actuation: what the inner loop asks of the model at each physics step ---------------
 
 

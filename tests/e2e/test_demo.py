@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from helpers.flights import ENV, PY, hover_mission, read_tlog
+from helpers import REPO
 
 pytestmark = pytest.mark.e2e
 
@@ -54,7 +55,7 @@ def test_demo_flies_the_paper_helix_and_leaves_the_run_folder(tmp_path):
     assert summary["peak_tilt_deg"] <= summary["controller"]["tilt_max_deg"] + 0.5  # the issue saw 51.3 deg against 35
     assert [round(s["size_m"]) for s in summary["reference_steps"]] == [3, 2, 12]
     # docs/offboard.md quotes this lockstep flight's verdict (deterministic: lockstep logs are identical)
-    page = " ".join((Path(__file__).resolve().parents[1] / "docs" / "offboard.md").read_text().split())
+    page = " ".join((REPO / "docs" / "offboard.md").read_text().split())
     quoted = re.search(r"`python -m offboard\.demo --lockstep`'s flight ends `verdict: ([^`]+)`", page).group(1)
     assert summary["verdict"] == quoted
     assert summary["settled"]["max_m"] < 0.2
