@@ -321,7 +321,7 @@ OFFBOARD_PARTS = (
     ("waiting for telemetry (select)", (("_wait", "offboard/link.py"),)),
     ("parsing + duplicate filter (pymavlink)", (("_parse", "offboard/link.py"), ("_read", "offboard/link.py"))),
     ("sendto (incl. preempted by the woken peer) + tlog", (("send", "offboard/link.py"),)),
-    ("state decoding (codec)", (("controller_state", "offboard/codec.py"),)),
+    ("state decoding (codec, paper frame)", (("measured_state", "offboard/codec.py"), ("paper_state_of", "offboard/controller/paper.py"))),
     ("controller law", (("step", "offboard/controller/"), ("law_step", "offboard/controller/"))),
     ("reference, setpoint encoding, records", (("_sample", "offboard/flight.py"),)),
     ("handling telemetry", (("_handle", "offboard/flight.py"),)),

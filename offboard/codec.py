@@ -1,7 +1,7 @@
 """MAVLink encoding and decoding for the offboard process: pure functions, no sockets.
 
-Incoming: ATTITUDE and LOCAL_POSITION_NED become a ``MeasuredState`` (NED/FRD), which
-``controller_state`` turns into the paper's 12-state (``offboard.frames``); HEARTBEAT,
+Incoming: ATTITUDE and LOCAL_POSITION_NED become a ``MeasuredState`` (NED/FRD), the state every
+controller reads (the paper's 12-state of it: ``offboard.controller.paper.paper_state_of``); HEARTBEAT,
 COMMAND_ACK, PARAM_VALUE and TIMESYNC become small typed values.
 Outgoing: a controller's ``Command`` (``offboard.controller.command``) becomes
 SET_ATTITUDE_TARGET or SET_ACTUATOR_CONTROL_TARGET fields by ``command_setpoint``, the one
@@ -44,7 +44,6 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import VEHICLE_MODELS, Command, require
-from offboard.frames import euler_rates_from_body_rates, paper_state
 from sitl_plant.dynamics.rotations import quat_from_euler
 
 MAVLinkMessage = mavlink.MAVLink_message
@@ -140,12 +139,6 @@ def measured_state(attitude: MAVLinkMessage, local_position: MAVLinkMessage) -> 
         euler_rad=np.array([attitude.roll, attitude.pitch, attitude.yaw], dtype=float),
         body_rate_frd_rad_s=np.array([attitude.rollspeed, attitude.pitchspeed, attitude.yawspeed], dtype=float),
     )
-
-
-def controller_state(measured: MeasuredState, euler_rate_form: str) -> tuple[float, ...]:
-    """The paper's 12-state (eq. 22) of a measurement: Euler rates from body rates by eq. 3."""
-    euler_rates = euler_rates_from_body_rates(measured.euler_rad, measured.body_rate_frd_rad_s, euler_rate_form)
-    return paper_state(measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, euler_rates)
 
 
 def euler_rate_form_for(model: str, controller_form: str) -> str:

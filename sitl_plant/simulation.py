@@ -15,7 +15,7 @@ both drive a ``VehicleSim`` the same way, which is what makes them comparable sa
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np

@@ -37,6 +37,13 @@ def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
+def paper_state_of(state: StateEstimate, euler_rate_form: str) -> tuple[float, ...]:
+    """The 12-state of eq. 22 (paper frame) of a NED/FRD estimate: Euler rates from the body rates
+    by eq. 3 with ``euler_rate_form``'s W_eta."""
+    rates = euler_rates_from_body_rates(state.euler_rad, state.body_rate_frd_rad_s, euler_rate_form)
+    return paper_state(state.pos_ned_m, state.vel_ned_m_s, state.euler_rad, rates)
+
+
 def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: str) -> Command:
     """The ``Command`` of one sample of the law (module docstring).
 
@@ -105,9 +112,7 @@ class PaperController:
 
     def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
         p = self.params
-        euler = state.euler_rad
-        rates = euler_rates_from_body_rates(euler, state.body_rate_frd_rad_s, p.euler_rate_form)  # eq. 3
-        x = paper_state(state.pos_ned_m, state.vel_ned_m_s, euler, rates)
+        x = paper_state_of(state, p.euler_rate_form)
         lead = p.reference_lead_s2
         out = self.law.step(x, tracking_reference(ref_n, lead), tracking_reference(ref_n1, lead))
-        return paper_command(out, euler, p, self.vehicle_model)
+        return paper_command(out, state.euler_rad, p, self.vehicle_model)

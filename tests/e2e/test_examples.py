@@ -9,9 +9,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-from pathlib import Path
 
-import pytest
 
 from offboard.missions import MISSIONS_DIR, load_mission
 from helpers.flights import ENV

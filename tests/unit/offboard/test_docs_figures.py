@@ -7,17 +7,13 @@ printed 0.058 m) fails here. A figure quoted to d decimals must be the run's val
 
 from __future__ import annotations
 
-import functools
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from offboard.inprocess import run_scenario
-from offboard.metrics import end_error_m, summarize
-from offboard.scenario import load_scenario
+from offboard.metrics import end_error_m
 from helpers import REPO
 from helpers.scenarios import flown
 

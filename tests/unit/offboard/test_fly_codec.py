@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from offboard import codec
 from offboard.controller import PAPER_CONTROLLER_FILE, RosalesController, TrackingReference, load_controller
 from offboard.controller.command import MissingCommand
-from offboard.controller.paper import paper_command
+from offboard.controller.paper import paper_command, paper_state_of
 from offboard.frames import body_torque_from_generalized, euler_rates_from_body_rates, paper_state, tilt_about_heading
 from sitl_plant import codec as plant_codec
 from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
@@ -41,7 +41,7 @@ def control_output(euler=(0.1, -0.2, 0.7), form="zyx", yaw_aware=True, ref=(2.0,
     params = load_controller(PAPER_CONTROLLER_FILE).with_changes(euler_rate_form=form, yaw_aware=yaw_aware)
     att, lpn = telemetry(euler=euler, **({"rates": (0.0, 0.0, 0.0), "vel": (0.0, 0.0, 0.0)} if still else {}))
     measured = codec.measured_state(att, lpn)
-    x = codec.controller_state(measured, form)
+    x = paper_state_of(measured, form)
     ctrl = RosalesController(params)
     r = TrackingReference(*ref)
     return ctrl.step(x, r, r), measured
@@ -83,7 +83,7 @@ def test_non_finite_position_is_refused():
 def test_controller_state_is_the_paper_state_with_euler_rates_from_body_rates(form):
     att, lpn = telemetry()
     m = codec.measured_state(att, lpn)
-    x = codec.controller_state(m, form)
+    x = paper_state_of(m, form)
     eta_dot = np.linalg.solve(euler_rate_matrix(m.euler_rad, form), m.body_rate_frd_rad_s)  # eq. 3
     assert_allclose(x, paper_state(m.pos_ned_m, m.vel_ned_m_s, m.euler_rad, eta_dot))
     assert x[4] == pytest.approx(3.0) and x[5] == pytest.approx(0.125)  # z up = -down

@@ -9,17 +9,14 @@ packets missing from the sequence.
 from __future__ import annotations
 
 import json
-import math
 import socket
 import struct
 import threading
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.cli import main
@@ -35,7 +32,7 @@ from offboard.replay import (
     stream_log,
 )
 
-from helpers.logs import EPOCH_US, VEHICLE, MODE_HOLD, MODE_OFFBOARD, MODE_LAND, POSITION_AND_YAW, DROPPED, ForeignLog, f32, write_foreign_log
+from helpers.logs import DROPPED, EPOCH_US, MODE_HOLD, MODE_LAND, MODE_OFFBOARD, VEHICLE, ForeignLog, write_foreign_log
 
 
 @pytest.fixture(scope="module")
