@@ -18,9 +18,11 @@ Sampling: in **lockstep** a sample is due when an ATTITUDE and a LOCAL_POSITION_
 same ``time_boot_ms`` T have arrived (the plant then waits for the setpoint echoing T); in
 **real time** the flight keeps its own sample clock at To from the injected clock and uses the
 freshest telemetry, still echoing the ATTITUDE's ``time_boot_ms``; on the **vehicle's clock**
-(``vehicle_clock``, for a vehicle that runs faster or slower than real time: PX4 SITL ``--speed``,
-``sitl-plant --speed``) a sample is due when the telemetry's ``time_boot_ms`` has advanced To
-since the last one. Every decision is taken
+(``SampleClock.VEHICLE``, for a vehicle that runs faster or slower than real time: PX4 SITL
+``--speed``, ``sitl-plant --speed``) a sample is due when the telemetry's ``time_boot_ms`` has
+advanced To since the last one. ``SampleClock.AUTO`` (``offboard fly``'s default) measures the
+vehicle's clock rate before OFFBOARD (``offboard.clockrate``) and samples on our clock if it runs
+at ours, on the vehicle's if it does not. Every decision is taken
 while handling a message or a sample, so a lockstep flight sends the same bytes every time.
 
 How it can end (``FlightStatus``): COMPLETE; LINK_LOST (telemetry stale for longer than the
@@ -38,6 +40,7 @@ import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from typing import Protocol
 
 import numpy as np
@@ -71,6 +74,14 @@ STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT sa
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 
+class SampleClock(StrEnum):
+    """What paces the real-time samples: our clock, the vehicle's, or the one that runs at its rate."""
+
+    WALL = "wall"
+    VEHICLE = "vehicle"
+    AUTO = "auto"
+
+
 class Link(Protocol):
     """What a flight needs of a MAVLink link (``offboard.link.MavLink`` or a test double)."""
 
@@ -94,8 +105,10 @@ class FlightConfig:
         ``rigid-body`` or ``paper``: what the vehicle's ATTITUDE angles are (``codec``).
     lockstep : bool
         Sample on telemetry arrival instead of on our own clock.
-    vehicle_clock : bool
-        Real time, but the sample clock is the vehicle's ``time_boot_ms`` (module docstring).
+    clock : SampleClock
+        Real time: sample on our clock (``wall``), on the vehicle's ``time_boot_ms``
+        (``vehicle``), or on whichever runs at the vehicle's rate, measured before OFFBOARD
+        (``auto``; module docstring).
     telemetry_timeout_s : float
         Telemetry older than this (wall clock) stops the setpoints: LINK_LOST.
     reconnect_timeout_s : float
@@ -125,7 +138,7 @@ class FlightConfig:
     output: str = "attitude"
     model: str = "rigid-body"
     lockstep: bool = False
-    vehicle_clock: bool = False
+    clock: SampleClock = SampleClock.WALL
     telemetry_timeout_s: float = 0.5
     reconnect_timeout_s: float = 5.0
     heartbeat_timeout_s: float = 10.0
@@ -558,9 +571,11 @@ class Flight:
         self.armed_by_us = False
         self.landed = False
         self.disarmed = False
-        # on our own clock in real time: the vehicle's clock must run at our rate (offboard.clockrate)
+        # on our own clock in real time the vehicle's clock must run at our rate (offboard.clockrate);
+        # AUTO measures it and then follows the vehicle's clock if it does not
+        self._on_vehicle_clock = not self.config.lockstep and self.config.clock == SampleClock.VEHICLE
         self._clock_meter: ClockRateMeter | None = None
-        if not (self.config.lockstep or self.config.vehicle_clock):
+        if not (self.config.lockstep or self._on_vehicle_clock):
             self._clock_meter = ClockRateMeter()
 
     # -- public ----------------------------------------------------------------------------------
@@ -868,9 +883,16 @@ class Flight:
             return  # no telemetry to measure with: the telemetry watch reports that
         self.meta["clock_rate"] = measured.rate
         if measured.real_time:
+            if self.config.clock == SampleClock.AUTO:
+                self.meta["clock"] = SampleClock.WALL.value
             return
         if measured.rate < STALLED_RATE:
             raise ClockMismatch(f"{measured.describe()}: a lockstep vehicle waits for our setpoints; fly it with --lockstep")
+        if self.config.clock == SampleClock.AUTO:
+            self._on_vehicle_clock = True
+            self.meta["clock"] = SampleClock.VEHICLE.value
+            self._say(f"{measured.describe()}: sampling every {self.to * 1000:g} ms of the vehicle's clock")
+            return
         raise ClockMismatch(f"{measured.describe()}, so a sample time of {self.to * 1000:g} ms of ours would be "
                             f"{self.to * measured.rate * 1000:.0f} ms of the vehicle's: fly it with --clock vehicle")
 
@@ -916,7 +938,7 @@ class Flight:
         if self._watch_telemetry:
             self._check_telemetry(now)
             wait = min(wait, self.config.telemetry_timeout_s / 4)
-        if not self.config.lockstep and not self.config.vehicle_clock and self._source is not None:
+        if not self.config.lockstep and not self._on_vehicle_clock and self._source is not None:
             if self._next_tick_s is None:
                 self._next_tick_s = now
             if now >= self._next_tick_s:
@@ -1096,7 +1118,7 @@ class Flight:
         """On the vehicle's clock: a sample when the position's ``time_boot_ms`` reaches the next
         tick (late by whole periods: those are skipped and counted, as in real time)."""
         cfg = self.config
-        if not cfg.vehicle_clock or cfg.lockstep or self._source is None or self._att is None or self._lpn is None:
+        if not self._on_vehicle_clock or self._source is None or self._att is None or self._lpn is None:
             return
         t_ms = float(self._lpn.time_boot_ms)
         period_ms = self.to * 1000.0

@@ -29,7 +29,7 @@ from offboard import jsonout
 #: ``--controller se3`` / ``px4``: a baseline (``offboard.controllers``) believing what the law would.
 BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
-from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress
+from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from sitl_plant.clihelp import HelpFormatter
@@ -56,9 +56,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="pymavlink connection string (udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial device)")
     link.add_argument("--lockstep", action="store_true",
                       help="sample on each telemetry burst instead of on our own clock (sitl-plant --lockstep)")
-    link.add_argument("--clock", choices=("wall", "vehicle"), default="wall",
-                      help="real time: sample every To of our clock, or of the vehicle's time_boot_ms (a vehicle "
-                           "running faster or slower than real time: PX4 SITL --speed, sitl-plant --speed)")
+    link.add_argument("--clock", choices=[c.value for c in SampleClock], default=SampleClock.AUTO.value,
+                      help="real time: sample every To of our clock (wall), or of the vehicle's time_boot_ms (vehicle: "
+                           "one running faster or slower than real time, PX4 SITL --speed, sitl-plant --speed), or "
+                           "measure the vehicle's clock rate before OFFBOARD and take the one that runs at it (auto)")
     link.add_argument("--target-system", type=int, default=None, metavar="N", help="fly this system id (default: the first autopilot heard)")
     link.add_argument("--sysid", type=int, default=245, metavar="N", help="our MAVLink system id")
     link.add_argument("--compid", type=int, default=191, metavar="N", help="our MAVLink component id (191: onboard computer)")
@@ -227,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
         output=args.output,
         model=args.model,
         lockstep=args.lockstep,
-        vehicle_clock=args.clock == "vehicle",
+        clock=SampleClock(args.clock),
         telemetry_timeout_s=args.telemetry_timeout,
         reconnect_timeout_s=args.reconnect_timeout,
         heartbeat_timeout_s=args.heartbeat_timeout,
@@ -383,6 +384,8 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
 def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path, tlog: Path,
             meta: dict, no_plots: bool) -> tuple[dict, str]:
     record = result.record
+    # the flight resolves the sample clock (--clock auto) and measures the vehicle's rate
+    meta = {**meta, **{k: record.meta[k] for k in ("clock", "clock_rate") if k in record.meta}}
     extra = fly_summary(result, link_stats, wall_s)
     table = ""
     payload: dict = {**meta, "run_dir": str(run_dir), "log": str(tlog)}
