@@ -65,7 +65,13 @@ def parse_address(text: str, what: str) -> tuple[str, int] | None:
 
 
 class TlogWriter:
-    """Appends ``(timestamp, packet)`` records to a tlog file; ``close()`` flushes."""
+    """Appends ``(timestamp, packet)`` records to a tlog file; ``close()`` flushes.
+
+    Each record goes to the file buffer in one write, so whenever the buffer reaches the disk (full,
+    ``flush()``) it ends on a whole record: a process killed with SIGKILL leaves a log that ends on
+    its last flushed record, never on a timestamp without its packet (issue 14: two writes left a
+    dangling 8-byte stamp in 18 of 20 kills).
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -80,8 +86,7 @@ class TlogWriter:
 
     def write(self, time_us: int, packet: bytes | bytearray) -> None:
         if self._fh is not None:
-            self._fh.write(_TLOG_STAMP.pack(time_us))
-            self._fh.write(packet)
+            self._fh.write(_TLOG_STAMP.pack(time_us) + packet)
             self.records += 1
 
     def flush(self) -> None:

@@ -13,6 +13,7 @@ import pytest
 from pymavlink import mavutil
 
 from helpers.flights import fly, hover_mission, read_tlog
+from offboard.replay import TlogReader
 
 pytestmark = pytest.mark.e2e
 
@@ -40,6 +41,8 @@ def test_plant_killed_ends_link_lost_with_a_readable_log(tmp_path):
     assert "telemetry lost" in flown.stderr and "LINK_LOST" in flown.stderr
     msgs = read_tlog(flown.tlog)  # the whole file parses
     assert msgs and msgs[-1].get_srcSystem() in (1, 245)
+    plant_log = TlogReader(flown.plant_tlog)  # killed with SIGKILL: whole records to its last flushed one
+    assert any(m.msg.get_type() == "HEARTBEAT" for m in plant_log) and not plant_log.damages, plant_log.describe_damage()
     assert not commands(msgs, mavutil.mavlink.MAV_CMD_NAV_LAND)  # nobody left to tell
 
 
