@@ -10,6 +10,8 @@ On top of it this module does what a flight needs of a link and pymavlink leaves
   latest received is dropped (a lockstep plant resends its last telemetry as a keepalive while
   nobody answers; those copies are not news);
 - **loss counting** from the sequence numbers of each source (``LinkStats.lost``);
+- **signing** (``offboard.signing``, optional): what we send is signed, and frames not signed with
+  the key are refused and counted (``LinkStats.refused``) after the duplicate filter;
 - a **tlog** of every packet sent and received, in the order the flight handled them, stamped
   by an injected clock (wall time, or simulation time in lockstep so that two lockstep runs
   write the same bytes). pymavlink's ``mavutil.mavlink_connection(path)`` and ``mavlogdump.py``
@@ -33,6 +35,7 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.signing import SigningSession
 from sitl_plant.link import LinkError, TlogWriter
 
 __all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
@@ -59,6 +62,9 @@ class LinkStats:
     lost: int = 0  # sequence-number gaps of the sources we heard
     duplicates: int = 0
     bad: int = 0  # bytes that did not parse as MAVLink (CRC errors, truncation, junk)
+    #: well-formed frames refused by signing (``offboard.signing.Verdict``: unsigned, bad_signature,
+    #: replayed, stale_stream), never handed to the flight
+    refused: dict[str, int] = field(default_factory=dict)
     sent_by_type: dict[str, int] = field(default_factory=dict)
     received_by_type: dict[str, int] = field(default_factory=dict)
 
@@ -69,6 +75,7 @@ class LinkStats:
             "lost": self.lost,
             "duplicates": self.duplicates,
             "bad": self.bad,
+            "refused": dict(sorted(self.refused.items())),
             "sent_by_type": dict(sorted(self.sent_by_type.items())),
             "received_by_type": dict(sorted(self.received_by_type.items())),
         }
@@ -108,6 +115,7 @@ class MavLink:
         compid: int = ONBOARD_COMPID,
         tlog_path: str | Path | None = None,
         log_time_us: Callable[[], int] = wall_clock_us,
+        signing: SigningSession | None = None,
     ) -> None:
         self.connect = connect
         if not connect.startswith(SCHEMES) and not (connect.startswith("/") or connect.upper().startswith("COM")):
@@ -131,6 +139,7 @@ class MavLink:
         self._sources: dict[tuple[int, int], _Source] = {}
         self.stats = LinkStats()
         self.log_time_us = log_time_us
+        self.signing = signing
         self._tlog: TlogWriter | None = None
         if tlog_path is not None:
             try:
@@ -162,7 +171,9 @@ class MavLink:
     # -- sending -----------------------------------------------------------------------------------
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
-        """Pack with our identity and next sequence number, log, send."""
+        """Pack with our identity and next sequence number (signed, with signing), log, send."""
+        if self.signing is not None:
+            self.signing.stamp(self._packer)
         packet = msg.pack(self._packer)
         self._packer.seq = (self._packer.seq + 1) & 0xFF
         if self._tlog is not None:
@@ -236,9 +247,14 @@ class MavLink:
             if msg.get_type() == "BAD_DATA":
                 self.stats.bad += 1
                 continue
-            if self._is_duplicate(msg):
+            if self._is_duplicate(msg):  # first: a lockstep keepalive's copy is a duplicate, not a replay
                 self.stats.duplicates += 1
                 continue
+            if self.signing is not None:
+                verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), msg.get_srcSystem(), msg.get_srcComponent())
+                if not verdict.accepted:
+                    self.stats.refused[verdict.value] = self.stats.refused.get(verdict.value, 0) + 1
+                    continue
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
@@ -270,12 +286,14 @@ class MavLink:
             self._tlog.flush()
 
     def close(self) -> None:
-        """Close the connection and the tlog (which is then complete)."""
+        """Close the connection and the tlog (which is then complete); persist the signing timestamp."""
         try:
             self.conn.close()
         finally:
             if self._tlog is not None:
                 self._tlog.close()
+            if self.signing is not None:
+                self.signing.close()
 
     def __enter__(self) -> MavLink:
         return self

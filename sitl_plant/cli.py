@@ -18,6 +18,7 @@ from sitl_plant.codec import Home
 from sitl_plant.clihelp import HelpFormatter, add_version
 from sitl_plant.errors import UserError
 from sitl_plant.inner_loops import InnerLoops
+from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
 from sitl_plant.params import plant_params
 from sitl_plant.server import LOCKSTEP_EPOCH_S, MODELS, Plant, PlantConfig, run_lockstep, run_realtime
@@ -69,8 +70,27 @@ def build_parser() -> argparse.ArgumentParser:
     net.add_argument("--log-clock", choices=("sim", "wall"), default="sim",
                      help="tlog timestamps: start epoch + simulation time (reproducible in lockstep), or the wall "
                      "clock when each packet is sent or handled (to measure latencies)")
+    sec = parser.add_argument_group("who may talk to the vehicle")
+    sec.add_argument("--signing-key", metavar="FILE", type=Path, default=None,
+                     help="MAVLink 2 signing: sign what we send and refuse frames not signed with this key (32 bytes, "
+                          "or PX4's 40-byte key file); its timestamp is kept in the file (PX4's layout) in real time")
+    sec.add_argument("--allow-sysid", metavar="N[,N...]", default=None,
+                     help="handle frames only from these system ids (default: anyone's, as PX4); the others are "
+                          "refused, counted and never answered")
     parser.add_argument("--quiet", action="store_true", help="no banner, status line or summary")
     return parser
+
+
+def _allowed_senders(text: str | None) -> frozenset[int] | None:
+    if text is None:
+        return None
+    try:
+        ids = frozenset(int(part) for part in text.split(","))
+    except ValueError:
+        raise ArgumentError(f"--allow-sysid: expected system ids separated by commas, such as 245,255, got {text!r}") from None
+    if not ids or not all(1 <= n <= 255 for n in ids):
+        raise ArgumentError(f"--allow-sysid: system ids are 1..255, got {text!r}")
+    return ids
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -198,10 +218,19 @@ def _run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ArgumentError(str(exc)) from None
 
-    endpoints = [Endpoint("api", api_bind, api_remote, args.sysid, config.compid)]
+    allowed = _allowed_senders(args.allow_sysid)
+    key = _signing_key(args.signing_key)
+    # the signing clock is the plant's (start epoch + simulation time): in lockstep, the same bytes
+    # every run, and no timestamp persisted (offboard/signing.py)
+    key_path = None if args.lockstep else args.signing_key
+
+    def session(link_id: int) -> SigningSession | None:
+        return None if key is None else SigningSession(key, plant.epoch_us, link_id=link_id, key_path=key_path)
+
+    endpoints = [Endpoint("api", api_bind, api_remote, args.sysid, config.compid, signing=session(0), allowed_senders=allowed)]
     try:
         if gcs_bind is not None:
-            endpoints.append(Endpoint("gcs", gcs_bind, gcs_remote, args.sysid, config.compid))
+            endpoints.append(Endpoint("gcs", gcs_bind, gcs_remote, args.sysid, config.compid, signing=session(1), allowed_senders=allowed))
         tlog = TlogWriter(args.log) if args.log is not None else None
     except UserError:
         for e in endpoints:
@@ -234,6 +263,15 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _signing_key(path: Path | None) -> SigningKey | None:
+    if path is None:
+        return None
+    try:
+        return load_key(path)
+    except SigningKeyError as exc:
+        raise ArgumentError(str(exc)) from None
+
+
 def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
     lines = [f"sitl-plant: {args.model} model of {plant.vehicle.name} ({args.vehicle}), inner loop {args.inner_loop}"]
     for e in link.endpoints:
@@ -247,6 +285,10 @@ def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
     lines.append(f"  wind {args.wind}, sensors {args.noise}" + (f" (seed {args.seed})" if args.wind != "none" or args.noise != "clean" else ""))
     if args.log is not None:
         lines.append(f"  logging to {args.log}")
+    if args.signing_key is not None:
+        lines.append(f"  signing with {args.signing_key}: unsigned and badly signed frames refused")
+    if args.allow_sysid is not None:
+        lines.append(f"  frames handled from system ids {args.allow_sysid} only")
     print("\n".join(lines), file=sys.stderr, flush=True)
 
 
@@ -266,6 +308,17 @@ def _summary(plant: Plant, link: Link, stats: object) -> None:
         f"foreign {c.foreign}, unhandled {c.unhandled}",
         file=sys.stderr,
     )
+    refused: dict[str, int] = {}
+    senders: dict[int, int] = {}
+    for e in link.endpoints:
+        for why, n in e.counters.refused.items():
+            refused[why] = refused.get(why, 0) + n
+        for who, n in e.counters.refused_senders.items():
+            senders[who] = senders.get(who, 0) + n
+    if refused:
+        whys = ", ".join(f"{why} {n}" for why, n in sorted(refused.items()))
+        whos = ", ".join(f"system {who}: {n}" for who, n in sorted(senders.items()))
+        print(f"sitl-plant: refused {sum(refused.values())} frames before handling ({whys}; {whos})", file=sys.stderr)
     if c.breakdowns:
         print(f"sitl-plant: the simulation broke down {c.breakdowns} times (state not finite)", file=sys.stderr)
     if c.internal_errors:

@@ -35,6 +35,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.signing import SigningKey, SigningSession, save_key
 from sitl_plant.errors import UserError
 from sitl_plant.paths import output_file_problem
 
@@ -111,6 +112,11 @@ class LinkCounters:
     send_errors: int = 0
     encode_errors: int = 0
     by_type_in: dict[str, int] = field(default_factory=dict)
+    #: frames refused before any handling: signing verdicts (unsigned, bad_signature, replayed,
+    #: stale_stream) and ``sender`` (a system id not on the allow-list)
+    refused: dict[str, int] = field(default_factory=dict)
+    #: refused frames by sender system id
+    refused_senders: dict[int, int] = field(default_factory=dict)
 
 
 class Endpoint:
@@ -126,11 +132,20 @@ class Endpoint:
         Where to send before anyone talked to us; None: only answer who talks.
     sysid, compid : int
         Our MAVLink identity on this link.
+    signing : SigningSession or None
+        Sign what we send, and refuse incoming frames that are not signed with its key
+        (``offboard.signing``).
+    allowed_senders : set of int or None
+        System ids whose frames are handled (None: anyone's, as PX4); the others are refused
+        and counted, and never become the remote we answer.
     """
 
-    def __init__(self, name: str, bind: tuple[str, int], remote: tuple[str, int] | None, sysid: int, compid: int) -> None:
+    def __init__(self, name: str, bind: tuple[str, int], remote: tuple[str, int] | None, sysid: int, compid: int,
+                 *, signing: SigningSession | None = None, allowed_senders: frozenset[int] | None = None) -> None:  # fmt: skip
         self.name = name
         self.remote = remote
+        self.signing = signing
+        self.allowed_senders = allowed_senders
         self.counters = LinkCounters()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -161,7 +176,10 @@ class Endpoint:
         """Serialise messages with this link's sequence numbers."""
         out = []
         packer = self.packer
+        signing = self.signing
         for msg in messages:
+            if signing is not None:
+                signing.stamp(packer)
             try:
                 packet = msg.pack(packer)
             except (struct.error, OverflowError, ValueError, TypeError):
@@ -221,6 +239,17 @@ class Endpoint:
             if good:
                 self.remote = addr
 
+    def _refusal(self, msg: mavlink.MAVLink_message) -> str | None:
+        """Why a well-formed frame is refused before handling (None: it is not)."""
+        sender = msg.get_srcSystem()
+        if self.allowed_senders is not None and sender not in self.allowed_senders:
+            return "sender"
+        if self.signing is not None:
+            verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), sender, msg.get_srcComponent())
+            if not verdict.accepted:
+                return verdict.value
+        return None
+
     def _parse_datagram(self, data: bytes, out: list[mavlink.MAVLink_message]) -> bool:
         parser = self.parser
         counters = self.counters
@@ -234,6 +263,12 @@ class Endpoint:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 counters.bad_packets += 1
+                continue
+            refusal = self._refusal(msg)
+            if refusal is not None:
+                counters.refused[refusal] = counters.refused.get(refusal, 0) + 1
+                sender = msg.get_srcSystem()
+                counters.refused_senders[sender] = counters.refused_senders.get(sender, 0) + 1
                 continue
             found = True
             counters.packets_in += 1
@@ -326,8 +361,30 @@ class Link:
         if self.tlog is not None:
             self.tlog.flush()
 
+    def rekey(self, key: SigningKey) -> None:
+        """SETUP_SIGNING: sign with ``key`` on every link from now on (a new session where there
+        was none, on the plant's log clock), persisting it where the first session does."""
+        path = next((e.signing.key_path for e in self.endpoints if e.signing is not None), None)
+        for i, e in enumerate(self.endpoints):
+            if e.signing is None:
+                e.signing = SigningSession(key, self.log_time_us, link_id=i, key_path=path)
+            else:
+                e.signing.rekey(key)
+        if path is not None:
+            save_key(path, key)
+
+    def unsign(self) -> None:
+        """SETUP_SIGNING with an all-zero key: signing off on every link."""
+        for e in self.endpoints:
+            if e.signing is not None:
+                e.signing.close()
+            e.signing = None
+            e.packer.signing.sign_outgoing = False
+
     def close(self) -> None:
         for e in self.endpoints:
             e.close()
+            if e.signing is not None:
+                e.signing.close()
         if self.tlog is not None:
             self.tlog.close()

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from offboard.signing import SigningKey
 from sitl_plant import codec
 from sitl_plant.autopilot import (
     ActuatorSetpoint,
@@ -217,6 +218,8 @@ class Plant:
         self.streams = [StreamSchedule(API), StreamSchedule(GCS)]
         self.counters = Counters()
         self.outbox: list[list[mavlink.MAVLink_message]] = [[], []]
+        #: a SETUP_SIGNING key accepted, for the loop to apply to the links (then None)
+        self.signing_change: SigningKey | None = None
         self._statustext_id = 0
         self._heartbeat_status: object = None  # the status the latest heartbeat reported
         self._truth = self.sim.truth()
@@ -456,6 +459,16 @@ class Plant:
     def _on_heartbeat(self, index: int, msg: mavlink.MAVLink_message) -> None:
         pass  # a client's presence; nothing to do (the link already learnt its address)
 
+    def _on_setup_signing(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        """A new signing key for every link (applied by the loop, which owns the links); refused
+        while armed, as a key change in flight would cut the link to the vehicle."""
+        if self.autopilot.armed:
+            self.counters.refusals["SETUP_SIGNING"] = self.counters.refusals.get("SETUP_SIGNING", 0) + 1
+            self._announce(StatusText(mavlink.MAV_SEVERITY_WARNING, "SETUP_SIGNING refused: vehicle armed"))
+            return
+        self.signing_change = SigningKey(bytes(msg.secret_key), int(msg.initial_timestamp))
+        self._announce(StatusText(mavlink.MAV_SEVERITY_INFO, "MAVLink signing " + ("disabled" if self.signing_change.disables else "key updated via SETUP_SIGNING")))
+
     def _announce(self, text: StatusText) -> None:
         self._statustext_id = self._statustext_id % 65535 + 1
         messages = codec.statustext(text.severity, text.text, self._statustext_id)
@@ -573,6 +586,7 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "PARAM_SET": Plant._on_param_set,
     "TIMESYNC": Plant._on_timesync,
     "PING": Plant._on_ping,
+    "SETUP_SIGNING": Plant._on_setup_signing,
     "HEARTBEAT": Plant._on_heartbeat,
 }
 
@@ -747,3 +761,11 @@ def _dispatch(d: _Driver, received: list[tuple[int, mavlink.MAVLink_message]]) -
     for index, msg in received:
         d.link.log_received(msg)
         d.plant.handle(index, msg)
+        key = d.plant.signing_change
+        if key is not None:
+            d.flush_outbox()  # the answer goes out under the old key, as the sender expects
+            if key.disables:
+                d.link.unsign()
+            else:
+                d.link.rekey(key)
+            d.plant.signing_change = None

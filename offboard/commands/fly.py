@@ -29,6 +29,7 @@ from offboard import jsonout
 #: ``--controller se3`` / ``px4``: a baseline (``offboard.controllers``) believing what the law would.
 BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
+from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
@@ -63,6 +64,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     link.add_argument("--target-system", type=int, default=None, metavar="N", help="fly this system id (default: the first autopilot heard)")
     link.add_argument("--sysid", type=int, default=245, metavar="N", help="our MAVLink system id")
     link.add_argument("--compid", type=int, default=191, metavar="N", help="our MAVLink component id (191: onboard computer)")
+    link.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                      help="MAVLink 2 signing: sign what we send, refuse frames not signed with this key (32 bytes, or "
+                           "PX4's 40-byte key file, whose timestamp is kept up to date in real time)")
     link.add_argument("--heartbeat-timeout", type=float, default=10.0, metavar="S", help="wait this long for the vehicle's heartbeat")
     link.add_argument("--telemetry-timeout", type=float, default=0.5, metavar="S",
                       help="telemetry older than this stops the setpoints (LINK_LOST)")
@@ -112,6 +116,8 @@ def _check(args: argparse.Namespace) -> None:
 
     for name in ("heartbeat-timeout", "telemetry-timeout", "reconnect-timeout", "land-timeout", "sample-time", "thrust-max-n"):
         positive(name, getattr(args, name.replace("-", "_")))
+    if args.signing_key is not None:
+        _signing_key(args.signing_key)  # a bad key file: one line before anything starts
     if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
     if args.clock == "vehicle" and args.lockstep:
@@ -272,11 +278,23 @@ def _remove_if_empty(tlog: Path, created: list[Path]) -> None:
         pass
 
 
+def _signing_key(path: Path) -> SigningKey:
+    try:
+        return load_key(path)
+    except SigningKeyError as exc:
+        raise FlyArgumentError(str(exc)) from None
+
+
 def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: FlightConfig, meta: dict, run_dir: Path,
          tlog: Path, log_clock: LogClock, console: _Console, started: float) -> int:
     from offboard.link import MavLink
 
-    link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock)
+    signing = None
+    if args.signing_key is not None:
+        # the log's clock signs: simulation time in lockstep (the same bytes every run, nothing
+        # persisted), the wall clock otherwise (the timestamp kept in the key file)
+        signing = SigningSession(_signing_key(args.signing_key), log_clock, key_path=None if args.lockstep else args.signing_key)
+    link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock, signing=signing)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
     try:
         with _Interrupts() as interrupts:
@@ -367,7 +385,9 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
               f"max {loop['jitter_max_ms']:.2f} ms")  # fmt: skip
     lines = [
         f"messages: sent {m['sent']}, received {m['received']}, lost {m['lost']} ({lost_pct:.2f} %), "
-        f"duplicates {m['duplicates']}, bad {m['bad']}",
+        f"duplicates {m['duplicates']}, bad {m['bad']}"
+        + (f", refused by signing {sum(m['refused'].values())} ({', '.join(f'{k} {v}' for k, v in m['refused'].items())})"
+           if m.get("refused") else ""),
         f"loop: {loop['samples']} samples in {loop['mission_wall_s']:.2f} s wall ({loop['rate_hz']:.1f} Hz), "
         f"{timing}, overruns {loop['overruns']}, missed {loop['missed']}",
     ]

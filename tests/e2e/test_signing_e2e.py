@@ -1,0 +1,109 @@
+"""A signed flight (issue 14): both processes with --signing-key, in lockstep, with an intruder
+sending unsigned and forged commands at the plant during the flight. Measured before signing: a
+second client's forced disarm at 6.5 m was accepted and the vehicle fell."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from helpers.flights import ENV, PY, fly, write_mission
+
+KEY = bytes(range(1, 33))
+ARMED = "armed: flying the mission"
+ARC = """
+[[mission.segment]]
+type = "helix"
+name = "arc"
+center = [0, 0, 1]
+radius_m = 1.0
+phase = 0
+angular_rate = 1.0
+climb_rate_m_s = 0.2
+yaw = 0
+until_s = 3
+"""
+
+
+def intrude(ctx) -> None:
+    """Unsigned frames from another system, and frames forged with our ids and another key: a
+    forced disarm, a mode change to Hold, a 30 deg roll setpoint."""
+    ctx.wait_for(ARMED)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    plain = mavlink.MAVLink(None, srcSystem=200, srcComponent=190)
+    forged = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
+    forged.signing.secret_key, forged.signing.sign_outgoing = bytes(32 * [9]), True
+    forged.signing.timestamp = 10**14  # far ahead: pymavlink's check would lock the real stream out
+    attacks = [
+        mavlink.MAVLink_command_long_message(1, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0),
+        mavlink.MAVLink_command_long_message(1, 1, 176, 0, 1, 4, 3, 0, 0, 0, 0),
+        mavlink.MAVLink_set_attitude_target_message(0, 1, 1, 0b00000111, [0.966, 0.259, 0, 0], 0, 0, 0, 0.5),
+    ]
+    try:
+        for _ in range(5):
+            for msg in attacks:
+                for mav in (plain, forged):
+                    sock.sendto(msg.pack(mav), ("127.0.0.1", ctx.plant_port))
+            time.sleep(0.05)
+    finally:
+        sock.close()
+
+
+def test_a_signed_lockstep_flight_refuses_the_intruder_and_is_bit_identical(tmp_path):
+    key = tmp_path / "key.bin"
+    key.write_bytes(KEY)
+    mission = write_mission(tmp_path / "arc.toml", ARC)
+    signed = ("--signing-key", str(key))
+    a = fly(tmp_path, mission, name="attacked", fly_args=signed, plant_args=signed, during=intrude)
+    b = fly(tmp_path, mission, name="quiet", fly_args=signed, plant_args=signed)
+    assert a.returncode == b.returncode == 0, a.stderr + b.stderr
+    assert a.status == "complete" and a.summary["disarmed"]
+    # what was refused left no trace: the attacked flight is the quiet one, byte for byte
+    assert a.tlog.read_bytes() == b.tlog.read_bytes() and a.plant_tlog.read_bytes() == b.plant_tlog.read_bytes()
+    # every frame either process sent is signed, and verifies with the key
+    parser = mavlink.MAVLink(None)
+    parser.signing.secret_key = KEY
+    data = a.plant_tlog.read_bytes()
+    frames = 0
+    i = 0
+    while i < len(data):
+        length = data[i + 9] + 12 + (13 if data[i + 10] & 1 else 0)
+        frame = data[i + 8:i + 8 + length]
+        assert frame[2] & 1, f"an unsigned frame in the plant's log at byte {i}"
+        frames += 1
+        i += 8 + length
+    assert frames > 100
+    assert a.summary["messages"]["refused"] == {}  # the intruder talked to the plant only
+    # the log of a signed flight replays
+    replayed = subprocess.run([PY, "-m", "offboard.cli", "replay", str(a.tlog), "--run-dir", str(tmp_path / "replay"),
+                               "--no-plots", "--json"], capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert replayed.returncode == 0, replayed.stderr
+
+
+def test_the_plant_reports_the_frames_it_refused(tmp_path):
+    key = tmp_path / "key.bin"
+    key.write_bytes(KEY)
+    port_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    port_sock.bind(("127.0.0.1", 0))
+    port = port_sock.getsockname()[1]
+    port_sock.close()
+    plant = subprocess.Popen([PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{port}", "--api-remote", "none",
+                              "--gcs-bind", "none", "--lockstep", "--signing-key", str(key)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)  # fmt: skip
+    try:
+        banner = plant.stderr.readline()  # printed once the links are up and the signals handled
+        assert banner.startswith("sitl-plant:"), banner
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        mav = mavlink.MAVLink(None, srcSystem=200, srcComponent=190)
+        for _ in range(7):
+            sock.sendto(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 21196, 0, 0, 0, 0, 0).pack(mav), ("127.0.0.1", port))
+        sock.close()
+        time.sleep(0.5)
+    finally:
+        plant.terminate()
+        _, err = plant.communicate(timeout=20)
+    assert plant.returncode == 0, err
+    assert "refused 7 frames before handling (unsigned 7; system 200: 7)" in err, err

@@ -1,0 +1,134 @@
+"""The plant's link with signing and an allow-list: real UDP sockets, real pymavlink frames."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from offboard.signing import SigningKey, SigningSession, load_key, save_key
+from sitl_plant.autopilot import Autopilot
+from sitl_plant.link import Endpoint, Link
+from sitl_plant.params import plant_params
+from sitl_plant.server import API, Plant, PlantConfig, _dispatch, _Driver
+from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+
+KEY = bytes(range(1, 33))
+NEW_KEY = bytes(range(50, 82))
+EPOCH_US = 1_796_000_000_000_000
+
+
+def make_plant() -> Plant:
+    vehicle = load_vehicle(PAPER_VEHICLE_FILE)
+    params = plant_params(vehicle)
+    return Plant(PlantConfig(lockstep=True, start_epoch_s=EPOCH_US / 1e6), vehicle, params, Autopilot(params))
+
+
+class Client:
+    """A MAVLink client on its own socket: signs with ``secret`` (or not), reads what comes back."""
+
+    def __init__(self, plant_address, *, sysid: int = 245, secret: bytes | None = None) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.5)
+        self.plant_address = plant_address
+        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=191)
+        if secret is not None:
+            self.mav.signing.secret_key, self.mav.signing.sign_outgoing = secret, True
+            self.mav.signing.timestamp = (EPOCH_US // 10) - 1_420_070_400 * 100_000 + 1
+
+    def send(self, msg) -> None:
+        self.sock.sendto(msg.pack(self.mav), self.plant_address)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def serve(plant: Plant, link: Link, seconds: float = 0.1) -> None:
+    """Receive and handle what arrived (the loops' dispatch), then send the replies."""
+    driver = _Driver(plant, link, time.monotonic, None)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if link.wait(0.01):
+            _dispatch(driver, link.receive())
+    driver.flush_outbox()
+
+
+def arm(target: int = 1) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_command_long_message(target, 1, 400, 0, 1, 21196, 0, 0, 0, 0, 0)
+
+
+def test_with_a_key_only_signed_frames_are_handled_and_answered():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    intruder = Client(endpoint.local_address, sysid=200)
+    forger = Client(endpoint.local_address, sysid=245, secret=bytes(32 * [7]))
+    owner = Client(endpoint.local_address, sysid=245, secret=KEY)
+    try:
+        intruder.send(arm())
+        forger.send(arm())
+        serve(plant, link)
+        assert not plant.autopilot.armed and endpoint.remote is None  # neither armed it nor became the remote
+        assert endpoint.counters.refused == {"unsigned": 1, "bad_signature": 1}
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed and endpoint.remote == owner.sock.getsockname()
+        reply = owner.sock.recv(65535)
+        assert reply[2] & 1  # the ack is signed
+        parser = mavlink.MAVLink(None)
+        parser.signing.secret_key = KEY
+        assert "COMMAND_ACK" in [m.get_type() for m in parser.parse_buffer(reply)]  # pymavlink verifies them
+    finally:
+        link.close()
+        for c in (intruder, forger, owner):
+            c.close()
+
+
+def test_an_allow_list_refuses_other_systems():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, allowed_senders=frozenset({245}))
+    link = Link([endpoint], None, plant.epoch_us)
+    other, owner = Client(endpoint.local_address, sysid=200), Client(endpoint.local_address, sysid=245)
+    try:
+        other.send(arm())
+        serve(plant, link)
+        assert not plant.autopilot.armed and endpoint.counters.refused_senders == {200: 1}
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed
+    finally:
+        link.close()
+        other.close()
+        owner.close()
+
+
+def test_setup_signing_is_refused_armed_and_rekeys_every_link_disarmed(tmp_path):
+    path = tmp_path / "key.bin"
+    save_key(path, SigningKey(KEY))
+    plant = make_plant()
+    sessions = [SigningSession(load_key(path), plant.epoch_us, link_id=i, key_path=path) for i in range(2)]
+    endpoints = [Endpoint(n, ("127.0.0.1", 0), None, 1, 1, signing=s) for n, s in zip(("api", "gcs"), sessions)]
+    link = Link(endpoints, None, plant.epoch_us)
+    owner = Client(endpoints[API].local_address, secret=KEY)
+    setup = mavlink.MAVLink_setup_signing_message(1, 1, list(NEW_KEY), 0)
+    try:
+        owner.send(arm())
+        serve(plant, link)
+        owner.send(setup)
+        serve(plant, link)
+        assert plant.autopilot.armed and endpoints[API].signing.key.secret == KEY  # refused while armed
+        assert plant.counters.refusals.get("SETUP_SIGNING") == 1
+        owner.send(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0))  # disarm
+        owner.send(setup)
+        serve(plant, link)
+        assert not plant.autopilot.armed
+        assert all(e.signing.key.secret == NEW_KEY for e in endpoints)
+        assert load_key(path).secret == NEW_KEY  # persisted in PX4's layout
+        owner.send(arm())  # still signed with the old key: refused now
+        serve(plant, link)
+        assert not plant.autopilot.armed and endpoints[API].counters.refused.get("bad_signature") == 1
+    finally:
+        link.close()
+        owner.close()
