@@ -252,8 +252,10 @@ class FtpServer:
 
     def _crc(self, req: FtpPayload) -> FtpPayload:
         path = self._resolve(req.path)
-        if path is None or not path.is_file():
-            return _nak(req, Err.FAIL_ERRNO, errno.ENOENT if path is None else errno.EISDIR)
+        if path is None:
+            return _nak(req, Err.FILE_NOT_FOUND)  # PX4: FileNotFound when open() says ENOENT
+        if not path.is_file():
+            return _nak(req, Err.FAIL_ERRNO, errno.EISDIR)
         crc = 0
         with path.open("rb") as fh:
             while block := fh.read(1 << 16):

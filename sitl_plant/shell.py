@@ -12,6 +12,8 @@ does for a command it lacks ("Invalid command: ..."). The values are the plant's
 from __future__ import annotations
 
 import fnmatch
+import platform
+import re
 from collections.abc import Callable, Iterator
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -21,15 +23,20 @@ DATA_LEN = 70  # SERIAL_CONTROL.data
 MAX_LINE = 512
 
 
-def version_lines(flight_sw_version: int) -> dict[str, str]:
+def version_lines(flight_sw_version: int, os_release: str | None = None) -> dict[str, str]:
     """``ver``'s lines, by subcommand, for a MAVLink ``flight_sw_version`` (major << 24 | minor
-    << 16 | patch << 8 | type); PX4 prints ``Release 1.16.0 (17826047)`` for 0x010F00FF."""
+    << 16 | patch << 8 | type; PX4 prints ``Release 1.16.0 (17826047)`` for 0x011000FF) and the
+    host's ``os_release`` (``platform.release()`` by default; PX4 SITL prints the kernel's)."""
     major, minor, patch = flight_sw_version >> 24 & 0xFF, flight_sw_version >> 16 & 0xFF, flight_sw_version >> 8 & 0xFF
+    release = platform.release() if os_release is None else os_release
+    numbers = [int(n) for n in re.findall(r"\d+", release)[:3]] + [0, 0, 0]
+    os_number = (numbers[0] & 0xFF) << 24 | (numbers[1] & 0xFF) << 16 | (numbers[2] & 0xFF) << 8 | 0xFF
     return {
         "hw": "HW arch: SITL_PLANT",
         "git": "PX4 git-hash: 0000000000000000000000000000000000000000",
         "fw": f"PX4 version: Release {major}.{minor}.{patch} ({flight_sw_version})",
-        "os": "OS: Linux",
+        "os": f"OS: {platform.system() or 'Linux'}",
+        "osver": f"OS version: Release {numbers[0]}.{numbers[1]}.{numbers[2]} ({os_number})",
         "bdate": "Build datetime: sitl-plant (Python)",
         "uri": "Build uri: localhost",
         "variant": "Build variant: sitl-plant",
@@ -39,7 +46,7 @@ def version_lines(flight_sw_version: int) -> dict[str, str]:
     }
 
 
-_VER_ALL = ("hw", "git", "fw", "os", "bdate", "uri", "variant", "gcc", "px4guid", "mcu")
+_VER_ALL = ("hw", "git", "fw", "os", "osver", "bdate", "uri", "variant", "gcc", "px4guid", "mcu")
 _VER_USAGE = (
     "Tool to print various version information\n\nUsage: ver <command> [arguments...]\n Commands:\n\n"
     "   hw            Hardware architecture\n\n   mcu           MCU info\n\n   git           git version information\n\n"

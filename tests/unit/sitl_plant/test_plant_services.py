@@ -18,7 +18,7 @@ from sitl_plant.ftp import MAX_DATA, Err, FtpFormatError, FtpPayload, FtpServer,
 from sitl_plant.logserve import DATA_LEN, LogServer
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig
-from sitl_plant.shell import PROMPT, Shell, replies
+from sitl_plant.shell import PROMPT, Shell, replies, version_lines
 from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 _SENDER = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -98,7 +98,7 @@ def test_ftp_crc_write_refusal_unknown_and_a_repeated_request(root):
     [r] = answer(server, Op.CALC_FILE_CRC32, b"/flight.tlog")
     assert struct.unpack("<I", r.data)[0] == crc32((root / "flight.tlog").read_bytes())
     assert crc32(b"123456789") == 0x2DFD2D88  # not zlib's 0xCBF43926: no inversions (PX4's crc32part; the PX4 parity test checks a file)
-    assert answer(server, Op.CALC_FILE_CRC32, b"/nope", seq=2)[0].data[0] == Err.FAIL_ERRNO
+    assert answer(server, Op.CALC_FILE_CRC32, b"/nope", seq=2)[0].data == bytes([Err.FILE_NOT_FOUND])
     for op in (Op.CREATE_FILE, Op.REMOVE_FILE, Op.WRITE_FILE, Op.RENAME):
         assert answer(server, op, b"/x", seq=op)[0].data == bytes([Err.FILE_PROTECTED])
     assert answer(server, 77, seq=30)[0].data == bytes([Err.UNKNOWN_COMMAND])
@@ -156,6 +156,8 @@ def test_shell_answers_as_pxh(params):
     assert sh.feed(b"param show NOPE_X\n").decode().count("x   ") == 0
     assert sh.feed(b"foo\n").decode() == f"foo\nInvalid command: foo\ntype 'help' for a list of commands\n{PROMPT}"
     assert sh.feed(b"ver") == b"" and "Error, not enough parameters." in sh.feed(b"\n").decode()  # a line in two messages
+    lines = version_lines(0x011000FF, "6.18.44-generic")  # PX4 v1.16.0 SITL on that kernel printed these two
+    assert lines["fw"] == "PX4 version: Release 1.16.0 (17826047)" and lines["osver"] == "OS version: Release 6.18.44 (101854463)"
     msgs = list(replies(b"x" * 150))
     assert [m.count for m in msgs] == [70, 70, 10] and all(m.flags == mavlink.SERIAL_CONTROL_FLAG_REPLY for m in msgs)
 
