@@ -64,17 +64,16 @@ class LogServer:
     def request_data(self, log_id: int, offset: int, count: int) -> list[mavlink.MAVLink_message]:
         """Start (or restart) the download of ``count`` bytes from ``offset``; the first batch.
 
-        An unknown id, or an offset at or beyond the end, answers one LOG_DATA with count 0.
+        As PX4 v1.16 answers (measured): whole 90-byte messages until ``count`` is covered, at
+        least one (count 50 gives 90 bytes, count 0 gives one message), the last one shorter at
+        the end of the file; an unknown id, or an offset at or beyond the end, gets no answer.
         """
         size = self._listed_size if self._listed_size is not None else self._size_now()
-        if log_id != 0 or size is None:
-            self._download = None
-            return [mavlink.MAVLink_log_data_message(log_id, offset, 0, [0] * DATA_LEN)]
-        end = min(size, offset + count)
-        if offset >= end:
-            self._download = None
-            return [mavlink.MAVLink_log_data_message(log_id, offset, 0, [0] * DATA_LEN)]
-        self._download = (log_id, offset, end)
+        self._download = None
+        if log_id != 0 or size is None or offset >= size:
+            return []
+        messages = max(1, -(-count // DATA_LEN))
+        self._download = (log_id, offset, min(size, offset + messages * DATA_LEN))
         return self.pump()
 
     def pump(self, batch: int = PUMP_BATCH) -> list[mavlink.MAVLink_message]:

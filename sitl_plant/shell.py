@@ -18,6 +18,8 @@ from collections.abc import Callable, Iterator
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl_plant.params import ParamTable
+
 PROMPT = "pxh> "
 DATA_LEN = 70  # SERIAL_CONTROL.data
 MAX_LINE = 512
@@ -60,13 +62,13 @@ class Shell:
 
     Parameters
     ----------
-    params : mapping-like with ``__iter__``, ``__getitem__``, ``index``, ``spec(name).kind``
-        The plant's ParamTable (read at each command).
+    params : ParamTable
+        The plant's parameters (read at each command).
     flight_sw_version : callable returning int
         The version AUTOPILOT_VERSION reports (read at each ``ver``).
     """
 
-    def __init__(self, params: object, flight_sw_version: Callable[[], int]) -> None:
+    def __init__(self, params: ParamTable, flight_sw_version: Callable[[], int]) -> None:
         self.params = params
         self.flight_sw_version = flight_sw_version
         self._pending = b""
@@ -119,18 +121,18 @@ class Shell:
         if not args or args[0] != "show":
             return "Usage: param show [NAME | PREFIX*]\nCommand 'param' failed, returned 1.\n"
         pattern = args[1] if len(args) > 1 else "*"
-        names = [n for n in t if fnmatch.fnmatchcase(n, pattern)]  # type: ignore[attr-defined]
+        names = [n for n in t if fnmatch.fnmatchcase(n, pattern)]
         body = "".join(_param_line(t, n) for n in names)
-        n = len(t)  # type: ignore[arg-type]
+        n = len(t)
         return f"Symbols: x = used, + = saved, * = unsaved\n{body}\n {n}/{n} parameters used.\n"
 
 
-def _param_line(t: object, name: str) -> str:
+def _param_line(t: ParamTable, name: str) -> str:
     """PX4's ``param show`` line: used mark, name, [used index, index], value (4 decimals for
     floats, an integer as such)."""
-    value = t[name]  # type: ignore[index]
-    i = t.index(name)  # type: ignore[attr-defined]
-    shown = str(int(value)) if t.spec(name).kind == "int" else f"{value:.4f}"  # type: ignore[attr-defined]
+    value = t[name]
+    i = t.index(name)
+    shown = str(int(value)) if t.spec(name).kind == "int" else f"{value:.4f}"
     return f"x   {name} [{i},{i}] : {shown}\n"
 
 
