@@ -217,3 +217,12 @@ def test_the_plant_answers_its_services_on_the_asking_link(tmp_path, params):
     assert plant.counters.statustexts_in == 1 and plant.counters.internal_errors == 0
     plant.handle(API, wire(mavlink.MAVLink_log_request_data_message(1, 1, 0, 0, 0xFFFFFFFF)))
     assert sum(m.count for m in plant.outbox[API] if m.get_type() == "LOG_DATA") + sum(m.count for m in plant.service_output(API)) == 200
+
+
+def test_an_ftp_root_that_is_no_folder_is_one_line(tmp_path, capsys):
+    from sitl_plant.cli import main
+
+    args = ["--ftp-root", str(tmp_path / "nope"), "--quiet", "--gcs-bind", "none", "--api-bind", "127.0.0.1:0", "--duration", "0.1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"sitl-plant: error: --ftp-root {tmp_path / 'nope'}: not a folder"]
