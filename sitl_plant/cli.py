@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     net.add_argument("--gcs-remote", metavar="HOST:PORT", default=None, help=f"where the GCS link sends until a client talks (default 127.0.0.1:{GCS_REMOTE_PORT}; 'none': wait)")
     net.add_argument("--sysid", metavar="N", type=int, default=1, help="MAVLink system id (component is 1, the autopilot)")
     net.add_argument("--log", metavar="FILE.tlog", type=Path, default=None, help="record every packet sent and received (tlog)")
+    net.add_argument("--ftp-root", metavar="DIR", type=Path, default=None,
+                     help="the folder MAVLink FTP serves, read-only (default: the folder of --log; none without --log)")
     net.add_argument("--log-clock", choices=("sim", "wall"), default="sim",
                      help="tlog timestamps: start epoch + simulation time (reproducible in lockstep), or the wall "
                      "clock when each packet is sent or handled (to measure latencies)")
@@ -210,6 +212,8 @@ def _run(args: argparse.Namespace) -> int:
         home=home,
         sysid=args.sysid,
         start_epoch_s=LOCKSTEP_EPOCH_S if args.lockstep else time.time(),
+        log_path=args.log,
+        ftp_root=_ftp_root(args),
     )
     params = plant_params(vehicle, sysid=args.sysid)
     autopilot = Autopilot(params, home_alt_amsl_m=home.alt_m, failures=failures)
@@ -270,6 +274,12 @@ def _signing_key(path: Path | None) -> SigningKey | None:
         return load_key(path)
     except SigningKeyError as exc:
         raise ArgumentError(str(exc)) from None
+def _ftp_root(args: argparse.Namespace) -> Path | None:
+    if args.ftp_root is not None:
+        if not args.ftp_root.is_dir():
+            raise ArgumentError(f"--ftp-root {args.ftp_root}: not a folder")
+        return args.ftp_root
+    return None if args.log is None else (args.log.parent if str(args.log.parent) else Path("."))
 
 
 def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
@@ -289,6 +299,8 @@ def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
         lines.append(f"  signing with {args.signing_key}: unsigned and badly signed frames refused")
     if args.allow_sysid is not None:
         lines.append(f"  frames handled from system ids {args.allow_sysid} only")
+    if plant.config.ftp_root is not None:
+        lines.append(f"  MAVLink FTP serves {plant.config.ftp_root} (read-only)")
     print("\n".join(lines), file=sys.stderr, flush=True)
 
 

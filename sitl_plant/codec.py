@@ -413,19 +413,28 @@ MAX_POSITION_M = 1e6
 MAX_SPEED_M_S = 100.0
 
 
-def decode_position_target(msg: MAVLinkMessage) -> PositionSetpoint:
-    """SET_POSITION_TARGET_LOCAL_NED: positions and velocities in MAV_FRAME_LOCAL_NED, yaw.
+def decode_position_target(msg: MAVLinkMessage, yaw_rad: float = 0.0) -> PositionSetpoint:
+    """SET_POSITION_TARGET_LOCAL_NED: positions and velocities in MAV_FRAME_LOCAL_NED, yaw;
+    or, in MAV_FRAME_BODY_NED, velocities forward-right-down turned into NED by the heading
+    ``yaw_rad`` (rad) at receipt, positions not used, as PX4's mavlink_receiver.cpp
+    (``handle_message_set_position_target_local_ned``; PX4 v1.16 measured: forward 2 m/s at
+    yaw 90 deg flies east). MAV_FRAME_LOCAL_OFFSET_NED and BODY_OFFSET_NED are refused (PX4 v1.16
+    flies neither: it logs "coordinate frame 9 unsupported", and frame 7 is no offboard signal).
 
     Accelerations and yaw rate are not flown (ignored). Each axis needs a position or a velocity.
+    ``yaw`` is absolute (NED) in both frames, as PX4 reads it.
 
     Raises
     ------
     Refused
         Another frame, an axis with neither, a used NaN/infinite or absurd value.
     """
-    if int(msg.coordinate_frame) != mavlink.MAV_FRAME_LOCAL_NED:
-        raise Refused(f"position target frame {msg.coordinate_frame} not supported (only MAV_FRAME_LOCAL_NED)")
+    frame = int(msg.coordinate_frame)
+    if frame not in (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_NED):
+        raise Refused(f"position target frame {frame} not supported (only MAV_FRAME_LOCAL_NED and MAV_FRAME_BODY_NED)")
     mask = int(msg.type_mask)
+    if frame == mavlink.MAV_FRAME_BODY_NED:
+        mask |= POSITION_IGNORE[0] | POSITION_IGNORE[1] | POSITION_IGNORE[2]
     pos: list[float | None] = []
     vel: list[float | None] = []
     for i, (p, v) in enumerate(zip((msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz))):
@@ -439,12 +448,23 @@ def decode_position_target(msg: MAVLinkMessage) -> PositionSetpoint:
             raise Refused(f"position target: velocity {v} not finite or beyond {MAX_SPEED_M_S:g} m/s")
         pos.append(p)
         vel.append(v)
+    if frame == mavlink.MAV_FRAME_BODY_NED and vel[0] is not None and vel[1] is not None:
+        vel[0], vel[1] = body_to_ned_velocity(vel[0], vel[1], yaw_rad)
+    elif frame == mavlink.MAV_FRAME_BODY_NED and (vel[0] is not None or vel[1] is not None):
+        raise Refused("position target: a body-frame velocity needs both forward and right components")
     yaw = None
     if not mask & YAW_IGNORE:
         yaw = float(msg.yaw)
         if not math.isfinite(yaw):
             raise Refused("position target: yaw not finite")
     return PositionSetpoint(int(msg.time_boot_ms), tuple(pos), tuple(vel), yaw)  # type: ignore[arg-type]
+
+
+def body_to_ned_velocity(forward_m_s: float, right_m_s: float, yaw_rad: float) -> tuple[float, float]:
+    """A horizontal velocity forward/right of a heading ``yaw_rad`` (rad, NED, about down) as
+    (north, east) m/s: the rotation about down by the yaw alone, as PX4 (not the full attitude)."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return c * forward_m_s - s * right_m_s, s * forward_m_s + c * right_m_s
 
 
 def decode_command(msg: MAVLinkMessage) -> Command:

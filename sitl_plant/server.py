@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from offboard.signing import SigningKey
-from sitl_plant import codec
+from sitl_plant import calibration, codec, shell
 from sitl_plant.autopilot import (
     ActuatorSetpoint,
     AttitudeSetpoint,
@@ -37,8 +38,10 @@ from sitl_plant.autopilot import (
 )
 from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
+from sitl_plant.ftp import FtpFormatError, FtpServer
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
+from sitl_plant.logserve import LogServer
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
 from sitl_plant.state import VehicleState
@@ -158,6 +161,8 @@ class PlantConfig:
     sysid: int = 1
     compid: int = mavlink.MAV_COMP_ID_AUTOPILOT1
     start_epoch_s: float = 0.0  # tlog / SYSTEM_TIME origin; LOCKSTEP_EPOCH_S in lockstep
+    log_path: Path | None = None  # the tlog (--log), served by log download
+    ftp_root: Path | None = None  # the folder MAVLink FTP serves, read-only (--ftp-root)
 
 
 @dataclass
@@ -170,6 +175,7 @@ class Counters:
     internal_errors: int = 0
     last_error: str = ""
     refusals: dict[str, int] = field(default_factory=dict)
+    statustexts_in: int = 0
 
 
 class Plant:
@@ -220,6 +226,10 @@ class Plant:
         self.outbox: list[list[mavlink.MAVLink_message]] = [[], []]
         #: a SETUP_SIGNING key accepted, for the loop to apply to the links (then None)
         self.signing_change: SigningKey | None = None
+        # PX4's services, one of each per link as PX4 has per MAVLink instance (docs/parity/services.md)
+        self.ftp = [FtpServer(config.ftp_root), FtpServer(config.ftp_root)]
+        self.logs = [LogServer(config.log_path), LogServer(config.log_path)]
+        self.shells = [shell.Shell(params, lambda: codec.PX4_FLIGHT_SW_VERSION) for _ in range(2)]
         self._statustext_id = 0
         self._heartbeat_status: object = None  # the status the latest heartbeat reported
         self._truth = self.sim.truth()
@@ -346,7 +356,7 @@ class Plant:
 
     def _on_position_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
         try:
-            sp = codec.decode_position_target(msg)
+            sp = codec.decode_position_target(msg, yaw_rad=float(self._truth.euler_rad[2]))
         except Refused as exc:
             self._refuse(str(exc))
             return
@@ -390,6 +400,8 @@ class Plant:
             if message is None:
                 return Reply(mavlink.MAV_RESULT_DENIED)
             return _FollowedReply(mavlink.MAV_RESULT_ACCEPTED, follow_up=[message])
+        if c == mavlink.MAV_CMD_PREFLIGHT_CALIBRATION:
+            return Reply(calibration.calibration_result(p, self.autopilot.armed))
         if c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return _FollowedReply(mavlink.MAV_RESULT_ACCEPTED, follow_up=[codec.autopilot_version(self.config.sysid)])
         return None
@@ -468,6 +480,43 @@ class Plant:
             return
         self.signing_change = SigningKey(bytes(msg.secret_key), int(msg.initial_timestamp))
         self._announce(StatusText(mavlink.MAV_SEVERITY_INFO, "MAVLink signing " + ("disabled" if self.signing_change.disables else "key updated via SETUP_SIGNING")))
+    # -- services: FTP, log download, shell, STATUSTEXT in -----------------------------------------
+
+    def _on_ftp(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        try:
+            replies = self.ftp[index].handle(msg.payload)
+        except FtpFormatError as exc:
+            self._refuse(str(exc))
+            return
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        self.outbox[index].extend(mavlink.MAVLink_file_transfer_protocol_message(0, *src, list(r)) for r in replies)
+
+    def _on_log_request_list(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        self.outbox[index].extend(self.logs[index].request_list(int(msg.start), int(msg.end)))
+
+    def _on_log_request_data(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        self.outbox[index].extend(self.logs[index].request_data(int(msg.id), int(msg.ofs), int(msg.count)))
+
+    def _on_log_request_end(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        self.logs[index].request_end()
+
+    def _on_log_erase(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        self.logs[index].erase()
+
+    def _on_serial_control(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        if int(msg.device) != mavlink.SERIAL_CONTROL_DEV_SHELL:
+            self.counters.unhandled += 1  # a serial port: the simulation has none
+            return
+        count = min(int(msg.count), len(msg.data))
+        output = self.shells[index].feed(bytes(msg.data[:count]))
+        self.outbox[index].extend(shell.replies(output))
+
+    def _on_statustext(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        self.counters.statustexts_in += 1  # taken without a reply, as PX4 (which forwards it to its other links)
+
+    def service_output(self, index: int) -> list[mavlink.MAVLink_message]:
+        """What a running service sends next on link ``index`` (a log download's next LOG_DATA)."""
+        return self.logs[index].pump()
 
     def _announce(self, text: StatusText) -> None:
         self._statustext_id = self._statustext_id % 65535 + 1
@@ -588,6 +637,13 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "PING": Plant._on_ping,
     "SETUP_SIGNING": Plant._on_setup_signing,
     "HEARTBEAT": Plant._on_heartbeat,
+    "FILE_TRANSFER_PROTOCOL": Plant._on_ftp,
+    "LOG_REQUEST_LIST": Plant._on_log_request_list,
+    "LOG_REQUEST_DATA": Plant._on_log_request_data,
+    "LOG_REQUEST_END": Plant._on_log_request_end,
+    "LOG_ERASE": Plant._on_log_erase,
+    "SERIAL_CONTROL": Plant._on_serial_control,
+    "STATUSTEXT": Plant._on_statustext,
 }
 
 
@@ -624,6 +680,7 @@ class _Driver:
 
     def flush_outbox(self) -> None:
         for i, box in enumerate(self.plant.outbox):
+            box.extend(self.plant.service_output(i))
             if box:
                 if i < len(self.link.endpoints):
                     self.link.send(i, box)
@@ -646,6 +703,7 @@ class _Driver:
     def keepalive(self) -> None:
         """Lockstep, nobody answering: the latest telemetry and heartbeat again, byte for byte."""
         self.link.resend_remembered()
+        self.flush_outbox()  # a running log download goes on while time stands still
         for i in range(len(self.link.endpoints)):
             self.link.send_keepalive(i, [mavlink.MAVLINK_MSG_ID_HEARTBEAT])
 

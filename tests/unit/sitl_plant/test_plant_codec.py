@@ -274,7 +274,7 @@ def test_position_target_as_mavsdk_sends_them():
 @pytest.mark.parametrize(
     ("mask", "kw", "match"),
     [
-        (0b0000_1001_1111_1000, {"frame": mavlink.MAV_FRAME_BODY_NED}, "frame"),
+        (0b0000_1001_1111_1000, {"frame": mavlink.MAV_FRAME_BODY_OFFSET_NED}, "frame"),  # PX4 v1.16 flies BODY_NED, not this
         (0b0000_1001_1111_1111, {}, "neither"),
         (0b0000_1001_1111_1000, {"pos": (math.nan, 0.0, 0.0)}, "position"),
         (0b0000_1101_1100_0111, {"vel": (500.0, 0.0, 0.0)}, "velocity"),
