@@ -19,6 +19,7 @@ from sitl_plant.clihelp import HelpFormatter, add_version
 from sitl_plant.errors import UserError
 from sitl_plant.inner_loops import InnerLoops
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
+from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, parse_impairment
 from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
 from sitl_plant.params import plant_params
 from sitl_plant.server import LOCKSTEP_EPOCH_S, MODELS, Plant, PlantConfig, run_lockstep, run_realtime
@@ -79,8 +80,29 @@ def build_parser() -> argparse.ArgumentParser:
     sec.add_argument("--allow-sysid", metavar="N[,N...]", default=None,
                      help="handle frames only from these system ids (default: anyone's, as PX4); the others are "
                           "refused, counted and never answered")
+    bad = parser.add_argument_group("a bad link (real time; seeded by --seed)")
+    bad.add_argument("--link", metavar="SPEC", default=None,
+                     help="impair both directions of every link: loss=PCT,delay=MS,jitter=MS,duplicate=PCT,reorder=PCT,"
+                          "corrupt=PCT (any of them, e.g. loss=20,delay=50,jitter=20)")
+    bad.add_argument("--link-in", metavar="SPEC", default=None, help="impair what the plant receives (replaces --link for it)")
+    bad.add_argument("--link-out", metavar="SPEC", default=None, help="impair what the plant sends (replaces --link for it)")
     parser.add_argument("--quiet", action="store_true", help="no banner, status line or summary")
     return parser
+
+
+def _impairments(args: argparse.Namespace) -> tuple[ImpairmentSpec | None, ImpairmentSpec | None]:
+    """The receiving and the sending direction's impairment (None: a clean direction)."""
+    try:
+        both = parse_impairment(args.link, "--link") if args.link is not None else None
+        into = parse_impairment(args.link_in, "--link-in") if args.link_in is not None else both
+        out = parse_impairment(args.link_out, "--link-out") if args.link_out is not None else both
+    except ImpairmentError as exc:
+        raise ArgumentError(str(exc)) from None
+    into = into if into is not None and into.active else None
+    out = out if out is not None and out.active else None
+    if (into or out) and args.lockstep:
+        raise ArgumentError("--link: impairs a real-time link (delays are wall-clock time); not with --lockstep")
+    return into, out
 
 
 def _allowed_senders(text: str | None) -> frozenset[int] | None:
@@ -231,16 +253,27 @@ def _run(args: argparse.Namespace) -> int:
     def session(link_id: int) -> SigningSession | None:
         return None if key is None else SigningSession(key, plant.epoch_us, link_id=link_id, key_path=key_path)
 
-    endpoints = [Endpoint("api", api_bind, api_remote, args.sysid, config.compid, signing=session(0), allowed_senders=allowed)]
+    impair_in, impair_out = _impairments(args)
+
+    def endpoint(name: str, link_id: int, bind, remote) -> Endpoint:  # type: ignore[no-untyped-def]
+        # each direction of each link its own generator, from --seed: the same seed, the same fates
+        return Endpoint(name, bind, remote, args.sysid, config.compid, signing=session(link_id), allowed_senders=allowed,
+                        impair_in=Impairment(impair_in, f"{args.seed}/{name}/in") if impair_in else None,
+                        impair_out=Impairment(impair_out, f"{args.seed}/{name}/out") if impair_out else None)  # fmt: skip
+
+    endpoints = [endpoint("api", 0, api_bind, api_remote)]
     try:
         if gcs_bind is not None:
-            endpoints.append(Endpoint("gcs", gcs_bind, gcs_remote, args.sysid, config.compid, signing=session(1), allowed_senders=allowed))
+            endpoints.append(endpoint("gcs", 1, gcs_bind, gcs_remote))
         tlog = TlogWriter(args.log) if args.log is not None else None
     except UserError:
         for e in endpoints:
             e.close()
         raise
     link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else _wall_clock_us)
+    for direction, spec in (("in", impair_in), ("out", impair_out)):
+        if spec is not None:
+            link.note(f"link {direction}: {spec.describe()} (seed {args.seed})")
 
     stopping = {"flag": False}
 
@@ -297,6 +330,10 @@ def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
         lines.append(f"  logging to {args.log}")
     if args.signing_key is not None:
         lines.append(f"  signing with {args.signing_key}: unsigned and badly signed frames refused")
+    e = link.endpoints[0]
+    for direction, impair in (("received", e.impair_in), ("sent", e.impair_out)):
+        if impair is not None:
+            lines.append(f"  a bad link, what is {direction}: {impair.spec.describe()} (seed {args.seed})")
     if args.allow_sysid is not None:
         lines.append(f"  frames handled from system ids {args.allow_sysid} only")
     if plant.config.ftp_root is not None:
@@ -320,6 +357,10 @@ def _summary(plant: Plant, link: Link, stats: object) -> None:
         f"foreign {c.foreign}, unhandled {c.unhandled}",
         file=sys.stderr,
     )
+    for e in link.endpoints:
+        for direction, impair in (("in", e.impair_in), ("out", e.impair_out)):
+            if impair is not None:
+                print(f"sitl-plant: {e.name} link {direction}: {impair.counts.describe()}", file=sys.stderr)
     refused: dict[str, int] = {}
     senders: dict[int, int] = {}
     for e in link.endpoints:

@@ -28,6 +28,7 @@ import errno
 import select
 import socket
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +37,7 @@ from typing import BinaryIO
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.signing import SigningKey, SigningSession, save_key
+from sitl_plant.impairment import DelayLine, Impairment
 from sitl_plant.errors import UserError
 from sitl_plant.paths import output_file_problem
 
@@ -141,11 +143,19 @@ class Endpoint:
     """
 
     def __init__(self, name: str, bind: tuple[str, int], remote: tuple[str, int] | None, sysid: int, compid: int,
-                 *, signing: SigningSession | None = None, allowed_senders: frozenset[int] | None = None) -> None:  # fmt: skip
+                 *, signing: SigningSession | None = None, allowed_senders: frozenset[int] | None = None,
+                 impair_in: Impairment | None = None, impair_out: Impairment | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
         self.name = name
         self.remote = remote
         self.signing = signing
         self.allowed_senders = allowed_senders
+        #: what a bad link does to the datagrams received and sent (sitl_plant/impairment.py)
+        self.impair_in = impair_in
+        self.impair_out = impair_out
+        self._clock = clock
+        self._held_in = DelayLine()
+        self._held_out = DelayLine()
         self.counters = LinkCounters()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -215,8 +225,27 @@ class Endpoint:
     def send_datagram(self, data: bytes) -> None:
         if self.remote is None:
             return
+        if self.impair_out is not None:
+            now = self._clock()
+            for release_s, copy in self.impair_out.schedule(data, now):
+                self._held_out.push(release_s, copy, self.remote)
+            self.release(now)
+            return
+        self._sendto(data, self.remote)
+
+    def release(self, now_s: float) -> None:
+        """Send the held datagrams whose delay is over (to where they were addressed)."""
+        for data, remote in self._held_out.due(now_s):
+            self._sendto(data, remote)  # type: ignore[arg-type]
+
+    def next_release_s(self) -> float | None:
+        """When the next held datagram (either way) is due; None: none is held."""
+        times = [t for t in (self._held_in.next_release_s(), self._held_out.next_release_s()) if t is not None]
+        return min(times) if times else None
+
+    def _sendto(self, data: bytes, remote: tuple[str, int]) -> None:
         try:
-            self.sock.sendto(data, self.remote)
+            self.sock.sendto(data, remote)
         except OSError as exc:
             # nobody listening (ICMP port unreachable), buffer full: UDP is best effort
             if exc.errno not in (errno.ECONNREFUSED, errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS, errno.EHOSTUNREACH, errno.ENETUNREACH):
@@ -226,18 +255,29 @@ class Endpoint:
     def receive(self) -> list[mavlink.MAVLink_message]:
         """Every valid message waiting on the socket (bad bytes counted, unknown ids kept)."""
         out: list[mavlink.MAVLink_message] = []
+        impair = self.impair_in
         while True:
             try:
                 data, addr = self.sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
-                return out
+                break
             except OSError as exc:
                 if exc.errno == errno.ECONNREFUSED:  # an earlier send found nobody listening
                     continue
                 raise
-            good = self._parse_datagram(data, out)
-            if good:
+            if impair is not None:
+                for release_s, copy in impair.schedule(data, self._clock()):
+                    self._held_in.push(release_s, copy, addr)
+                continue
+            if self._parse_datagram(data, out):
                 self.remote = addr
+        if impair is not None or len(self._held_out):
+            now = self._clock()
+            for data, addr in self._held_in.due(now):
+                if self._parse_datagram(data, out):
+                    self.remote = addr  # type: ignore[assignment]
+            self.release(now)
+        return out
 
     def _refusal(self, msg: mavlink.MAVLink_message) -> str | None:
         """Why a well-formed frame is refused before handling (None: it is not)."""
@@ -304,11 +344,29 @@ class Link:
         """Block until a socket is readable or the timeout passes; whether one is readable."""
         if timeout_s < 0:
             timeout_s = 0.0
+        held = [t for t in (e.next_release_s() for e in self.endpoints) if t is not None]
+        if held:  # a held datagram falls due: wake for it (receive() hands it over)
+            now = time.monotonic()
+            first = min(held)
+            if first <= now:
+                return True
+            timeout_s = min(timeout_s, first - now)
         try:
             readable, _, _ = select.select(self._socks, [], [], timeout_s)
         except InterruptedError:
             return False
+        if not readable and held and min(held) <= time.monotonic():
+            return True
         return bool(readable)
+
+    def note(self, text: str) -> None:
+        """Record ``text`` in the tlog as a STATUSTEXT of ours that is not sent (what the log was
+        recorded under, such as the link's impairment); no sequence number is spent."""
+        if self.tlog is not None and self.endpoints:
+            e = self.endpoints[0]
+            packer = mavlink.MAVLink(None, srcSystem=e.packer.srcSystem, srcComponent=e.packer.srcComponent)
+            msg = mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_NOTICE, text[:50].encode())
+            self.tlog.write(self.log_time_us(), msg.pack(packer))
 
     def receive(self) -> list[tuple[int, mavlink.MAVLink_message]]:
         """Messages waiting on every endpoint, as (endpoint index, message); not yet logged."""
