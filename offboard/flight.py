@@ -989,6 +989,8 @@ class Flight:
             elif kind == "HEARTBEAT" and codec.is_autopilot_heartbeat(msg):
                 if self.config.target_system is None or source[0] == self.config.target_system:
                     self.target = source
+                    if hasattr(self.link, "trusted"):
+                        self.link.trusted = source  # only the vehicle's datagrams may move our link's peer
                     self.status = codec.vehicle_status(msg)
                     for early_kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
                         early = self._early.get((source, early_kind))

@@ -35,7 +35,7 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from offboard.signing import SigningSession
+from offboard.signing import SigningSession, Verdict
 from sitl_plant.link import LinkError, TlogWriter
 
 __all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
@@ -140,6 +140,10 @@ class MavLink:
         self.stats = LinkStats()
         self.log_time_us = log_time_us
         self.signing = signing
+        #: the (system, component) we fly, once known: only a datagram carrying one of its frames
+        #: may change where we send (pymavlink's udpin answers whoever sent last, so any datagram
+        #: from anyone else would take our setpoints away from the vehicle)
+        self.trusted: tuple[int, int] | None = None
         self._tlog: TlogWriter | None = None
         if tlog_path is not None:
             try:
@@ -205,9 +209,11 @@ class MavLink:
     def _fill(self, timeout_s: float) -> None:
         deadline = time.monotonic() + max(timeout_s, 0.0)
         while not self._queue:
+            before = getattr(self.conn, "last_address", None)
             data = self._read()
             if data:
-                self._parse(data)
+                if not self._parse(data) and self._datagrams and before is not None:
+                    self.conn.last_address = before  # a stranger's datagram: keep answering the vehicle
                 continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -232,8 +238,11 @@ class MavLink:
         except (InterruptedError, ValueError, OSError):
             time.sleep(min(timeout_s, 0.001))
 
-    def _parse(self, data: bytes) -> None:
+    def _parse(self, data: bytes) -> bool:
+        """Queue the new messages of ``data``; whether one came from the trusted source (from
+        anyone accepted, while none is trusted)."""
         parser = self._parser
+        trusted = False
         try:
             messages = parser.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - bad bytes must never stop a flight
@@ -250,15 +259,20 @@ class MavLink:
             if self._is_duplicate(msg):  # first: a lockstep keepalive's copy is a duplicate, not a replay
                 self.stats.duplicates += 1
                 continue
+            verified = True
             if self.signing is not None:
                 verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), msg.get_srcSystem(), msg.get_srcComponent())
                 if not verdict.accepted:
                     self.stats.refused[verdict.value] = self.stats.refused.get(verdict.value, 0) + 1
                     continue
+                verified = verdict is Verdict.SIGNED  # (a RADIO_STATUS taken unsigned proves nothing)
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
             self._queue.append(msg)
+            if verified and (self.trusted is None or (msg.get_srcSystem(), msg.get_srcComponent()) == self.trusted):
+                trusted = True
+        return trusted
 
     def _is_duplicate(self, msg: mavlink.MAVLink_message) -> bool:
         """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost."""

@@ -20,9 +20,9 @@ Both processes use it: ``offboard fly --signing-key FILE`` and ``sitl-plant --si
   here only a verified frame moves a stream on.
 - **The timestamp is persisted** in the key file (PX4's layout) when a session closes, and a
   session never starts below it, so frames recorded before a restart cannot be replayed into
-  it. In lockstep the clock is the simulation's (a signed lockstep flight sends the same bytes
-  every time) and nothing is persisted: a lockstep run is a reproducible experiment, not a
-  vehicle to protect.
+  it. In lockstep the clock is the simulation's alone (a signed lockstep flight sends the same
+  bytes every time) and nothing is persisted: a lockstep run is a reproducible experiment, not
+  a vehicle to protect.
 """
 
 from __future__ import annotations
@@ -184,13 +184,18 @@ class SigningSession:
         Our link id in the signatures we send.
     key_path : Path or None
         Where the timestamp is persisted on :meth:`close` (None: nowhere, as in lockstep).
+    lockstep : bool
+        Sign on our clock alone. Otherwise, as the spec asks, the next timestamp is also above
+        the newest one accepted from the other side, which in lockstep would make our bytes
+        depend on how many wall-clock keepalive repeats the peer happened to answer.
     """
 
     def __init__(self, key: SigningKey, clock_us: Callable[[], int], *, link_id: int = 0,
-                 key_path: str | Path | None = None) -> None:  # fmt: skip
+                 key_path: str | Path | None = None, lockstep: bool = False) -> None:  # fmt: skip
         self.key = key
         self.clock_us = clock_us
         self.link_id = link_id
+        self.lockstep = lockstep
         self.key_path = None if key_path is None else Path(key_path)
         start = max(key.timestamp, signing_timestamp(clock_us())) if self.key_path is not None else signing_timestamp(clock_us())
         self.check = SignatureCheck(key.secret, timestamp=start)
@@ -199,7 +204,9 @@ class SigningSession:
     def now(self) -> int:
         """The timestamp to sign the next frame with: our clock's, and never at or below the last
         sent or the newest accepted."""
-        self._sent = max(self._sent + 1, signing_timestamp(self.clock_us()), self.check.timestamp)
+        self._sent = max(self._sent + 1, signing_timestamp(self.clock_us()))
+        if not self.lockstep:
+            self._sent = max(self._sent, self.check.timestamp)
         self.check.timestamp = max(self.check.timestamp, self._sent)
         return self._sent
 

@@ -251,7 +251,7 @@ def _run(args: argparse.Namespace) -> int:
     key_path = None if args.lockstep else args.signing_key
 
     def session(link_id: int) -> SigningSession | None:
-        return None if key is None else SigningSession(key, plant.epoch_us, link_id=link_id, key_path=key_path)
+        return None if key is None else SigningSession(key, plant.epoch_us, link_id=link_id, key_path=key_path, lockstep=args.lockstep)
 
     impair_in, impair_out = _impairments(args)
 
@@ -270,7 +270,7 @@ def _run(args: argparse.Namespace) -> int:
         for e in endpoints:
             e.close()
         raise
-    link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else _wall_clock_us)
+    link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else _wall_clock_us, lockstep=args.lockstep)
     for direction, spec in (("in", impair_in), ("out", impair_out)):
         if spec is not None:
             link.note(f"link {direction}: {spec.describe()} (seed {args.seed})")

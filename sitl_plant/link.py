@@ -334,8 +334,10 @@ class Link:
         The tlog timestamp for packets logged now (microseconds since the Unix epoch).
     """
 
-    def __init__(self, endpoints: list[Endpoint], tlog: TlogWriter | None, log_time_us: Callable[[], int]) -> None:
+    def __init__(self, endpoints: list[Endpoint], tlog: TlogWriter | None, log_time_us: Callable[[], int],
+                 *, lockstep: bool = False) -> None:  # fmt: skip
         self.endpoints = endpoints
+        self.lockstep = lockstep  # (a session SETUP_SIGNING starts signs on the simulation's clock alone)
         self.tlog = tlog
         self.log_time_us = log_time_us
         self._socks = [e.sock for e in endpoints]
@@ -425,7 +427,7 @@ class Link:
         path = next((e.signing.key_path for e in self.endpoints if e.signing is not None), None)
         for i, e in enumerate(self.endpoints):
             if e.signing is None:
-                e.signing = SigningSession(key, self.log_time_us, link_id=i, key_path=path)
+                e.signing = SigningSession(key, self.log_time_us, link_id=i, key_path=path, lockstep=self.lockstep)
             else:
                 e.signing.rekey(key)
         if path is not None:

@@ -293,7 +293,8 @@ def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: Fl
     if args.signing_key is not None:
         # the log's clock signs: simulation time in lockstep (the same bytes every run, nothing
         # persisted), the wall clock otherwise (the timestamp kept in the key file)
-        signing = SigningSession(_signing_key(args.signing_key), log_clock, key_path=None if args.lockstep else args.signing_key)
+        signing = SigningSession(_signing_key(args.signing_key), log_clock, key_path=None if args.lockstep else args.signing_key,
+                                 lockstep=args.lockstep)  # fmt: skip
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock, signing=signing)
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
     try:

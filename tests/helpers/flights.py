@@ -106,6 +106,7 @@ def fly(
     gcs: bool = False,
     proxy: bool = False,
     during: Callable[[Context], None] | None = None,
+    before_plant: Callable[[Context], None] | None = None,
     timeout_s: float = 240.0,
     name: str = "run",
 ) -> Flown:
@@ -135,6 +136,8 @@ def fly(
             fly_proc = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=ENV)
         ctx = Context(fly_proc, None, plant_port, offboard_port, gcs_port if gcs else None, stderr_path, proxy_obj)  # type: ignore[arg-type]
         ctx.wait_for("listening on", 30)
+        if before_plant is not None:  # the offboard is up and waiting for a vehicle
+            before_plant(ctx)
         plant_proc = subprocess.Popen(plant_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV)
         ctx.plant = plant_proc
         if during is not None:

@@ -1,0 +1,80 @@
+"""10^5 fuzzed frames of every kind at the plant's receiving socket (issue 14): no crash, no state
+change of the disarmed vehicle, still answering. (The offboard's: tests/e2e/test_signing_e2e.py.)"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from helpers.flights import ENV, PY, free_udp_ports
+from helpers.fuzz import Fuzzer
+
+FUZZ_FRAMES = 100_000
+WATCHED = ("MPC_XY_VEL_MAX", "COM_OF_LOSS_T", "SIM_MASS", "MAV_SYS_ID")
+
+
+class Client:
+    def __init__(self, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.address = ("127.0.0.1", port)
+        self.mav = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
+        self.parser = mavlink.MAVLink(None)
+
+    def send(self, msg) -> None:
+        self.sock.sendto(msg.pack(self.mav), self.address)
+
+    def wait_for(self, kind: str, timeout_s: float = 5.0, where=lambda m: True):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                data = self.sock.recv(65535)
+            except socket.timeout:
+                continue
+            for m in self.parser.parse_buffer(data) or []:
+                if m.get_type() == kind and where(m):
+                    return m
+        raise AssertionError(f"no {kind} within {timeout_s} s")
+
+    def state(self) -> dict:
+        beat = self.wait_for("HEARTBEAT", where=lambda m: m.get_srcSystem() == 1)
+        values = {}
+        for name in WATCHED:
+            self.send(mavlink.MAVLink_param_request_read_message(1, 1, name.encode(), -1))
+            values[name] = self.wait_for("PARAM_VALUE", where=lambda m, n=name: m.param_id == n).param_value
+        return {"base_mode": beat.base_mode, "custom_mode": beat.custom_mode, "status": beat.system_status, **values}
+
+
+def test_the_plant_survives_the_fuzz_unchanged(tmp_path):
+    (port,) = free_udp_ports(1)
+    plant = subprocess.Popen([PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{port}", "--api-remote", "none",
+                              "--gcs-bind", "none"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)  # fmt: skip
+    client = Client(port)
+    fuzzer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert plant.stderr.readline().startswith("sitl-plant:")
+        client.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
+        before = client.state()
+        assert not before["base_mode"] & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        datagrams = Fuzzer(20).datagrams(FUZZ_FRAMES)
+        for start in range(0, len(datagrams), 200):
+            for d in datagrams[start:start + 200]:
+                fuzzer.sendto(d, ("127.0.0.1", port))
+            time.sleep(0.03)  # paced: the kernel's buffer holds a few hundred datagrams
+        client.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))  # talk last: the plant answers us
+        after = client.state()  # still answering
+        assert after == before  # disarmed, same mode, same parameters
+    finally:
+        fuzzer.close()
+        client.sock.close()
+        plant.terminate()
+        _, err = plant.communicate(timeout=30)
+    assert plant.returncode == 0, err
+    assert "Traceback" not in err and "raised an error" not in err, err
+    bad = int(err.split("bad packets ")[1].split(",")[0])
+    print(f"\n{err.strip().splitlines()[-1]}")
+    assert bad > FUZZ_FRAMES // 10  # the fuzz got there
