@@ -165,6 +165,11 @@ class PlantConfig:
     ftp_root: Path | None = None  # the folder MAVLink FTP serves, read-only (--ftp-root)
 
 
+#: A setpoint stamped this little before the newest of its sender is a reordered or duplicated
+#: datagram (refused); farther behind, the sender's clock restarted (taken).
+REORDER_WINDOW_MS = 1000
+
+
 @dataclass
 class Counters:
     refused_setpoints: int = 0
@@ -224,6 +229,7 @@ class Plant:
         self.streams = [StreamSchedule(API), StreamSchedule(GCS)]
         self.counters = Counters()
         self.outbox: list[list[mavlink.MAVLink_message]] = [[], []]
+        self._newest_setpoint_ms: dict[tuple[int, int], int] = {}  # per sender (system, component)
         #: a SETUP_SIGNING key accepted, for the loop to apply to the links (then None)
         self.signing_change: SigningKey | None = None
         # PX4's services, one of each per link as PX4 has per MAVLink instance (docs/parity/services.md)
@@ -338,13 +344,27 @@ class Plant:
         key = reason.split(" ")[0] if reason else "refused"
         self.counters.refusals[key] = self.counters.refusals.get(key, 0) + 1
 
+    def _out_of_order(self, msg: mavlink.MAVLink_message, stamp_ms: int) -> bool:
+        """A setpoint stamped before the newest one flown from its sender, by less than
+        ``REORDER_WINDOW_MS``: a duplicated or reordered datagram, refused (issue 14: a link that
+        reorders made the plant fly 103 setpoints older than the one before). A stamp far behind
+        is a sender whose clock restarted (a new offboard process), and is taken."""
+        sender = (msg.get_srcSystem(), msg.get_srcComponent())
+        newest = self._newest_setpoint_ms.get(sender)
+        if newest is not None and 0 < newest - stamp_ms <= REORDER_WINDOW_MS:
+            self._refuse("out-of-order setpoint")
+            return True
+        self._newest_setpoint_ms[sender] = stamp_ms
+        return False
+
     def _on_attitude_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
         try:
             sp = codec.decode_attitude_target(msg)
         except Refused as exc:
             self._refuse(str(exc))
             return
-        self._on_setpoint(sp)
+        if not self._out_of_order(msg, int(msg.time_boot_ms)):
+            self._on_setpoint(sp)
 
     def _on_actuator_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
         try:
@@ -352,7 +372,8 @@ class Plant:
         except Refused as exc:
             self._refuse(str(exc))
             return
-        self._on_setpoint(sp)
+        if not self._out_of_order(msg, int(msg.time_usec) // 1000):
+            self._on_setpoint(sp)
 
     def _on_position_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
         try:
@@ -360,7 +381,8 @@ class Plant:
         except Refused as exc:
             self._refuse(str(exc))
             return
-        self._on_setpoint(sp)
+        if not self._out_of_order(msg, int(msg.time_boot_ms)):
+            self._on_setpoint(sp)
 
     def _on_setpoint(self, sp: Setpoint) -> None:
         if self.autopilot.on_setpoint(sp, self.time_s):

@@ -107,3 +107,27 @@ def test_keepalive_heartbeat_is_the_latest_sent_when_telemetry_has_none(tmp_path
         peer.close()
     assert again == [sent[1], sent[0]]  # the telemetry, then the heartbeat it lacked: same bytes
     assert endpoint.packer.seq == seq  # no sequence number spent
+
+
+def test_setpoints_older_than_the_newest_flown_are_refused_unless_the_sender_restarted():
+    """A link that duplicates and reorders: a setpoint stamped before the newest one flown from its
+    sender (within a second) is refused and counted; one far behind is a restarted sender."""
+    plant = make_plant()
+
+    def roll(stamp_ms: int, roll_rad: float, sysid: int = 245) -> bool:
+        """Send a roll setpoint; whether the plant now flies it."""
+        import math
+
+        q = [math.cos(roll_rad / 2), math.sin(roll_rad / 2), 0.0, 0.0]
+        msg = mavlink.MAVLink_set_attitude_target_message(stamp_ms, 1, 1, 0b00000111, q, 0, 0, 0, 0.5)
+        sender = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=191)
+        plant.handle(API, _PARSER.parse_buffer(msg.pack(sender))[0])
+        latest = plant.autopilot.last_setpoint
+        return latest is not None and abs(latest.q_wxyz[1] - q[1]) < 1e-6
+
+    assert roll(1000, 0.1) and roll(1050, 0.2)
+    assert not roll(1020, 0.3)  # reordered: refused
+    assert plant.counters.refusals.get("out-of-order") == 1
+    assert roll(1050, 0.25)  # the same stamp again (a repeat): taken
+    assert roll(1030, 0.3, sysid=246)  # another sender has its own newest
+    assert roll(10, 0.35)  # 1040 ms behind: the sender's clock restarted
