@@ -17,7 +17,7 @@ from offboard.record import FlightStatus
 from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.sensors import sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.vehicle import VehicleParams
 
 PHYSICS_DT_S = 1e-3
 

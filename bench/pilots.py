@@ -32,7 +32,7 @@ from offboard.controller import ActionLimits, ControllerParams
 from offboard.controller.command import Controller
 from offboard.controllers import make_controller
 from offboard.inprocess import Drive
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.vehicle import VehicleParams
 
 SAMPLE_TIME_S = 0.05  # the paper's To, for every controller
 THRUST_MAX_N = 19.6  # the airframe: thrust-to-weight 4 (4 x k w_max^2 = 19.6 N)

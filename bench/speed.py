@@ -123,7 +123,7 @@ def physics_one_vehicle(duration_s: float, reference_duration_s: float, rotorpy_
     from bench.flight import fly
     from bench.pilots import NOMINAL, contender
     from sitl_plant.dynamics import batch
-    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+    from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
     vehicle = load_vehicle(PAPER_VEHICLE_FILE)
     trajectory = _helix()
@@ -161,7 +161,7 @@ def _no_numba_rate(duration_s: float) -> float | None:
         "import sys,time; sys.path.insert(0, %r)\n"
         "from bench.flight import fly; from bench.pilots import contender, NOMINAL\n"
         "from bench.speed import _helix\n"
-        "from sitl_plant.vehicle import load_vehicle, PAPER_VEHICLE_FILE\n"
+        "from offboard.model.vehicle import load_vehicle, PAPER_VEHICLE_FILE\n"
         "v = load_vehicle(PAPER_VEHICLE_FILE); tr = _helix()\n"
         "s = time.perf_counter(); fly(*contender('paper', NOMINAL), tr, v, duration_s=%r)\n"
         "print(%r / (time.perf_counter() - s))\n"
@@ -207,14 +207,14 @@ def _rotorpy_rate(duration_s: float, vehicle, trajectory) -> dict:  # noqa: ANN0
     from bench.pilots import NOMINAL, contender
     from offboard.inprocess import vehicle_loop
     from sitl_plant.dynamics.rigid_body import hover_rotor_speed, rotor_speeds_for
-    from sitl_plant.dynamics.rotations import euler_from_quat
-    from sitl_plant.state import VehicleState
+    from offboard.model.rotations import euler_from_quat
+    from offboard.model.state import VehicleState
 
     flu = np.diag([1.0, -1.0, -1.0])
     ned_enu = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
     ref0 = trajectory.reference(0.0)
     r0 = ned_enu @ np.eye(3) @ flu  # level, yaw from the reference below
-    from sitl_plant.dynamics.rotations import quat_from_euler, rotation_matrix
+    from offboard.model.rotations import quat_from_euler, rotation_matrix
 
     r0 = ned_enu @ rotation_matrix(quat_from_euler(0.0, 0.0, ref0.yaw_rad)) @ flu
     speed = hover_rotor_speed(vehicle)
@@ -272,14 +272,14 @@ class _EulerReader:
 
     def euler(self, x: object) -> tuple[np.ndarray, np.ndarray]:
         from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
-        from sitl_plant.dynamics.rotations import euler_from_quat
+        from offboard.model.rotations import euler_from_quat
 
         eta = euler_from_quat(self.q)
         return eta, euler_rates_from_body_rates(eta, self.w)
 
     def torque_from_generalized(self, x: object, tau: np.ndarray) -> np.ndarray:
         from sitl_plant.dynamics.rigid_body import body_torque_from_generalized
-        from sitl_plant.dynamics.rotations import euler_from_quat
+        from offboard.model.rotations import euler_from_quat
 
         return body_torque_from_generalized(euler_from_quat(self.q), tau)
 
@@ -291,7 +291,7 @@ def physics_batch(sizes: list[int], steps: int, numpy_max: int) -> list[dict]:
     """Vehicle-steps per second of ``step_many`` (compiled) and ``step_many_numpy`` by batch size."""
     from sitl_plant.dynamics import batch
     from sitl_plant.dynamics.rigid_body import hover_rotor_speed
-    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+    from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
     vehicle = load_vehicle(PAPER_VEHICLE_FILE).with_changes(linear_drag_n_s_m=(0.12, 0.12, 0.2))
     rng = np.random.default_rng(0)
@@ -333,7 +333,7 @@ def numba_compile_s() -> float:
         "import time; s=time.perf_counter()\n"
         "import numpy as np\n"
         "from sitl_plant.dynamics import batch\n"
-        "from sitl_plant.vehicle import VehicleParams\n"
+        "from offboard.model.vehicle import VehicleParams\n"
         "x=np.zeros((3,17)); x[:,6]=1; p=VehicleParams()\n"
         "batch.step_many(x, np.full(4,300.), np.zeros(3), p, 1e-3); batch.derivative_many(x, np.full(4,300.), np.zeros(3), p)\n"
         "print(time.perf_counter()-s)\n"

@@ -79,7 +79,7 @@ def _job(args: tuple) -> dict:
     from bench.pilots import NOMINAL, TABLE_II, contender, flown_controller
     from offboard.inprocess import Drive
     from offboard.missions import MISSIONS_DIR, load_mission
-    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+    from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
     mission = next(m for m in MISSIONS if m.key == mission_key)
     trajectory = load_mission(MISSIONS_DIR / mission.file).trajectory

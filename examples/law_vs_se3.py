@@ -18,7 +18,7 @@ from offboard.flight import ControllerChoice, resolve_controller
 from offboard.inprocess import Drive, simulate
 from offboard.missions import MISSIONS_DIR, load_mission
 from sitl_plant.params import plant_params
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 mission = load_mission(sys.argv[1] if len(sys.argv) > 1 else MISSIONS_DIR / "paper-square.toml")
 vehicle = load_vehicle(PAPER_VEHICLE_FILE)

@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from offboard.errors import UserError
-from sitl_plant.clihelp import HelpFormatter, add_version
+from offboard.model.clihelp import HelpFormatter, add_version
 
 # Modules that register sub-commands, in the order --help lists them.
 COMMAND_MODULES = (
@@ -26,7 +26,10 @@ COMMAND_MODULES = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every sub-command, or of ``only`` (``offboard.commands.<only>``): a command
+    imports only its own module, so ``offboard fly`` loads nothing of the simulator that
+    ``offboard simulate`` needs (tests/e2e/test_layering.py)."""
     parser = argparse.ArgumentParser(
         prog="offboard",
         description="Fly the Rosales et al. tracking controller: in-process, or over MAVLink.",
@@ -34,7 +37,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_version(parser, "offboard")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    modules = COMMAND_MODULES
+    if only is not None and f"offboard.commands.{only}" in COMMAND_MODULES:
+        modules = (f"offboard.commands.{only}",)
+    for name in modules:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -57,7 +63,8 @@ def _remember_parsers(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    words = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(only=words[0] if words and not words[0].startswith("-") else None)
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         getattr(args, "_usage_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")

@@ -44,7 +44,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import VEHICLE_MODELS, Command, require
-from sitl_plant.dynamics.rotations import quat_from_euler
+from offboard.model.rotations import quat_from_euler
 
 MAVLinkMessage = mavlink.MAVLink_message
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
-from sitl_plant.clihelp import HelpFormatter
-from sitl_plant.paths import output_folder
+from offboard.model.clihelp import HelpFormatter
+from offboard.model.paths import output_folder
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
 STOP_TIMEOUT_S = 5.0

@@ -6,7 +6,7 @@ The command line turns any of these into one line naming what is wrong and where
 from __future__ import annotations
 
 
-from sitl_plant.errors import ParameterFileError, UserError
+from offboard.model.errors import ParameterFileError, UserError
 
 __all__ = [
     "ClockMismatch",

@@ -14,8 +14,8 @@ import numpy as np
 
 from offboard.controller.law import TrackingReference
 from offboard.trajectory.base import Reference
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
-from sitl_plant.dynamics.rotations import quat_from_euler
+from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.rotations import quat_from_euler
 
 
 def paper_position_from_ned(pos_ned_m: np.ndarray) -> np.ndarray:

@@ -42,7 +42,7 @@ from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
 from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, VehicleSim, WindField, make_model
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.vehicle import VehicleParams
 
 
 class Drive(enum.StrEnum):

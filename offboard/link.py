@@ -36,7 +36,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.signing import SigningSession, Verdict
-from sitl_plant.link import LinkError, TlogWriter
+from offboard.model.errors import LinkError
+from offboard.model.tlog import TlogWriter
 
 __all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
 

@@ -32,7 +32,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from offboard.record import FlightRecord, FlightStatus
-from sitl_plant.dynamics.rotations import wrap_pi
+from offboard.model.rotations import wrap_pi
 
 #: File stems of the figures ``write_figures`` writes, in order.
 FIGURE_NAMES = ("path3d", "position", "attitude", "errors", "actions")

@@ -43,7 +43,7 @@ from offboard.errors import LogFormatError, ParameterFileError
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
 from offboard.trajectory.base import Phase, Trajectory
 from offboard.controller.params import ControllerParams
-from sitl_plant.dynamics.rotations import euler_from_quat
+from offboard.model.rotations import euler_from_quat
 
 MAX_TIMESTAMP_JUMP_US = 3 * 24 * 3600 * 1_000_000  # pymavlink's bound for a plausible tlog stamp
 _STAMP = struct.Struct(">Q")

@@ -26,8 +26,8 @@ from pathlib import Path
 from offboard.controller.params import controller_from_table, load_controller
 from offboard.errors import ParameterFileError
 from offboard.inprocess import MODELS, SCENARIO_DRIVES, Scenario
-from sitl_plant.tomlfile import Fields, read_toml
-from sitl_plant.vehicle import load_vehicle, vehicle_from_table
+from offboard.model.tomlfile import Fields, read_toml
+from offboard.model.vehicle import load_vehicle, vehicle_from_table
 
 
 def _table_or_file(top: Fields, key: str, base_dir: Path, from_table, from_file):

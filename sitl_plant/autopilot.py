@@ -35,7 +35,7 @@ from typing import Union
 import numpy as np
 
 from sitl_plant.params import OBL_ACT_LAND, ParamTable
-from sitl_plant.state import VehicleState
+from offboard.model.state import VehicleState
 
 # MAVLink enum values used here (common.xml), spelled out to keep this module free of pymavlink.
 MAV_RESULT_ACCEPTED = 0

@@ -15,15 +15,16 @@ from typing import TextIO
 
 from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
 from sitl_plant.codec import Home
-from sitl_plant.clihelp import HelpFormatter, add_version
-from sitl_plant.errors import UserError
+from offboard.model.clihelp import HelpFormatter, add_version
+from offboard.model.errors import UserError
 from sitl_plant.inner_loops import InnerLoops
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, parse_impairment
-from sitl_plant.link import Endpoint, Link, TlogWriter, parse_address
+from offboard.model.tlog import TlogWriter
+from sitl_plant.link import Endpoint, Link, parse_address
 from sitl_plant.params import plant_params
 from sitl_plant.server import LOCKSTEP_EPOCH_S, MODELS, Plant, PlantConfig, run_lockstep, run_realtime
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
 GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link

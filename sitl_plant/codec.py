@@ -29,8 +29,8 @@ from sitl_plant.autopilot import (
     PositionSetpoint,
     Status,
 )
-from sitl_plant.dynamics.rotations import rotation_matrix
-from sitl_plant.state import VehicleState
+from offboard.model.rotations import rotation_matrix
+from offboard.model.state import VehicleState
 
 MAVLink = mavlink.MAVLink
 MAVLinkMessage = mavlink.MAVLink_message

@@ -31,23 +31,16 @@ import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.model.errors import LinkError
+from offboard.model.tlog import TlogWriter
 from offboard.signing import SigningKey, SigningSession, save_key
 from sitl_plant.impairment import DelayLine, Impairment
-from sitl_plant.errors import UserError
-from sitl_plant.paths import output_file_problem
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
 KEEPALIVE_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT})  # whose latest packet a keepalive may resend
-_TLOG_STAMP = struct.Struct(">Q")
-
-
-class LinkError(UserError, OSError):
-    """A socket cannot be opened (address in use, bad address) or a log cannot be written."""
 
 
 def parse_address(text: str, what: str) -> tuple[str, int] | None:
@@ -65,42 +58,6 @@ def parse_address(text: str, what: str) -> tuple[str, int] | None:
     if not 0 <= number <= 65535:
         raise ValueError(f"{what}: port must be 0..65535, got {number}")
     return host, number
-
-
-class TlogWriter:
-    """Appends ``(timestamp, packet)`` records to a tlog file; ``close()`` flushes.
-
-    Each record goes to the file buffer in one write, so whenever the buffer reaches the disk (full,
-    ``flush()``) it ends on a whole record: a process killed with SIGKILL leaves a log that ends on
-    its last flushed record, never on a timestamp without its packet (issue 14: two writes left a
-    dangling 8-byte stamp in 18 of 20 kills).
-    """
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        problem = output_file_problem(self.path)  # the rule of every output file (sitl_plant/paths.py)
-        if problem is not None:
-            raise LinkError(f"--log {self.path}: cannot write the log: {problem}")
-        try:
-            self._fh: BinaryIO | None = self.path.open("wb")
-        except OSError as exc:
-            raise LinkError(f"{self.path}: cannot write the log: {exc.strerror}") from None
-        self.records = 0
-
-    def write(self, time_us: int, packet: bytes | bytearray) -> None:
-        if self._fh is not None:
-            self._fh.write(_TLOG_STAMP.pack(time_us) + packet)
-            self.records += 1
-
-    def flush(self) -> None:
-        if self._fh is not None:
-            self._fh.flush()
-
-    def close(self) -> None:
-        if self._fh is not None:
-            self._fh.flush()
-            self._fh.close()
-            self._fh = None
 
 
 @dataclass

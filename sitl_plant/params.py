@@ -19,7 +19,7 @@ import struct
 from dataclasses import dataclass
 from typing import Iterator
 
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.vehicle import VehicleParams
 
 REAL = "real"
 INT = "int"

@@ -49,7 +49,7 @@ def _dcm_z(w, x, y, z):  # noqa: ANN001, ANN202
 
 @_jit
 def _quat_between(s0, s1, s2, d0, d1, d2):  # noqa: ANN001, ANN202
-    """``inner_loops._quat_between``."""
+    """``offboard.model.attitude.quat_between``."""
     cx = s1 * d2 - s2 * d1
     cy = s2 * d0 - s0 * d2
     cz = s0 * d1 - s1 * d0
@@ -161,7 +161,7 @@ def warm_up() -> None:
     x[6] = 1.0
     x[2] = -1.0
     from sitl_plant.dynamics.batch import param_vector
-    from sitl_plant.vehicle import VehicleParams
+    from offboard.model.vehicle import VehicleParams
 
     advance_px4(x, 2, 1e-3, np.zeros((2, 3)), True, np.zeros(STATE_SIZE), np.zeros(4), param_vector(VehicleParams()),
                 3, 0, True, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), 0.0, 1.0, 1.0, 0.5, np.ones((5, 3)),

@@ -44,8 +44,8 @@ from sitl_plant.link import Link
 from sitl_plant.logserve import LogServer
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 
 TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied within 4 ms
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers

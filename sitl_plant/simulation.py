@@ -21,11 +21,11 @@ from typing import Protocol
 import numpy as np
 
 from sitl_plant.dynamics import paper_model
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix, real_torques
+from offboard.model.euler_lagrange import euler_rate_matrix, real_torques
 from sitl_plant.dynamics.integrate import rk4_step
-from sitl_plant.dynamics.rotations import quat_from_euler
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.rotations import quat_from_euler
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 
 __all__ = ["VehicleState", "VehicleSim", "PaperModel", "HeldActuation", "EulerAccelActuation", "Model"]
 

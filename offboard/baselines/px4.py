@@ -12,7 +12,7 @@ The cascade PX4 flies in offboard position mode with velocity and acceleration f
 
 and the attitude setpoint is the attitude whose body z axis is ``body_z`` with the reference's
 heading (``ControlMath::bodyzToAttitude``, shared with the plant:
-``sitl_plant.inner_loops.bodyz_to_attitude``), with the reference's yaw rate as feed-forward.
+``offboard.model.attitude.bodyz_to_attitude``), with the reference's yaw rate as feed-forward.
 PX4 works in normalised thrust with a hover-thrust estimate; here ``m_hat g`` is that hover
 thrust in newtons, so a wrong believed mass is a wrong hover thrust, as on a real vehicle.
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from offboard.baselines.se3 import AttitudeTarget
 from offboard.controller.command import Command, StateEstimate
 from offboard.trajectory.base import Reference
-from sitl_plant.inner_loops import bodyz_to_attitude
+from offboard.model.attitude import bodyz_to_attitude
 
 Vec3 = tuple[float, float, float]
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from offboard.controller.command import Command, StateEstimate
 from offboard.trajectory.base import Reference
-from sitl_plant.dynamics.rotations import euler_from_quat
+from offboard.model.rotations import euler_from_quat
 
 Vec3 = tuple[float, float, float]
 

@@ -33,8 +33,8 @@ from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_k
 from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
-from sitl_plant.clihelp import HelpFormatter
-from sitl_plant.paths import output_folder
+from offboard.model.clihelp import HelpFormatter
+from offboard.model.paths import output_folder
 
 
 

@@ -22,8 +22,8 @@ from offboard.missions import Mission, load_mission
 from offboard.missions.plan import write_plan
 from offboard.missions.wpl import write_wpl
 from offboard.trajectory.sampling import DEFAULT_DT_S, summarize
-from sitl_plant.clihelp import HelpFormatter
-from sitl_plant.paths import output_file
+from offboard.model.clihelp import HelpFormatter
+from offboard.model.paths import output_file
 
 
 class MissionArgumentError(UserError, ValueError):

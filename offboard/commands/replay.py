@@ -26,7 +26,7 @@ import numpy as np
 
 from offboard import jsonout
 from offboard.errors import UserError
-from sitl_plant.paths import output_folder
+from offboard.model.paths import output_folder
 
 #: pymavlink connection strings ``--to`` accepts (network outputs only).
 STREAM_SCHEMES = ("udpout:", "udpbcast:", "udpin:", "tcp:", "tcpin:")

@@ -12,8 +12,8 @@ from offboard.inprocess import MODELS, SCENARIO_DRIVES, run_scenario
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
-from sitl_plant.clihelp import HelpFormatter
-from sitl_plant.paths import output_folder
+from offboard.model.clihelp import HelpFormatter
+from offboard.model.paths import output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -33,8 +33,8 @@ from offboard.controller.tuning import (
     vehicle_values,
 )
 from offboard.errors import LinkTimeout, UserError
-from sitl_plant.clihelp import HelpFormatter
-from sitl_plant.paths import output_file
+from offboard.model.clihelp import HelpFormatter
+from offboard.model.paths import output_file
 
 
 class TuneArgumentError(UserError, ValueError):
@@ -108,7 +108,7 @@ def read_params_file(path: Path) -> dict[str, float]:
 def read_vehicle_file(path: Path) -> dict[str, float]:
     """The parameters a sitl-plant flying this vehicle file publishes."""
     from sitl_plant.params import plant_params  # the simulator's vehicle file: only for this option
-    from sitl_plant.vehicle import load_vehicle
+    from offboard.model.vehicle import load_vehicle
 
     table = plant_params(load_vehicle(path))
     return {name: table[name] for name in table}

@@ -51,8 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from offboard.controller.params import ControllerParams
-from sitl_plant.dynamics.euler_lagrange import real_torques
-from sitl_plant.dynamics.rigid_body import rotor_forces
+from offboard.model.euler_lagrange import real_torques
+from offboard.model.mixer import rotor_forces
 
 #: Math namespace for scalar (Python float) evaluation of ``law_step``.
 MATH_OPS = SimpleNamespace(
@@ -302,7 +302,7 @@ class ControlOutput:
         with the controller's belief of the inertia, at the measured state.
     rotor_forces_n : ndarray, shape (4,)
         f1..f4 that give u and those torques through eq. 9-11 (rotor layout in
-        ``sitl_plant.vehicle``); unbounded, so they may be negative.
+        ``offboard.model.vehicle``); unbounded, so they may be negative.
     """
 
     law: LawOutput

@@ -10,8 +10,8 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from sitl_plant.tomlfile import Fields, read_toml
-from sitl_plant.vehicle import EULER_RATE_FORMS
+from offboard.model.tomlfile import Fields, read_toml
+from offboard.model.vehicle import EULER_RATE_FORMS
 
 PAPER_CONTROLLER_FILE = Path(__file__).parent / "paper.toml"
 
@@ -106,7 +106,7 @@ class ControllerParams:
     mass_kg, arm_length_m, inertia_kg_m2, gravity_m_s2 : float
         The vehicle as the controller believes it (Table II makes these differ from the truth).
     euler_rate_form : str
-        W_eta used for eq. 16 (see ``sitl_plant.dynamics.euler_lagrange``).
+        W_eta used for eq. 16 (see ``offboard.model.euler_lagrange``).
     drag_to_thrust_m : float
         Rotor drag coefficient c = k_m/k_f for the rotor forces of eq. 9-11.
     gains : ControllerGains

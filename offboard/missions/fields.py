@@ -1,6 +1,6 @@
 """Reading mission files: TOML fields raising ``MissionFormatError``, and the text of the others.
 
-``MissionFields`` is ``sitl_plant.tomlfile.Fields`` with the same one-line messages
+``MissionFields`` is ``offboard.model.tomlfile.Fields`` with the same one-line messages
 (``file: mission.segment #2 (hold-12m): radius_m: must be > 0, got -2``) but of the mission kind,
 so callers can tell a bad mission from a bad parameter file. ``read_mission_text`` is how the
 waypoint (QGC WPL) and ``.plan`` readers open their files: every I/O error is one line.
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from offboard.errors import MissionFormatError, ParameterFileError
-from sitl_plant.tomlfile import Fields, read_toml
+from offboard.model.tomlfile import Fields, read_toml
 
 
 class MissionFields(Fields):

@@ -50,7 +50,7 @@ from offboard.trajectory import (
 )
 from offboard.trajectory.sampling import sample
 from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S
-from sitl_plant.tomlfile import near_name
+from offboard.model.tomlfile import near_name
 
 FRAMES = ("ned", "paper-zup")
 ANGLE_UNITS = ("rad", "deg")

@@ -82,5 +82,5 @@ def plot_path(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path)  # into an existing folder: the rule of every output file (sitl_plant/paths.py)
+    fig.savefig(path)  # into an existing folder: the rule of every output file (offboard/model/paths.py)
     return path

@@ -15,7 +15,7 @@ from functools import cached_property
 import numpy as np
 
 from offboard.trajectory.base import Phase, Reference
-from sitl_plant.dynamics.rotations import wrap_pi
+from offboard.model.rotations import wrap_pi
 
 __all__ = ["LENGTH_EPS_M", "PHASE_KINDS", "Segment", "finite", "heading_of", "positive", "vec3", "wrap_pi"]
 

@@ -37,8 +37,8 @@ import numpy as np
 from sitl_plant.dynamics import rigid_body
 from sitl_plant.dynamics.rigid_body import QUAT, STATE_SIZE, RigidBodyModel
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 
 __all__ = [
     "NUMBA",

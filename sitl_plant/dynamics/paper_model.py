@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sitl_plant.dynamics.euler_lagrange import euler_acceleration
+from offboard.model.euler_lagrange import euler_acceleration
 
 STATE_SIZE = 12
 POSITION = [0, 2, 4]

@@ -24,10 +24,10 @@ from typing import Protocol
 import numpy as np
 
 from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
-from sitl_plant.dynamics.rotations import euler_from_quat, quat_multiply, wrap_pi
-from sitl_plant.errors import UserError
-from sitl_plant.state import VehicleState
-from sitl_plant.tomlfile import Fields
+from offboard.model.rotations import euler_from_quat, quat_multiply, wrap_pi
+from offboard.model.errors import UserError
+from offboard.model.state import VehicleState
+from offboard.model.tomlfile import Fields
 
 __all__ = [
     "SensorModel",

@@ -27,8 +27,8 @@ from typing import Protocol
 
 import numpy as np
 
-from sitl_plant.errors import UserError
-from sitl_plant.tomlfile import Fields
+from offboard.model.errors import UserError
+from offboard.model.tomlfile import Fields
 
 __all__ = [
     "WindField",

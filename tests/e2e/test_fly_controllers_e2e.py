@@ -14,7 +14,7 @@ import pytest
 from bench.pilots import NOMINAL, flown_controller
 from offboard.inprocess import Drive, simulate
 from offboard.missions import MISSIONS_DIR, load_mission
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers.flights import ENV, PY, fly, free_udp_ports, series
 
 pytestmark = pytest.mark.e2e

@@ -18,7 +18,7 @@ from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, load_contro
 from offboard.inprocess import Scenario, run_scenario
 from offboard.missions import MISSIONS_DIR, load_mission
 from sitl_plant.params import to_float32
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers.flights import ENV, PY, fly, free_udp_ports, hover_mission, read_tlog, series, write_mission
 
 pytestmark = pytest.mark.e2e

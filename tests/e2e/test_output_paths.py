@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from offboard.missions import MISSIONS_DIR
-from sitl_plant.paths import OutputPathError, output_file, output_folder
+from offboard.model.paths import OutputPathError, output_file, output_folder
 
 BOX = str(MISSIONS_DIR / "px4-sitl-box.waypoints")
 HELIX = str(MISSIONS_DIR / "paper-helix.toml")

@@ -22,7 +22,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_plant.dynamics.rotations import quat_from_euler
+from offboard.model.rotations import quat_from_euler
 from helpers import REPO
 
 pytestmark = pytest.mark.e2e

@@ -107,6 +107,7 @@ def fly(
     proxy: bool = False,
     during: Callable[[Context], None] | None = None,
     before_plant: Callable[[Context], None] | None = None,
+    fly_env: dict[str, str] | None = None,
     timeout_s: float = 240.0,
     name: str = "run",
 ) -> Flown:
@@ -133,7 +134,7 @@ def fly(
         if proxy_obj is not None:
             proxy_obj.__enter__()
         with stderr_path.open("w") as err:
-            fly_proc = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=ENV)
+            fly_proc = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=err, text=True, env={**ENV, **(fly_env or {})})
         ctx = Context(fly_proc, None, plant_port, offboard_port, gcs_port if gcs else None, stderr_path, proxy_obj)  # type: ignore[arg-type]
         ctx.wait_for("listening on", 30)
         if before_plant is not None:  # the offboard is up and waiting for a vehicle

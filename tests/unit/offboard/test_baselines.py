@@ -11,11 +11,11 @@ from offboard.baselines import AttitudeTarget, Px4Gains, Px4PositionController, 
 from offboard.trajectory.base import Reference
 from sitl_plant.dynamics.batch import FastRigidBodySim
 from sitl_plant.dynamics.rigid_body import ROTORS, RigidBodyModel, hover_rotor_speed
-from sitl_plant.dynamics.rotations import euler_from_quat, quat_from_euler, rotation_matrix
+from offboard.model.rotations import euler_from_quat, quat_from_euler, rotation_matrix
 from sitl_plant.inner_loops import Px4Loop
 from sitl_plant.params import plant_params
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 
 VEHICLE = VehicleParams()
 MASS, INERTIA, G = 0.5, (3.8e-3, 3.8e-3, 7.1e-3), 9.81

@@ -301,7 +301,7 @@ def test_bad_parameter_files_give_one_line_naming_file_and_field(tmp_path, edit,
 def _hover_with_mass_error(integral_gain_per_s: float):
     from offboard.inprocess import Scenario, run_scenario
     from offboard.trajectory import Hold, Sequence
-    from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+    from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
     params = PARAMS.with_changes(mass_kg=0.6, integral_gain_per_s=integral_gain_per_s)  # Table II's mass
     scenario = Scenario("hover", Sequence([Hold([0, 0, -2], 0.0, 30.0, "hold")]), load_vehicle(PAPER_VEHICLE_FILE),
@@ -342,7 +342,7 @@ def test_integral_off_by_default_and_validated():
 def test_euler_rates_from_body_rates_inverts_w_eta(form):
     """The closed-form W_eta^-1 (offboard.frames) is the inverse of eq. 3's W_eta."""
     from offboard.frames import body_rates_from_euler_rates, euler_rates_from_body_rates
-    from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+    from offboard.model.euler_lagrange import euler_rate_matrix
 
     rng = np.random.default_rng(7)
     for _ in range(200):

@@ -26,8 +26,8 @@ from offboard.trajectory import Helix, Hold, Line, Lissajous, Polygon, Sequence,
 from offboard.trajectory.base import Reference
 from offboard.trajectory.shifted import ShiftedTrajectory, shift_trajectory
 from sitl_plant.params import plant_params
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 VEHICLE = load_vehicle(PAPER_VEHICLE_FILE)
 G = 9.81
@@ -61,7 +61,7 @@ CONTROLLERS = {
 
 
 def hovering_state(pos=(1.0, -2.0, -5.0), yaw=0.3) -> VehicleState:
-    from sitl_plant.dynamics.rotations import quat_from_euler
+    from offboard.model.rotations import quat_from_euler
 
     return VehicleState(0.0, np.array(pos), np.zeros(3), np.zeros(3), np.array([0.0, 0.0, yaw]), np.zeros(3),
                         np.zeros(3), quat_from_euler(0.0, 0.0, yaw))  # fmt: skip
@@ -99,7 +99,7 @@ def test_at_the_reference_it_asks_for_hover(name):
 def test_a_position_error_tilts_the_thrust_towards_the_reference(name):
     """5 m north of the reference: the thrust axis leans south (NED: the body z axis's north part
     is positive when the thrust, along -z, points south)."""
-    from sitl_plant.dynamics.rotations import rotation_matrix
+    from offboard.model.rotations import rotation_matrix
 
     controller = CONTROLLERS[name]()
     state = hovering_state(pos=(5.0, 0.0, -5.0), yaw=0.0)

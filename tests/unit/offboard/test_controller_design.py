@@ -32,7 +32,7 @@ from offboard.controller.design import (
 )
 from offboard.controller.params import ActionLimits
 from sitl_plant.params import plant_params
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers import SHARED
 
 PX4_PARAMS_JSON = SHARED / "px4-sitl" / "params.json"

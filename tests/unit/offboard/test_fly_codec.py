@@ -16,8 +16,8 @@ from offboard.controller.command import MissingCommand
 from offboard.controller.paper import paper_command, paper_state_of
 from offboard.frames import body_torque_from_generalized, euler_rates_from_body_rates, paper_state, tilt_about_heading
 from sitl_plant import codec as plant_codec
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
-from sitl_plant.dynamics.rotations import euler_from_quat, quat_from_euler, rotation_matrix
+from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.rotations import euler_from_quat, quat_from_euler, rotation_matrix
 
 SCALING = codec.Scaling(19.6, 1.176, 0.1568)
 

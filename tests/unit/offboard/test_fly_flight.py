@@ -25,7 +25,7 @@ from offboard.trajectory.analytic import Line
 from sitl_plant.autopilot import Autopilot, Mode
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, LOCKSTEP_STREAMS, Plant, PlantConfig
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers import FakeClock
 
 PAPER = load_controller(PAPER_CONTROLLER_FILE)

@@ -14,7 +14,7 @@ from offboard.record import COLUMNS, RecordBuilder, control_row
 from offboard.trajectory import Line
 from offboard.trajectory.base import Reference
 from pymavlink.dialects.v20 import common as mavlink
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 
 def sample():

@@ -66,7 +66,7 @@ def test_show_writes_a_plot(tmp_path, capsys):
     from matplotlib.image import imread
 
     png = tmp_path / "figs" / "box.png"
-    png.parent.mkdir()  # output files go into existing folders (sitl_plant/paths.py: the one rule, as --log's)
+    png.parent.mkdir()  # output files go into existing folders (offboard/model/paths.py: the one rule, as --log's)
     assert main(["mission", "show", str(MISSIONS_DIR / "px4-sitl-box.waypoints"), "--plot", str(png)]) == 0
     assert f"plot: {png}" in capsys.readouterr().out
     image = imread(png)

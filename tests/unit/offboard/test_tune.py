@@ -15,7 +15,7 @@ from offboard.controller.design import MarginSpec
 from offboard.controller.tuning import design_for_vehicle, vehicle_values
 from offboard.demo import free_udp_ports, stop_process
 from sitl_plant.params import plant_params
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers.flights import ENV, PY
 
 

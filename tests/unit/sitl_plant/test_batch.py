@@ -14,7 +14,7 @@ from sitl_plant.dynamics.integrate import rk4_step
 from sitl_plant.dynamics.rigid_body import RigidBodyModel
 from sitl_plant.dynamics.wind import wind_from_spec
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.vehicle import VehicleParams
 
 DRAGGY = VehicleParams(linear_drag_n_s_m=(0.12, 0.12, 0.25))
 INSTANT = VehicleParams(motor_time_constant_s=0.0, rotor_speed_min_rad_s=50.0)
@@ -181,7 +181,7 @@ def test_plant_steps_compiled_only_from_a_warm_cache(tmp_path) -> None:
     from sitl_plant import px4_kernel
     from sitl_plant.server import make_model, make_sim
 
-    code = ("from sitl_plant.server import make_model, make_sim; from sitl_plant.vehicle import VehicleParams; "
+    code = ("from sitl_plant.server import make_model, make_sim; from offboard.model.vehicle import VehicleParams; "
             "print(type(make_sim(make_model('rigid-body', VehicleParams()), 1e-3, None)).__name__)")  # fmt: skip
     cold = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})  # fmt: skip

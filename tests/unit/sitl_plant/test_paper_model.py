@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from sitl_plant.dynamics import euler_lagrange as el
+from offboard.model import euler_lagrange as el
 from sitl_plant.dynamics.integrate import rk4_step, steps_per_period
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, PaperModel, VehicleSim
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 VEHICLE = load_vehicle(PAPER_VEHICLE_FILE)
 INERTIA = VEHICLE.inertia_matrix

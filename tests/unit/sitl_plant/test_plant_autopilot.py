@@ -30,8 +30,8 @@ from sitl_plant.autopilot import (
     PositionTask,
 )
 from sitl_plant.params import OBL_ACT_HOLD, plant_params
-from sitl_plant.state import VehicleState
-from sitl_plant.vehicle import VehicleParams
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 
 NAN = math.nan
 

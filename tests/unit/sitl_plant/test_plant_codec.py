@@ -12,8 +12,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl_plant import codec
 from sitl_plant.autopilot import Mode, Status
 from sitl_plant.codec import Home, Refused
-from sitl_plant.dynamics.rotations import quat_from_euler
-from sitl_plant.state import VehicleState
+from offboard.model.rotations import quat_from_euler
+from offboard.model.state import VehicleState
 
 
 def wire(msg, src=(255, 190)):

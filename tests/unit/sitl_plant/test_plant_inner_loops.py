@@ -11,10 +11,10 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.autopilot import Autopilot, Mode
-from sitl_plant.dynamics.rotations import quat_from_euler
+from offboard.model.rotations import quat_from_euler
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 NAN = math.nan
 _SENDER = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)

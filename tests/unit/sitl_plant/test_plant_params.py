@@ -16,7 +16,7 @@ from sitl_plant.params import (
     to_float32,
     vehicle_from_params,
 )
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers import REPO
 
 # the names the offboard process reads: they must exist exactly so

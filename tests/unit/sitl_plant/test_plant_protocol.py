@@ -10,10 +10,11 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.autopilot import Autopilot
-from sitl_plant.link import Endpoint, Link, TlogWriter
+from offboard.model.tlog import TlogWriter
+from sitl_plant.link import Endpoint, Link
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig, run_lockstep
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 _SENDER = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
 _PARSER = mavlink.MAVLink(None)

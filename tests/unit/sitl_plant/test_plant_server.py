@@ -9,7 +9,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl_plant.autopilot import Autopilot
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, KEEPALIVE_S, Plant, PlantConfig, StreamSchedule, run_lockstep, run_realtime
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers import FakeClock
 
 _SENDER = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)

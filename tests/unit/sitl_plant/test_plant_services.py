@@ -19,7 +19,7 @@ from sitl_plant.logserve import DATA_LEN, LogServer
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig
 from sitl_plant.shell import PROMPT, Shell, replies, version_lines
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 _SENDER = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
 _PARSER = mavlink.MAVLink(None)

@@ -12,7 +12,7 @@ from sitl_plant.autopilot import Autopilot
 from sitl_plant.link import Endpoint, Link
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig, _dispatch, _Driver
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 KEY = bytes(range(1, 33))
 NEW_KEY = bytes(range(50, 82))

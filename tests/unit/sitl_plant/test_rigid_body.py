@@ -9,11 +9,11 @@ import pytest
 from numpy.testing import assert_allclose
 
 from sitl_plant.dynamics import rigid_body as rb
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
+from offboard.model.euler_lagrange import euler_rate_matrix
 from sitl_plant.dynamics.integrate import rk4_step
-from sitl_plant.dynamics.rotations import euler_from_quat, quat_from_euler, rotation_matrix
+from offboard.model.rotations import euler_from_quat, quat_from_euler, rotation_matrix
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, VehicleParams, load_vehicle
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, VehicleParams, load_vehicle
 
 PAPER = load_vehicle(PAPER_VEHICLE_FILE)
 WEIGHT_N = PAPER.mass_kg * PAPER.gravity_m_s2

@@ -10,8 +10,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from sitl_plant.dynamics import rigid_body as rb
-from sitl_plant.dynamics.euler_lagrange import euler_rate_matrix
-from sitl_plant.dynamics.rotations import quat_from_euler
+from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.rotations import quat_from_euler
 from sitl_plant.dynamics.sensors import (
     IMU_DEFAULTS,
     CleanSensors,
@@ -21,11 +21,11 @@ from sitl_plant.dynamics.sensors import (
     sensors_from_spec,
     sensors_from_table,
 )
-from sitl_plant.errors import ParameterFileError, UserError
+from offboard.model.errors import ParameterFileError, UserError
 from sitl_plant.simulation import HeldActuation, VehicleSim
-from sitl_plant.state import VehicleState
-from sitl_plant.tomlfile import Fields
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.state import VehicleState
+from offboard.model.tomlfile import Fields
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 PAPER = load_vehicle(PAPER_VEHICLE_FILE)
 DT = 0.05  # the paper's To

@@ -22,10 +22,10 @@ from sitl_plant.dynamics.wind import (
     wind_from_spec,
     wind_from_table,
 )
-from sitl_plant.errors import ParameterFileError, UserError
+from offboard.model.errors import ParameterFileError, UserError
 from sitl_plant.simulation import HeldActuation, VehicleSim
-from sitl_plant.tomlfile import Fields
-from sitl_plant.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from offboard.model.tomlfile import Fields
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 PAPER = load_vehicle(PAPER_VEHICLE_FILE)
 HERE = np.zeros(3)

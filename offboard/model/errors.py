@@ -17,3 +17,7 @@ class ParameterFileError(UserError, ValueError):
     The message names the file and the field, e.g.
     ``paper.toml: gains.kx3: must lie in (0, 1), got 1.2``.
     """
+
+
+class LinkError(UserError, OSError):
+    """A socket cannot be opened (address in use, bad address) or a log cannot be written."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_plant.link import TlogWriter
+from offboard.model.tlog import TlogWriter
 
 
 def _packets() -> list[bytes]:

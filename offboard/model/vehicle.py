@@ -23,9 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl_plant.tomlfile import Fields, read_toml
+from offboard.model.tomlfile import Fields, read_toml
 
-VEHICLES_DIR = Path(__file__).parent / "vehicles"
+#: The bundled vehicle files: data of the simulator's package (sitl_plant/vehicles), found by
+#: path so that reading one imports nothing of the simulator.
+VEHICLES_DIR = Path(__file__).resolve().parents[2] / "sitl_plant" / "vehicles"
 PAPER_VEHICLE_FILE = VEHICLES_DIR / "paper-quad.toml"
 
 EULER_RATE_FORMS = ("castillo", "printed", "zyx")

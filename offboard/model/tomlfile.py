@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sitl_plant.errors import ParameterFileError
+from offboard.model.errors import ParameterFileError
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

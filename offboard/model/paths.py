@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sitl_plant.errors import UserError
+from offboard.model.errors import UserError
 
 
 class OutputPathError(UserError, OSError):

@@ -1,0 +1,52 @@
+"""The tlog writer both processes record with (the reader is ``offboard.replay.TlogReader``).
+
+A tlog is what MAVProxy, QGroundControl and ``mavlogdump.py`` read: per packet, an 8-byte
+big-endian timestamp (µs since the Unix epoch) and the raw MAVLink packet.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from typing import BinaryIO
+
+from offboard.model.errors import LinkError
+from offboard.model.paths import output_file_problem
+
+_TLOG_STAMP = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Appends ``(timestamp, packet)`` records to a tlog file; ``close()`` flushes.
+
+    Each record goes to the file buffer in one write, so whenever the buffer reaches the disk (full,
+    ``flush()``) it ends on a whole record: a process killed with SIGKILL leaves a log that ends on
+    its last flushed record, never on a timestamp without its packet (issue 14: two writes left a
+    dangling 8-byte stamp in 18 of 20 kills).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        problem = output_file_problem(self.path)  # the rule of every output file (offboard/model/paths.py)
+        if problem is not None:
+            raise LinkError(f"--log {self.path}: cannot write the log: {problem}")
+        try:
+            self._fh: BinaryIO | None = self.path.open("wb")
+        except OSError as exc:
+            raise LinkError(f"{self.path}: cannot write the log: {exc.strerror}") from None
+        self.records = 0
+
+    def write(self, time_us: int, packet: bytes | bytearray) -> None:
+        if self._fh is not None:
+            self._fh.write(_TLOG_STAMP.pack(time_us) + packet)
+            self.records += 1
+
+    def flush(self) -> None:
+        if self._fh is not None:
+            self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.flush()
+            self._fh.close()
+            self._fh = None
