@@ -38,6 +38,7 @@ from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
+from sitl_plant.mission import MissionManager
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
 from sitl_plant.state import VehicleState
@@ -224,6 +225,12 @@ class Plant:
         self._rigid = not isinstance(model, PaperModel)
         self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]
         self.autopilot.observe(self._truth)
+        self.missions = MissionManager()
+        self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
+        self._mission_sent = (-1, 0)  # the MISSION_CURRENT seq and the reached count last announced
+        self._mission_next_us = 0  # the next 1 Hz MISSION_CURRENT (and MISSION_ITEM_REACHED repeat)
+        self._reached_repeats = 0
+        self._mission_streams: list[list[mavlink.MAVLink_message]] = [[], []]  # go out with the telemetry
 
     # -- time ------------------------------------------------------------------------------------
 
@@ -275,6 +282,7 @@ class Plant:
         ap.observe(self._truth)
         for text in ap.update(self.time_s):
             self._announce(text)
+        self._mission_tick()
         self._apply_task()
 
     def model_position(self, x: np.ndarray) -> np.ndarray:
@@ -307,6 +315,9 @@ class Plant:
     def handle(self, index: int, msg: mavlink.MAVLink_message) -> None:
         """React to one message from link ``index``; replies go to ``self.outbox``."""
         kind = msg.get_type()
+        if kind in _MISSION_MESSAGES:
+            self._on_mission(index, msg)
+            return
         handler = _HANDLERS.get(kind)
         if handler is None:
             self.counters.unhandled += 1
@@ -357,6 +368,10 @@ class Plant:
         cmd = codec.decode_command(msg)
         reply = self._link_command(index, cmd)
         if reply is None:
+            reply = self._nav_command(msg, cmd)
+            if reply is not None:
+                self._apply_task()
+        if reply is None:
             reply = self.autopilot.on_command(cmd, self.time_s)
             if reply is not None:
                 self._apply_task()
@@ -368,6 +383,84 @@ class Plant:
         follow = getattr(reply, "follow_up", None)
         if follow:
             self.outbox[index].extend(follow)
+
+    # -- the mission protocol and the navigation commands (sitl_plant/mission.py, navigator.py) --
+
+    def _on_mission(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        """MISSION_* messages, addressed as PX4 checks them (our system; our component, the
+        mission planner's or 0)."""
+        if not MissionManager.addressed_to_us(msg, self.config.sysid, self.config.compid):
+            self.counters.foreign += 1
+            return
+        try:
+            outs = self.missions.handle(msg, self.time_s, index)
+        except (ValueError, TypeError, OverflowError) as exc:
+            self.counters.internal_errors += 1
+            self.counters.last_error = f"{msg.get_type()}: {type(exc).__name__}: {exc}"
+            return
+        self._send_mission(index, outs)
+        nav = self.autopilot.navigator
+        if self.missions.changed:
+            self.missions.changed = False
+            nav.load(self.missions.mission, self.missions.current_seq)
+        elif msg.get_type() == "MISSION_SET_CURRENT" and self.missions.current_seq != nav.current_seq:
+            nav.set_current(self.missions.current_seq)
+        self._mission_tick(force=True)
+
+    def _send_mission(self, index: int, outs: list) -> None:
+        for out in outs:
+            if out.kind == "STATUSTEXT":
+                self._announce(StatusText(*out.fields))
+            else:
+                self.outbox[index].append(codec.mission_message(out))
+
+    def mission_current(self) -> mavlink.MAVLink_message:
+        """MISSION_CURRENT as PX4 v1.16 fills it (for the streams: seq, total, state, mode)."""
+        return mavlink.MAVLink_mission_current_message(*self.missions.mission_current())
+
+    def _mission_tick(self, *, force: bool = False) -> None:
+        """Follow the navigator: MISSION_CURRENT on every change and at 1 Hz, MISSION_ITEM_REACHED
+        on every change and then 10 more times at 1 Hz (PX4's MavlinkMissionManager::send)."""
+        mm, nav = self.missions, self.autopilot.navigator
+        if not force:
+            link = mm.busy_link
+            outs = mm.update(self.time_s)
+            if outs:
+                self._send_mission(link if link is not None else API, outs)
+        if nav.items and nav.current_seq != mm.current_seq and not force:
+            mm.current_seq = nav.current_seq
+        due = self.time_us >= self._mission_next_us
+        sent_seq, sent_reached = self._mission_sent
+        messages = []
+        if mm.current_seq != sent_seq or due:
+            messages.append(self.mission_current())
+        if nav.reached_count != sent_reached and nav.reached_seq >= 0:
+            messages.append(mavlink.MAVLink_mission_item_reached_message(nav.reached_seq))
+            self._reached_repeats = 0
+        elif due and nav.reached_seq >= 0 and mm.mission and self._reached_repeats < 10:
+            messages.append(mavlink.MAVLink_mission_item_reached_message(nav.reached_seq))
+            self._reached_repeats += 1
+        if due:
+            self._mission_next_us = self.time_us + 1_000_000
+        self._mission_sent = (mm.current_seq, nav.reached_count)
+        for pending in self._mission_streams:
+            pending.extend(messages)
+
+    def _nav_command(self, msg: mavlink.MAVLink_message, cmd: Command) -> Reply | None:
+        """MAV_CMD_DO_REPOSITION and MAV_CMD_DO_ORBIT, whose global position the plant turns into
+        local NED here; None for the other commands."""
+        if cmd.command not in (mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_CMD_DO_ORBIT):
+            return None
+        target = codec.command_position_ned(msg, self.autopilot.frame(), self._truth.pos_ned_m)
+        if target is None:
+            return Reply(mavlink.MAV_RESULT_DENIED)
+        p = cmd.params
+        if cmd.command == mavlink.MAV_CMD_DO_REPOSITION:
+            yaw = math.radians(p[3]) if math.isfinite(p[3]) else None
+            return self.autopilot.reposition(target, p[0] if math.isfinite(p[0]) and p[0] > 0 else -1.0, yaw, self.time_s)
+        radius = p[0] if math.isfinite(p[0]) and p[0] != 0 else self.params["NAV_LOITER_RAD"] if "NAV_LOITER_RAD" in self.params else 10.0
+        speed = abs(p[1]) if math.isfinite(p[1]) and p[1] != 0 else 1.0
+        return self.autopilot.orbit(target, radius, speed, self.time_s)
 
     def _link_command(self, index: int, cmd: Command) -> Reply | None:
         """Commands about the link itself (streams, requested messages); None for the others."""
@@ -487,7 +580,11 @@ class Plant:
         for mid in force:
             if mid not in due:
                 due.append(mid)
-        return [m for m in (self._build(mid) for mid in due) if m is not None]
+        out = [m for m in (self._build(mid) for mid in due) if m is not None]
+        if index < len(self._mission_streams) and self._mission_streams[index]:
+            out += self._mission_streams[index]
+            self._mission_streams[index] = []
+        return out
 
     def _build(self, mid: int) -> mavlink.MAVLink_message | None:
         t_ms, t_us = self.time_ms, self.time_us
@@ -559,6 +656,12 @@ class Plant:
         fs = " FAILSAFE" if st.failsafe else ""
         return f"t={self.time_s:8.2f}s {st.mode.label:<8} {arm:<8}{fs} N={p[0]:7.2f} E={p[1]:7.2f} D={p[2]:7.2f}"
 
+
+#: The mission protocol's messages (sitl_plant/mission.py), addressed by PX4's own rule.
+_MISSION_MESSAGES = frozenset({
+    "MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST", "MISSION_REQUEST_INT",
+    "MISSION_REQUEST_LIST", "MISSION_ACK", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
+})  # fmt: skip
 
 _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "SET_ATTITUDE_TARGET": Plant._on_attitude_target,
