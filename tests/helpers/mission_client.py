@@ -64,6 +64,14 @@ def items_from_file(path: str | Path) -> list[Item]:
 class Exchange:
     """What one transfer saw: (message type, seq or result) in order, and the outcome."""
 
+    def steps(self) -> list[tuple[str, int]]:
+        """The exchange without repeats (retries and answers to them), in first-seen order."""
+        out: list[tuple[str, int]] = []
+        for step in self.log:
+            if step not in out:
+                out.append(step)
+        return out
+
     log: list[tuple[str, int]] = field(default_factory=list)
     ack: int | None = None
     opaque_id: int | None = None
@@ -129,9 +137,13 @@ class MissionClient:
         ex.count, ex.opaque_id = msg.count, getattr(msg, "opaque_id", None)
         ex.log.append(("MISSION_COUNT", msg.count))
         for seq in range(msg.count):
-            self.conn.mav.mission_request_int_send(self.ts, self.tc, seq, mission_type)
-            ex.log.append(("MISSION_REQUEST_INT", seq))
-            got = self._recv(("MISSION_ITEM_INT",))
+            got = None
+            for _ in range(3):  # a lost answer is asked for again, as ground stations do
+                self.conn.mav.mission_request_int_send(self.ts, self.tc, seq, mission_type)
+                ex.log.append(("MISSION_REQUEST_INT", seq))
+                got = self._recv(("MISSION_ITEM_INT",), 1.5)
+                if got is not None and got.seq == seq:
+                    break
             if got is None:
                 ex.log.append(("TIMEOUT", seq))
                 return ex
