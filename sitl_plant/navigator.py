@@ -3,8 +3,8 @@ now. Pure: no sockets, no clock (it is given the time and the vehicle's state).
 
 The autopilot asks ``Navigator.setpoint()`` in those modes and flies it through the plant's
 position controller (``PositionTask``, sitl_plant/inner_loops.py). Legs are straight lines flown
-by a point that moves along them at the cruise speed (accelerating and braking at
-``MPC_ACC_HOR``, climbing at most ``MPC_Z_V_AUTO_UP``, descending at most ``MPC_Z_V_AUTO_DN``)
+by a point that moves along them at the cruise speed (accelerating at ``MPC_ACC_HOR`` reached
+at ``MPC_JERK_AUTO``, braking at half of it, climbing at most ``MPC_Z_V_AUTO_UP``, descending at most ``MPC_Z_V_AUTO_DN``)
 with its velocity as feed-forward: PX4 flies a jerk-limited trajectory with corner cutting, so
 times differ by seconds per leg (docs/parity/mission.md).
 
@@ -30,8 +30,8 @@ of them, as PX4's mission_result carries one ``seq_reached``: after a takeoff fo
 DO_CHANGE_SPEED, PX4 reports 1 and never 0).
 
 Return (RTL_TYPE 0, ``rtl_direct.cpp``): climb over the current point to the return altitude
-(``max(current, min(RTL_RETURN_ALT, max(RTL_DESCEND_ALT, distance / tan(RTL_CONE_ANG))))`` above
-home), fly home, descend to ``RTL_DESCEND_ALT``, wait ``RTL_LAND_DELAY`` (< 0: for ever), land.
+(``return_altitude_down_m``: RTL_RETURN_ALT, lowered by the RTL_CONE_ANG cone within
+RTL_MIN_DIST of home), fly home, descend to ``RTL_DESCEND_ALT``, wait ``RTL_LAND_DELAY`` (< 0: for ever), land.
 Reposition (MAV_CMD_DO_REPOSITION): fly to the point at param1 m/s (else the cruise speed) and
 hold there. Orbit (MAV_CMD_DO_ORBIT): circle the centre at radius |param1| (> 0 clockwise) at
 param2 m/s tangential speed (NaN: 1 m/s), the nose to the centre.
@@ -112,8 +112,10 @@ class _Leg:
     up_max: float
     down_max: float
     accel: float
+    jerk: float = math.inf
     s: float = 0.0
     v: float = 0.0
+    a: float = 0.0
 
     @property
     def length(self) -> float:
@@ -131,8 +133,14 @@ class _Leg:
         elif d[2] > 1e-6:
             v_max = min(v_max, self.down_max / d[2])
         remaining = self.length - self.s
-        v_brake = math.sqrt(2.0 * self.accel * max(remaining, 0.0))
-        self.v = max(0.0, min(self.v + self.accel * dt, v_max, v_brake))
+        # PX4's trajectories are jerk-limited (MPC_JERK_AUTO): the acceleration ramps up, and
+        # braking is planned at half MPC_ACC_HOR, which an S-curve averages over its stop
+        v_brake = math.sqrt(self.accel * max(remaining, 0.0))
+        self.a = min(self.a + self.jerk * dt, self.accel)
+        v = min(self.v + self.a * dt, v_max, v_brake)
+        if v >= v_max - 1e-9:
+            self.a = 0.0
+        self.v = max(0.0, v)
         self.s = min(self.s + self.v * dt, self.length)
 
     def point(self) -> tuple[float, float, float]:
@@ -344,7 +352,8 @@ class Navigator:
 
     def _leg(self, target: tuple[float, float, float], speed: float | None = None) -> _Leg:
         cruise = speed if speed is not None and speed > 0 else (self._cruise or self._p("MPC_XY_CRUISE"))
-        return _Leg(self._pos, target, min(cruise, self._p("MPC_XY_VEL_MAX")), self._p("MPC_Z_V_AUTO_UP"), self._p("MPC_Z_V_AUTO_DN"), self._p("MPC_ACC_HOR"))
+        return _Leg(self._pos, target, min(cruise, self._p("MPC_XY_VEL_MAX")), self._p("MPC_Z_V_AUTO_UP"),
+                    self._p("MPC_Z_V_AUTO_DN"), self._p("MPC_ACC_HOR"), self._p("MPC_JERK_AUTO"))  # fmt: skip
 
     def _item_complete(self, item: MissionItem, now_s: float) -> bool:
         r = self._run
@@ -381,14 +390,22 @@ class Navigator:
     # -- return ----------------------------------------------------------------------------------
 
     def return_altitude_down_m(self) -> float:
-        """Down coordinate of the return altitude (rtl_direct's cone rule)."""
+        """Down coordinate of the return altitude (PX4 v1.16 ``rtl.cpp``,
+        ``calculate_return_alt_from_cone_half_angle``): RTL_RETURN_ALT above home; nearer than
+        RTL_MIN_DIST no higher than the cone of half angle RTL_CONE_ANG over home allows, but at
+        least 2 NAV_ACC_RAD; within NAV_ACC_RAD twice the distance; never below the current one.
+        Measured on PX4 v1.16 SITL: from 25 m and 36 m away it climbed to 30 m."""
         home = self.frame.home_ned_m
         dist = math.hypot(self._pos[0] - home[0], self._pos[1] - home[1])
-        ret, desc = self._p("RTL_RETURN_ALT"), self._p("RTL_DESCEND_ALT")
-        cone = self._p("RTL_CONE_ANG")
-        height = ret
-        if 0 < cone < 90:
-            height = max(desc, min(ret, dist / math.tan(math.radians(cone))))
+        acc = self._p("NAV_ACC_RAD")
+        height = self._p("RTL_RETURN_ALT")
+        if dist <= acc:
+            height = 2.0 * dist
+        else:
+            cone = self._p("RTL_CONE_ANG")
+            if dist <= self._p("RTL_MIN_DIST") and 0 < cone < 90:
+                height = min(height, dist / math.tan(math.radians(cone)))
+            height = max(height, 2.0 * acc)
         return min(home[2] - height, self._pos[2])
 
     def _rtl_step(self, now_s: float, dt: float) -> None:

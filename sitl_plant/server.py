@@ -227,7 +227,7 @@ class Plant:
         self.autopilot.observe(self._truth)
         self.missions = MissionManager()
         self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
-        self._mission_sent = (-1, 0)  # the MISSION_CURRENT seq and the reached count last announced
+        self._mission_sent: tuple = ((), 0)  # the MISSION_CURRENT fields and the reached count last announced
         self._mission_next_us = 0  # the next 1 Hz MISSION_CURRENT (and MISSION_ITEM_REACHED repeat)
         self._reached_repeats = 0
         self._mission_streams: list[list[mavlink.MAVLink_message]] = [[], []]  # go out with the telemetry
@@ -430,9 +430,9 @@ class Plant:
         if nav.items and nav.current_seq != mm.current_seq and not force:
             mm.current_seq = nav.current_seq
         due = self.time_us >= self._mission_next_us
-        sent_seq, sent_reached = self._mission_sent
+        sent_current, sent_reached = self._mission_sent
         messages = []
-        if mm.current_seq != sent_seq or due:
+        if mm.mission_current() != sent_current or due:
             messages.append(self.mission_current())
         if nav.reached_count != sent_reached and nav.reached_seq >= 0:
             messages.append(mavlink.MAVLink_mission_item_reached_message(nav.reached_seq))
@@ -442,7 +442,7 @@ class Plant:
             self._reached_repeats += 1
         if due:
             self._mission_next_us = self.time_us + 1_000_000
-        self._mission_sent = (mm.current_seq, nav.reached_count)
+        self._mission_sent = (mm.mission_current(), nav.reached_count)
         for pending in self._mission_streams:
             pending.extend(messages)
 

@@ -238,7 +238,12 @@ def test_a_mission_without_land_ends_holding_at_the_last_item():
     assert math.dist(trace[-1][1], trace[-100][1]) < 1e-6  # holding still
 
 
-@pytest.mark.parametrize("start, height", [((40.0, 0.0, -5.0), 30.0), ((5.0, 0.0, -5.0), 10.0), ((40.0, 0.0, -45.0), 45.0)])
+@pytest.mark.parametrize("start, height", [
+    ((40.0, 0.0, -5.0), 30.0),  # RTL_RETURN_ALT (PX4 v1.16 from 25 m and 36 m away: 30 m)
+    ((8.0, 0.0, -5.0), 8.0),  # within RTL_MIN_DIST: the 45 deg cone, 8 m at 8 m
+    ((3.0, 0.0, -2.0), 4.0),  # ... but at least 2 NAV_ACC_RAD
+    ((40.0, 0.0, -45.0), 45.0),  # never lower than now
+])  # fmt: skip
 def test_return_climbs_to_the_cone_altitude_comes_home_descends_and_lands(start, height):
     nav = Navigator(plant_params(VehicleParams()), frame=HOME)
     nav.observe(start, 0.0, False)
@@ -280,3 +285,60 @@ def test_mission_mode_and_mission_start_are_accepted_and_reposition_needs_flight
     assert ap.on_command(Command(300, (0.0,) * 7), 0.0).result == 0 and ap.mode is Mode.AUTO_MISSION
     assert ap.reposition((10.0, 0.0, -5.0), -1.0, None, 0.0).result == 1
     assert Mode.from_custom(3, 1) is Mode.ORBIT and Mode.ORBIT.custom_mode == (3 << 16) | (1 << 24)
+
+
+# --- the server's glue ----------------------------------------------------------------------------
+
+
+def make_plant():
+    from sitl_plant.server import Plant, PlantConfig
+
+    vehicle = VehicleParams()
+    params = plant_params(vehicle)
+    return Plant(PlantConfig(), vehicle, params, Autopilot(params, home_alt_amsl_m=488.0))
+
+
+def test_the_plant_answers_missions_on_the_link_they_came_from_and_streams_mission_current():
+    from sitl_plant.server import API, GCS
+
+    plant = make_plant()
+    plant.handle(GCS, wire(mavlink.MAVLink_mission_count_message(1, 190, 1, 0)))  # to the mission planner: PX4 takes it
+    (request,) = plant.outbox[GCS]
+    assert request.get_type() == "MISSION_REQUEST" and plant.outbox[API] == []
+    plant.handle(GCS, wire(item_int(BOX[0], 0)))
+    assert plant.outbox[GCS][-1].get_type() == "MISSION_ACK" and plant.outbox[GCS][-1].type == 0
+    plant.handle(API, wire(mavlink.MAVLink_mission_count_message(0, 0, 1, 0)))  # broadcast: PX4 ignores it
+    assert plant.outbox[API] == [] and plant.counters.foreign == 1
+    current = [m for m in plant.telemetry(API) if m.get_type() == "MISSION_CURRENT"]
+    assert (current[-1].seq, current[-1].total) == (0, 1)  # after the boot's (0, 65535): the new mission
+    plant.advance(plant.tick_steps)
+    assert not [m for m in plant.telemetry(API) if m.get_type() == "MISSION_CURRENT"]  # 1 Hz, and on changes
+    plant.advance(round(1.0 / plant.config.physics_dt_s))
+    assert [m.total for m in plant.telemetry(API) if m.get_type() == "MISSION_CURRENT"] == [1]
+
+
+def test_reposition_and_orbit_need_a_flying_vehicle():
+    from sitl_plant.server import API
+
+    plant = make_plant()
+    plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
+    for number in (mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_CMD_DO_ORBIT):
+        plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, number, 0, 5, 1, 0, math.nan, 47.3978, 8.5456, 500.0)))
+    acks = [(m.command, m.result) for m in plant.outbox[API] if m.get_type() == "COMMAND_ACK"]
+    assert acks == [(400, 0), (192, 1), (34, 1)]
+
+
+def test_command_positions_are_read_as_px4_1_16_flies_them():
+    here = np.array([3.0, 4.0, -10.0])
+    north_lat = 47.397742 + 20 / 111195.0
+    long_form = wire(mavlink.MAVLink_command_long_message(1, 1, 192, 0, -1, 1, 0, math.nan, north_lat, 8.545594, 500.0))
+    np.testing.assert_allclose(codec.command_position_ned(long_form, HOME, here), (20.0, 0.0, -12.0), atol=0.5)  # float32 degrees
+    keep = wire(mavlink.MAVLink_command_long_message(1, 1, 192, 0, -1, 1, 0, math.nan, math.nan, math.nan, math.nan))
+    assert codec.command_position_ned(keep, HOME, here) == (3.0, 4.0, -10.0)
+    amsl = wire(mavlink.MAVLink_command_int_message(1, 1, 5, 192, 0, 0, -1, 1, 0, math.nan, int(north_lat * 1e7), 85455940, 500.0))
+    np.testing.assert_allclose(codec.command_position_ned(amsl, HOME, here), (20.0, 0.0, -12.0), atol=0.05)
+    # global-relative COMMAND_INT: PX4 v1.16 stayed where it was and took z = 12 as AMSL (it descended)
+    relative = wire(mavlink.MAVLink_command_int_message(1, 1, 6, 192, 0, 0, -1, 1, 0, math.nan, int(north_lat * 1e7), 85455940, 12.0))
+    assert codec.command_position_ned(relative, HOME, here) == (3.0, 4.0, 476.0)
+    local = wire(mavlink.MAVLink_command_int_message(1, 1, 1, 192, 0, 0, -1, 1, 0, math.nan, 0, 0, 12.0))
+    assert codec.command_position_ned(local, HOME, here) is None
