@@ -11,7 +11,9 @@ Modes are PX4's (``px4_custom_mode.h``): the heartbeat's ``custom_mode`` is
 - **Takeoff** (AUTO_TAKEOFF): climb to the takeoff height, then Hold.
 - **Land** (AUTO_LAND): descend at ``MPC_LAND_SPEED`` over the current point; once on the
   ground, disarm after ``COM_DISARM_LAND``.
-- **Return** (AUTO_RTL): fly to home at the current height, then land there.
+- **Return** (AUTO_RTL), **Mission** (AUTO_MISSION) and **Orbit** (POSCTL sub mode 1, entered
+  by MAV_CMD_DO_ORBIT) fly what the navigator (sitl_plant/navigator.py) says; so does Hold after
+  MAV_CMD_DO_REPOSITION. Return climbs to the return height, comes home, descends and lands.
 - **Offboard**: fly the latest setpoint. Entered only while setpoints arrive (the last one is
   not older than ``COM_OF_LOSS_T``), else ``MAV_RESULT_TEMPORARILY_REJECTED``; setpoints outside
   Offboard are remembered as proof of life but not flown. If they stop for ``COM_OF_LOSS_T``
@@ -564,8 +566,9 @@ class Autopilot:
         return Reply(MAV_RESULT_ACCEPTED)
 
     def orbit(self, centre_ned_m: tuple[float, float, float], radius_m: float, speed_m_s: float, now_s: float) -> Reply:
-        """MAV_CMD_DO_ORBIT: Orbit mode (POSCTL sub mode 1) around the centre."""
-        if not self.armed or self._landed:
+        """MAV_CMD_DO_ORBIT: Orbit mode (POSCTL sub mode 1) around the centre. Disarmed, PX4 v1.16
+        takes the command and the mode (it was measured); armed on the ground it is refused."""
+        if self.armed and self._landed:
             return _refuse("Orbit denied: not flying")
         self._enter(Mode.ORBIT, now_s, by_client=True)
         self.navigator.orbit(centre_ned_m, radius_m, speed_m_s, now_s)

@@ -229,6 +229,22 @@ def test_the_box_mission_reaches_its_items_in_order_holds_and_lands():
     assert trace[-1][1][2] == 0.0 and nav.finished
 
 
+@pytest.mark.parametrize("name", ["px4-sitl-box.waypoints", "px4-sitl-survey.plan"])
+def test_every_bundled_mission_file_flies_to_its_last_item_and_lands(name):
+    from sitl_plant.mission import parse_item
+
+    items = items_from_file(MISSIONS_DIR / name)
+    nav = Navigator(plant_params(VehicleParams()), frame=HOME)
+    nav.load([parse_item(wire(item_int(it, s)), True, 0)[0] for s, it in enumerate(items)])
+    nav.observe((0.0, 0.0, 0.0), 0.0, True)
+    nav.start("mission", 0.0)
+    trace = fly(nav, 300.0, dt=0.1)
+    reached = sorted({r for *_, r in trace if r >= 0})
+    assert reached[-1] == len(items) - 1 and nav.finished
+    assert reached == sorted(reached) and len(reached) >= len(items) - 2  # a DO item right after the take-off shares its step
+    assert trace[-1][1][2] == 0.0 and math.hypot(*trace[-1][1][:2]) < 1.0  # landed at home
+
+
 def test_a_mission_without_land_ends_holding_at_the_last_item():
     nav = mission_nav()
     nav.items = nav.items[:4]
@@ -317,15 +333,19 @@ def test_the_plant_answers_missions_on_the_link_they_came_from_and_streams_missi
     assert [m.total for m in plant.telemetry(API) if m.get_type() == "MISSION_CURRENT"] == [1]
 
 
-def test_reposition_and_orbit_need_a_flying_vehicle():
+def test_reposition_and_orbit_need_a_flying_vehicle_orbit_is_taken_disarmed():
     from sitl_plant.server import API
 
     plant = make_plant()
+    orbit = wire(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_ORBIT, 0, 5, 1, 0, math.nan, 47.3978, 8.5456, 500.0))
+    plant.handle(API, orbit)  # disarmed: PX4 v1.16 accepts it and switches to Orbit
+    assert plant.autopilot.mode is Mode.ORBIT
+    plant.autopilot.set_mode(Mode.AUTO_LOITER, 0.0)
     plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
-    for number in (mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_CMD_DO_ORBIT):
-        plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, number, 0, 5, 1, 0, math.nan, 47.3978, 8.5456, 500.0)))
+    plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_REPOSITION, 0, 5, 1, 0, math.nan, 47.3978, 8.5456, 500.0)))
+    plant.handle(API, orbit)
     acks = [(m.command, m.result) for m in plant.outbox[API] if m.get_type() == "COMMAND_ACK"]
-    assert acks == [(400, 0), (192, 1), (34, 1)]
+    assert acks == [(34, 0), (400, 0), (192, 1), (34, 1)]  # armed on the ground: refused
 
 
 def test_command_positions_are_read_as_px4_1_16_flies_them():
