@@ -332,7 +332,9 @@ class Navigator:
         if c not in _POSITION_COMMANDS:
             return
         lat, lon = item.lat_lon_deg()
-        n, e, d = self.frame.to_ned(lat, lon, item.z, item.relative_alt)
+        n, e, d = self.frame.to_ned(lat, lon, item.z if math.isfinite(item.z) else 0.0, item.relative_alt)
+        if not math.isfinite(item.z):
+            d = self._pos[2]  # no altitude given: the current one
         if c == NAV_TAKEOFF or (self._landed and c != NAV_LAND):
             # a take-off item, or a mission started on the ground: climb first (MIS_TAKEOFF_ALT)
             height = self._p("MIS_TAKEOFF_ALT")

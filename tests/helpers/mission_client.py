@@ -101,12 +101,11 @@ class MissionClient:
                 return msg
         return None
 
-    def upload(self, items: list[Item], mission_type: int = 0, *, skip_requests: int = 0) -> Exchange:
-        """Upload ``items``; ``skip_requests`` first requests go unanswered (to see the retries)."""
+    def upload(self, items: list[Item], mission_type: int = 0) -> Exchange:
+        """Upload ``items``, answering every request (repeats too, as PX4 repeats unanswered ones)."""
         ex = Exchange()
         self.conn.mav.mission_count_send(self.ts, self.tc, len(items), mission_type)
         ex.log.append(("MISSION_COUNT", len(items)))
-        skipped = 0
         while True:
             msg = self._recv(("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"))
             if msg is None:
@@ -118,9 +117,6 @@ class MissionClient:
                 ex.ack, ex.opaque_id = msg.type, getattr(msg, "opaque_id", None)
                 return ex
             ex.log.append((kind, msg.seq))
-            if skipped < skip_requests:
-                skipped += 1
-                continue
             it = items[msg.seq]
             self.conn.mav.mission_item_int_send(self.ts, self.tc, msg.seq, it.frame, it.command, 0, it.autocontinue,
                                                 *it.params, it.x, it.y, it.z, mission_type)  # fmt: skip

@@ -362,3 +362,19 @@ def test_command_positions_are_read_as_px4_1_16_flies_them():
     assert codec.command_position_ned(relative, HOME, here) == (3.0, 4.0, 476.0)
     local = wire(mavlink.MAVLink_command_int_message(1, 1, 1, 192, 0, 0, -1, 1, 0, math.nan, 0, 0, 12.0))
     assert codec.command_position_ned(local, HOME, here) is None
+
+
+def test_bad_items_get_a_reason_and_a_nan_altitude_keeps_the_height():
+    from sitl_plant.mission import parse_item
+
+    nan_lat = wire(mavlink.MAVLink_mission_item_message(1, 1, 0, 3, 16, 0, 1, 0, 0, 0, 0, math.nan, 8.5, 10.0, 0))
+    assert parse_item(nan_lat, False, 0) == (None, mavlink.MAV_MISSION_INVALID_PARAM5_X)
+    nan_alt = wire(mavlink.MAVLink_mission_item_int_message(1, 1, 0, 6, 16, 0, 1, 0, 2, 0, math.nan, 473979219, 85455940, math.nan, 0))
+    item, result = parse_item(nan_alt, True, 0)
+    nav = Navigator(plant_params(VehicleParams()), frame=HOME)
+    nav.load([item])
+    nav.observe((0.0, 0.0, -7.0), 0.0, False)
+    nav.start("mission", 0.0)
+    trace = fly(nav, 30.0, pos=(0.0, 0.0, -7.0))
+    assert result == 0 and all(p[2] == pytest.approx(-7.0) for _, p, _, _ in trace)
+    assert math.hypot(trace[-1][1][0] - 20.0, trace[-1][1][1]) < 2.0
