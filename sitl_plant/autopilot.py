@@ -67,6 +67,7 @@ MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 MAV_CMD_MISSION_START = 300
+MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_RUN_PREARM_CHECKS = 401
@@ -401,6 +402,7 @@ class Autopilot:
             MAV_CMD_INJECT_FAILURE: self._cmd_inject_failure,
             MAV_CMD_RUN_PREARM_CHECKS: self._cmd_prearm,
             MAV_CMD_MISSION_START: self._cmd_mission_start,
+            MAV_CMD_DO_CHANGE_SPEED: self._cmd_change_speed,
         }.get(cmd.command)
         return None if handler is None else handler(cmd, now_s)
 
@@ -416,6 +418,8 @@ class Autopilot:
             return _refuse(f"Switching to {mode.label} is currently not possible: no mission")
         if mode is Mode.ORBIT:
             return _refuse("Switching to Orbit is currently not possible: send MAV_CMD_DO_ORBIT")
+        if mode is Mode.AUTO_MISSION and self.armed and not self.navigator.items:
+            return _refuse("Switching to Mission is currently not possible: no valid mission")  # PX4 1.16 in the air
         if mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s):
             return _refuse("Switching to Offboard is currently not possible: no offboard signal")
         if mode is Mode.AUTO_TAKEOFF:
@@ -558,18 +562,25 @@ class Autopilot:
 
     def reposition(self, target_ned_m: tuple[float, float, float], speed_m_s: float, yaw_rad: float | None, now_s: float) -> Reply:
         """MAV_CMD_DO_REPOSITION (the server has turned its global position into local NED):
-        Hold mode, flying to the point and holding there (PX4's navigator reposition)."""
-        if not self.armed or self._landed:
-            return _refuse("Reposition denied: not flying")
+        Hold mode, flying to the point and holding there (PX4's navigator reposition). As PX4 v1.16
+        was measured: disarmed it is ACCEPTED and nothing happens; armed on the ground the vehicle
+        takes off towards the point (climbing at most MPC_TKO_SPEED)."""
+        if not self.armed:
+            return Reply(MAV_RESULT_ACCEPTED)
         self._enter(Mode.AUTO_LOITER, now_s, by_client=True)
-        self.navigator.reposition(target_ned_m, speed_m_s, yaw_rad, now_s)
+        self.navigator.reposition(target_ned_m, speed_m_s, yaw_rad, now_s, from_ground=self._landed)
+        return Reply(MAV_RESULT_ACCEPTED)
+
+    def _cmd_change_speed(self, cmd: Command, now_s: float) -> Reply:
+        """MAV_CMD_DO_CHANGE_SPEED: param2 m/s (-2: back to MPC_XY_CRUISE) for the legs that follow."""
+        self.navigator.change_speed(cmd.params[1])
         return Reply(MAV_RESULT_ACCEPTED)
 
     def orbit(self, centre_ned_m: tuple[float, float, float], radius_m: float, speed_m_s: float, now_s: float) -> Reply:
         """MAV_CMD_DO_ORBIT: Orbit mode (POSCTL sub mode 1) around the centre. Disarmed, PX4 v1.16
         takes the command and the mode (it was measured); armed on the ground it is refused."""
         if self.armed and self._landed:
-            return _refuse("Orbit denied: not flying")
+            return _refuse("Orbit denied: not flying")  # (not measured on PX4)
         self._enter(Mode.ORBIT, now_s, by_client=True)
         self.navigator.orbit(centre_ned_m, radius_m, speed_m_s, now_s)
         return Reply(MAV_RESULT_ACCEPTED)

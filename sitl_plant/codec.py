@@ -485,8 +485,13 @@ _MISSION_CONSTRUCTORS = {
 
 
 def mission_message(out: object) -> MAVLinkMessage:
-    """The pymavlink message of a ``mission.Out`` (target system and component first)."""
+    """The pymavlink message of a ``mission.Out`` (target system and component first, for the
+    messages that have them)."""
     kind, target, fields = out.kind, out.target, out.fields  # type: ignore[attr-defined]
+    if kind == "MISSION_CURRENT":
+        return mavlink.MAVLink_mission_current_message(*fields)
+    if kind == "MISSION_ITEM_REACHED":
+        return mavlink.MAVLink_mission_item_reached_message(*fields)
     return _MISSION_CONSTRUCTORS[kind](target[0], target[1], *fields)
 
 

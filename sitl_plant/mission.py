@@ -412,6 +412,40 @@ class MissionManager:
         return []
 
 
+# --- what the vehicle reports ----------------------------------------------------------------
+
+
+@dataclass
+class Reporter:
+    """When MISSION_CURRENT and MISSION_ITEM_REACHED go out (PX4's MavlinkMissionManager::send):
+    MISSION_CURRENT on every change and at 1 Hz; MISSION_ITEM_REACHED on every change of the
+    item reached last, then again at 1 Hz ten more times."""
+
+    REPEATS = 10
+    _sent_current: tuple = ()
+    _sent_reached: int = 0
+    _next_s: float = 0.0
+    _repeats: int = 0
+
+    def due(self, now_s: float, current: tuple[int, int, int, int], reached_seq: int, reached_count: int, has_mission: bool) -> list[Out]:
+        """The messages to send now; ``current`` is ``MissionManager.mission_current()``,
+        ``reached_count`` grows with every item reached (``Navigator.reached_count``)."""
+        tick = now_s >= self._next_s - 1e-9
+        out = []
+        if current != self._sent_current or tick:
+            out.append(Out("MISSION_CURRENT", None, current))
+        if reached_count != self._sent_reached and reached_seq >= 0:
+            out.append(Out("MISSION_ITEM_REACHED", None, (reached_seq,)))
+            self._repeats = 0
+        elif tick and reached_seq >= 0 and has_mission and self._repeats < self.REPEATS:
+            out.append(Out("MISSION_ITEM_REACHED", None, (reached_seq,)))
+            self._repeats += 1
+        if tick:
+            self._next_s = now_s + 1.0
+        self._sent_current, self._sent_reached = current, reached_count
+        return out
+
+
 # --- items -----------------------------------------------------------------------------------
 
 
@@ -497,4 +531,4 @@ def _crc(item: MissionItem, crc: int) -> int:
     return zlib.crc32(raw, crc)
 
 
-__all__ = ["MissionManager", "MissionItem", "Out", "parse_item", "item_out", "TransferState", "RETRY_S", "TIMEOUT_S", "MAX_COUNT"]
+__all__ = ["MissionManager", "MissionItem", "Out", "Reporter", "parse_item", "item_out", "TransferState", "RETRY_S", "TIMEOUT_S", "MAX_COUNT"]

@@ -32,8 +32,8 @@ DO_CHANGE_SPEED, PX4 reports 1 and never 0).
 Return (RTL_TYPE 0, ``rtl_direct.cpp``): climb over the current point to the return altitude
 (``return_altitude_down_m``: RTL_RETURN_ALT, lowered by the RTL_CONE_ANG cone within
 RTL_MIN_DIST of home), fly home, descend to ``RTL_DESCEND_ALT``, wait ``RTL_LAND_DELAY`` (< 0: for ever), land.
-Reposition (MAV_CMD_DO_REPOSITION): fly to the point at param1 m/s (else the cruise speed) and
-hold there. Orbit (MAV_CMD_DO_ORBIT): circle the centre at radius |param1| (> 0 clockwise) at
+Reposition (MAV_CMD_DO_REPOSITION): fly to the point at param1 m/s (else the cruise speed, which
+MAV_CMD_DO_CHANGE_SPEED sets) and hold there; from the ground it takes off on the way. Orbit (MAV_CMD_DO_ORBIT): circle the centre at radius |param1| (> 0 clockwise) at
 param2 m/s tangential speed (NaN: 1 m/s), the nose to the centre.
 """
 
@@ -55,7 +55,8 @@ from sitl_plant.mission import (
 
 EARTH_RADIUS_M = 6_371_000.0  # PX4's CONSTANTS_RADIUS_OF_EARTH (the plant's codec uses the same)
 _POSITION_COMMANDS = (NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LOITER_UNLIM, NAV_TAKEOFF, NAV_LAND)
-DEFAULT_ORBIT_SPEED_M_S = 1.0
+DEFAULT_ORBIT_SPEED_M_S = 1.0  # DO_ORBIT param2 NaN or 0 (PX4's orbit default; not measured)
+DEFAULT_ORBIT_RADIUS_M = 10.0  # DO_ORBIT param1 NaN or 0 (not measured)
 
 
 def geodetic_to_ned(lat_deg: float, lon_deg: float, origin_lat_deg: float, origin_lon_deg: float) -> tuple[float, float]:
@@ -191,6 +192,7 @@ class Navigator:
     _orbit: tuple[float, float, float, float, float] | None = None  # centre n, e, down, radius (signed), speed
     _goto: tuple[tuple[float, float, float], float, float | None] | None = None
     _orbit_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    _from_ground: bool = False
     wants_rtl: bool = False
 
     def _p(self, name: str) -> float:
@@ -234,13 +236,25 @@ class Navigator:
         self._orbit = None
         self._goto = None
 
-    def reposition(self, target: tuple[float, float, float], speed_m_s: float, yaw_rad: float | None, now_s: float) -> None:
+    def reposition(self, target: tuple[float, float, float], speed_m_s: float, yaw_rad: float | None, now_s: float, *, from_ground: bool = False) -> None:
+        cruise = self._cruise
         self.start("reposition", now_s)
+        self._cruise = cruise  # a DO_CHANGE_SPEED before it holds
         self._goto = (target, speed_m_s, yaw_rad)
+        self._from_ground = from_ground
+        self.update(now_s)  # the leg exists at once: the setpoint is there before the next step
+
+    def change_speed(self, speed_m_s: float) -> None:
+        """DO_CHANGE_SPEED: the cruise speed of the legs to come (> 0), or MPC_XY_CRUISE (-2)."""
+        if math.isfinite(speed_m_s) and speed_m_s > 0:
+            self._cruise = speed_m_s
+        elif speed_m_s == -2:
+            self._cruise = None
 
     def orbit(self, centre: tuple[float, float, float], radius_m: float, speed_m_s: float, now_s: float) -> None:
         self.start("orbit", now_s)
         self._orbit = (centre[0], centre[1], centre[2], radius_m, speed_m_s)
+        self.update(now_s)
 
     @property
     def activity(self) -> str:
@@ -276,7 +290,8 @@ class Navigator:
         if r.phase == "takeoff":
             return NavSetpoint(r.target, self._yaw_sp, max_climb_m_s=self._p("MPC_TKO_SPEED"))  # type: ignore[arg-type]
         if r.leg is not None:
-            return NavSetpoint(r.leg.point(), self._yaw_sp, r.leg.velocity())
+            climb = self._p("MPC_TKO_SPEED") if self._activity == "reposition" and self._from_ground else None
+            return NavSetpoint(r.leg.point(), self._yaw_sp, r.leg.velocity(), max_climb_m_s=climb)
         if r.target is not None:
             return NavSetpoint(r.target, self._yaw_sp)
         return None
@@ -323,11 +338,7 @@ class Navigator:
         self._run = r
         c = item.command
         if c == DO_CHANGE_SPEED:
-            speed = item.params[1]
-            if speed > 0:
-                self._cruise = speed
-            elif speed == -2:
-                self._cruise = None
+            self.change_speed(item.params[1])
             return
         if c not in _POSITION_COMMANDS:
             return
@@ -505,4 +516,4 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-__all__ = ["Navigator", "NavSetpoint", "Frame", "geodetic_to_ned"]
+__all__ = ["Navigator", "NavSetpoint", "Frame", "geodetic_to_ned", "DEFAULT_ORBIT_RADIUS_M", "DEFAULT_ORBIT_SPEED_M_S"]

@@ -38,7 +38,8 @@ from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
-from sitl_plant.mission import MissionManager
+from sitl_plant.mission import MissionManager, Reporter
+from sitl_plant.navigator import DEFAULT_ORBIT_RADIUS_M, DEFAULT_ORBIT_SPEED_M_S
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
 from sitl_plant.state import VehicleState
@@ -227,9 +228,7 @@ class Plant:
         self.autopilot.observe(self._truth)
         self.missions = MissionManager()
         self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
-        self._mission_sent: tuple = ((), 0)  # the MISSION_CURRENT fields and the reached count last announced
-        self._mission_next_us = 0  # the next 1 Hz MISSION_CURRENT (and MISSION_ITEM_REACHED repeat)
-        self._reached_repeats = 0
+        self._mission_reports = Reporter()
         self._mission_streams: list[list[mavlink.MAVLink_message]] = [[], []]  # go out with the telemetry
 
     # -- time ------------------------------------------------------------------------------------
@@ -415,12 +414,12 @@ class Plant:
                 self.outbox[index].append(codec.mission_message(out))
 
     def mission_current(self) -> mavlink.MAVLink_message:
-        """MISSION_CURRENT as PX4 v1.16 fills it (for the streams: seq, total, state, mode)."""
+        """MISSION_CURRENT as PX4 v1.16 fills it (for a stream: seq, total, state, mode)."""
         return mavlink.MAVLink_mission_current_message(*self.missions.mission_current())
 
     def _mission_tick(self, *, force: bool = False) -> None:
-        """Follow the navigator: MISSION_CURRENT on every change and at 1 Hz, MISSION_ITEM_REACHED
-        on every change and then 10 more times at 1 Hz (PX4's MavlinkMissionManager::send)."""
+        """Transfer retries and timeouts; the navigator's current item into the mission list; the
+        MISSION_CURRENT / MISSION_ITEM_REACHED due (``mission.Reporter``), sent with the telemetry."""
         mm, nav = self.missions, self.autopilot.navigator
         if not force:
             link = mm.busy_link
@@ -429,22 +428,9 @@ class Plant:
                 self._send_mission(link if link is not None else API, outs)
         if nav.items and nav.current_seq != mm.current_seq and not force:
             mm.current_seq = nav.current_seq
-        due = self.time_us >= self._mission_next_us
-        sent_current, sent_reached = self._mission_sent
-        messages = []
-        if mm.mission_current() != sent_current or due:
-            messages.append(self.mission_current())
-        if nav.reached_count != sent_reached and nav.reached_seq >= 0:
-            messages.append(mavlink.MAVLink_mission_item_reached_message(nav.reached_seq))
-            self._reached_repeats = 0
-        elif due and nav.reached_seq >= 0 and mm.mission and self._reached_repeats < 10:
-            messages.append(mavlink.MAVLink_mission_item_reached_message(nav.reached_seq))
-            self._reached_repeats += 1
-        if due:
-            self._mission_next_us = self.time_us + 1_000_000
-        self._mission_sent = (mm.mission_current(), nav.reached_count)
+        outs = self._mission_reports.due(self.time_s, mm.mission_current(), nav.reached_seq, nav.reached_count, bool(mm.mission))
         for pending in self._mission_streams:
-            pending.extend(messages)
+            pending.extend(codec.mission_message(o) for o in outs)
 
     def _nav_command(self, msg: mavlink.MAVLink_message, cmd: Command) -> Reply | None:
         """MAV_CMD_DO_REPOSITION and MAV_CMD_DO_ORBIT, whose global position the plant turns into
@@ -458,8 +444,8 @@ class Plant:
         if cmd.command == mavlink.MAV_CMD_DO_REPOSITION:
             yaw = math.radians(p[3]) if math.isfinite(p[3]) else None
             return self.autopilot.reposition(target, p[0] if math.isfinite(p[0]) and p[0] > 0 else -1.0, yaw, self.time_s)
-        radius = p[0] if math.isfinite(p[0]) and p[0] != 0 else self.params["NAV_LOITER_RAD"] if "NAV_LOITER_RAD" in self.params else 10.0
-        speed = abs(p[1]) if math.isfinite(p[1]) and p[1] != 0 else 1.0
+        radius = p[0] if math.isfinite(p[0]) and p[0] != 0 else DEFAULT_ORBIT_RADIUS_M
+        speed = abs(p[1]) if math.isfinite(p[1]) and p[1] != 0 else DEFAULT_ORBIT_SPEED_M_S
         return self.autopilot.orbit(target, radius, speed, self.time_s)
 
     def _link_command(self, index: int, cmd: Command) -> Reply | None:

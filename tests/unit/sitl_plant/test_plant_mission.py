@@ -293,13 +293,17 @@ def test_geodetic_to_ned_inverts_the_plants_projection():
 # --- the autopilot's hooks ------------------------------------------------------------------------
 
 
-def test_mission_mode_and_mission_start_are_accepted_and_reposition_needs_flight():
+def test_mission_mode_and_mission_start_are_accepted_disarmed_refused_armed_without_a_mission():
     ap = Autopilot(plant_params(VehicleParams()), home_alt_amsl_m=488.0)
-    assert ap.set_mode(Mode.AUTO_MISSION, 0.0).result == 0  # PX4 v1.16 accepts it, even without a mission
+    assert ap.set_mode(Mode.AUTO_MISSION, 0.0).result == 0  # PX4 v1.16 accepts it disarmed, even without a mission
     assert ap.mode is Mode.AUTO_MISSION
     ap.set_mode(Mode.AUTO_LOITER, 0.0)
     assert ap.on_command(Command(300, (0.0,) * 7), 0.0).result == 0 and ap.mode is Mode.AUTO_MISSION
-    assert ap.reposition((10.0, 0.0, -5.0), -1.0, None, 0.0).result == 1
+    ap.set_mode(Mode.AUTO_LOITER, 0.0)
+    assert ap.reposition((10.0, 0.0, -5.0), -1.0, None, 0.0).result == 0 and ap.mode is Mode.AUTO_LOITER  # disarmed: nothing
+    assert ap.navigator.activity == ""
+    ap.arm(0.0)
+    assert ap.set_mode(Mode.AUTO_MISSION, 0.0).result == 1  # PX4 v1.16 in the air without a mission: refused
     assert Mode.from_custom(3, 1) is Mode.ORBIT and Mode.ORBIT.custom_mode == (3 << 16) | (1 << 24)
 
 
@@ -333,7 +337,7 @@ def test_the_plant_answers_missions_on_the_link_they_came_from_and_streams_missi
     assert [m.total for m in plant.telemetry(API) if m.get_type() == "MISSION_CURRENT"] == [1]
 
 
-def test_reposition_and_orbit_need_a_flying_vehicle_orbit_is_taken_disarmed():
+def test_reposition_from_the_ground_takes_off_orbit_is_taken_disarmed_refused_armed_on_the_ground():
     from sitl_plant.server import API
 
     plant = make_plant()
@@ -345,7 +349,10 @@ def test_reposition_and_orbit_need_a_flying_vehicle_orbit_is_taken_disarmed():
     plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_REPOSITION, 0, 5, 1, 0, math.nan, 47.3978, 8.5456, 500.0)))
     plant.handle(API, orbit)
     acks = [(m.command, m.result) for m in plant.outbox[API] if m.get_type() == "COMMAND_ACK"]
-    assert acks == [(34, 0), (400, 0), (192, 1), (34, 1)]  # armed on the ground: refused
+    assert acks == [(34, 0), (400, 0), (192, 0), (34, 1)]  # orbit armed on the ground: refused
+    for _ in range(500):  # 2 s: PX4 v1.16 takes off towards the point
+        plant.advance(plant.tick_steps)
+    assert plant.autopilot.mode is Mode.AUTO_LOITER and plant._truth.pos_ned_m[2] < -1.0
 
 
 def test_command_positions_are_read_as_px4_1_16_flies_them():
@@ -378,3 +385,29 @@ def test_bad_items_get_a_reason_and_a_nan_altitude_keeps_the_height():
     trace = fly(nav, 30.0, pos=(0.0, 0.0, -7.0))
     assert result == 0 and all(p[2] == pytest.approx(-7.0) for _, p, _, _ in trace)
     assert math.hypot(trace[-1][1][0] - 20.0, trace[-1][1][1]) < 2.0
+
+
+def test_reached_goes_out_on_change_then_ten_times_more_at_1_hz_and_current_at_1_hz():
+    from sitl_plant.mission import Reporter
+
+    r = Reporter()
+    sent = []
+    for k in range(300):  # 30 s in steps of 0.1 s; item 2 reached at 1.5 s
+        t = round(k * 0.1, 1)
+        after = t >= 1.5
+        outs = r.due(t, (3 if after else 2, 7, 0, 0), 2 if after else -1, 1 if after else 0, True)
+        sent += [(round(t, 1), o.kind) for o in outs]
+    reached = [t for t, kind in sent if kind == "MISSION_ITEM_REACHED"]
+    current = [t for t, kind in sent if kind == "MISSION_CURRENT"]
+    assert reached == [1.5] + [float(t) for t in range(2, 12)]  # at once, then ten repeats at 1 Hz
+    assert current == [0.0, 1.0, 1.5] + [float(t) for t in range(2, 30)]  # 1 Hz, and the change at once
+
+
+def test_change_speed_sets_the_speed_of_the_next_reposition():
+    nav = Navigator(plant_params(VehicleParams()), frame=HOME)
+    nav.observe((0.0, 0.0, -5.0), 0.0, False)
+    nav.change_speed(1.5)  # PX4 v1.16: DO_CHANGE_SPEED 1.5, then DO_REPOSITION 15 m away: 1.47 m/s at most
+    nav.reposition((15.0, 0.0, -5.0), -1.0, None, 0.0)
+    trace = fly(nav, 15.0, pos=(0.0, 0.0, -5.0))
+    speeds = [math.dist(a[1], b[1]) / (b[0] - a[0]) for a, b in zip(trace, trace[1:])]
+    assert max(speeds) == pytest.approx(1.5, abs=0.01) and trace[-1][1][0] == pytest.approx(15.0, abs=0.1)
