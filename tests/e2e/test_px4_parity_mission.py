@@ -39,6 +39,16 @@ def vehicles(tmp_path_factory):
             conn.close()
 
 
+def on_both(vehicles, fly) -> dict:
+    """``fly(conn, sysid)`` on PX4 and on the plant at once (a thread each: the two run their own
+    clocks, so flying them side by side halves the wall time); re-raises the first failure."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(2) as pool:
+        futures = {name: pool.submit(fly, *vehicles[name]) for name in ("px4", "plant")}
+        return {name: f.result() for name, f in futures.items()}
+
+
 def mission_current(conn, timeout_s: float = 5.0):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -111,12 +121,11 @@ def short_mission(home: tuple[int, int]) -> list[Item]:
 
 
 def test_a_short_mission_reaches_the_same_items_on_both(vehicles):
-    flights = {}
-    for name in ("px4", "plant"):
-        conn, sysid = vehicles[name]
-        c = MissionClient(conn, sysid)
-        assert c.upload(short_mission(home_of(conn))).ack == 0
-        flights[name] = fly_mission(conn, sysid, timeout_s=60.0)
+    def fly(conn, sysid):
+        assert MissionClient(conn, sysid).upload(short_mission(home_of(conn))).ack == 0
+        return fly_mission(conn, sysid, timeout_s=60.0)
+
+    flights = on_both(vehicles, fly)
     summary = {}
     for name, f in flights.items():
         start = f.track[0][0]
@@ -174,9 +183,7 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
     home and lands there."""
     from helpers.mission_client import Flight, command
 
-    got = {}
-    for name in ("px4", "plant"):
-        conn, sysid = vehicles[name]
+    def fly(conn, sysid):
         assert set_param(conn, sysid, "RTL_RETURN_ALT", 10.0) == 10.0
         home_alt, lat, lon = here_global(conn)
         f = Flight()
@@ -189,7 +196,7 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         assert command(conn, sysid, MAV.MAV_CMD_DO_REPOSITION, -1, 1, 0, math.nan, north, lon * 1e-7, home_alt + 6.0, flight=f) == 0
         there = lambda f: f.track[-1][1] - origin[1] > 11.0  # noqa: E731
         assert record_until(conn, f, there, 30.0), f.track[-1]
-        record_until(conn, f, lambda f: False, 1.0)
+        record_until(conn, f, lambda f: False, 0.5)
         at_rtl = len(f.track)
         assert command(conn, sysid, MAV.MAV_CMD_NAV_RETURN_TO_LAUNCH, flight=f) == 0
         assert record_until(conn, f, lambda f: f.disarmed_at_ms is not None and f.track[-1][0] > f.track[at_rtl][0], 60.0), f.modes
@@ -197,7 +204,7 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         top = min(rtl, key=lambda p: p[3])
         climbed = next(p for p in rtl if p[3] <= top[3] + 0.7)  # where it first came near the return height
         home = (origin[1], origin[2])
-        got[name] = {
+        return {
             "reposition north m": round(f.track[at_rtl][1] - origin[1], 1),
             "reposition height m": round(-f.track[at_rtl][3] + origin[3], 1),
             "return height m": round(-top[3] + origin[3], 1),
@@ -206,6 +213,9 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
             "return s": round((rtl[-1][0] - rtl[0][0]) / 1000, 1),
             "modes": [m for m, _ in f.modes[-3:]],
         }
+
+    got = on_both(vehicles, fly)
+    for name in got:
         print(name, got[name])
     px4, plant = got["px4"], got["plant"]
     assert px4["return height m"] == pytest.approx(10.0, abs=1.0)
