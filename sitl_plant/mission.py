@@ -17,7 +17,8 @@ packs them. What it does, as PX4 does (measured on PX4 v1.16 SITL, docs/parity/m
   MAV_MISSION_UNSUPPORTED_FRAME (frame not global, global-relative or MISSION),
   MAV_MISSION_UNSUPPORTED (a command PX4 does not store in that frame),
   MAV_MISSION_INVALID_PARAM1 (a DO_SET_ROI mode PX4 does not know), INVALID_PARAM5_X /
-  PARAM6_Y (a legacy MISSION_ITEM with a NaN latitude or longitude), MAV_MISSION_ERROR (a
+  PARAM6_Y (a legacy MISSION_ITEM whose latitude or longitude is NaN or off the globe: the
+  plant's own guard, so that the item can be sent back), MAV_MISSION_ERROR (a
   geofence or rally command in a mission, a polygon of fewer than 3 vertices).
 - **Download** MISSION_REQUEST_LIST -> MISSION_COUNT -> (MISSION_REQUEST_INT -> MISSION_ITEM_INT
   | MISSION_REQUEST -> MISSION_ITEM)* -> the client's MISSION_ACK. Items come back as PX4 stores
@@ -467,9 +468,9 @@ def parse_item(msg: object, int_mode: bool, mission_type: int) -> tuple[MissionI
         if int_mode:
             lat_e7, lon_e7 = int(x), int(y)
         else:  # float mode: degrees in the float fields
-            if not math.isfinite(x):
+            if not (math.isfinite(x) and abs(x) <= 90.0):
                 return None, MAV_MISSION_INVALID_PARAM5_X
-            if not math.isfinite(y):
+            if not (math.isfinite(y) and abs(y) <= 180.0):
                 return None, MAV_MISSION_INVALID_PARAM6_Y
             lat_e7, lon_e7 = int(round(float(x) * 1e7)), int(round(float(y) * 1e7))
         relative = frame in (FRAME_GLOBAL_RELATIVE_ALT, FRAME_GLOBAL_RELATIVE_ALT_INT)

@@ -314,14 +314,11 @@ class Plant:
     def handle(self, index: int, msg: mavlink.MAVLink_message) -> None:
         """React to one message from link ``index``; replies go to ``self.outbox``."""
         kind = msg.get_type()
-        if kind in _MISSION_MESSAGES:
-            self._on_mission(index, msg)
-            return
         handler = _HANDLERS.get(kind)
         if handler is None:
             self.counters.unhandled += 1
             return
-        if not codec.addressed_to(msg, self.config.sysid, self.config.compid):
+        if kind not in _MISSION_MESSAGES and not codec.addressed_to(msg, self.config.sysid, self.config.compid):
             self.counters.foreign += 1
             return
         try:
@@ -391,13 +388,7 @@ class Plant:
         if not MissionManager.addressed_to_us(msg, self.config.sysid, self.config.compid):
             self.counters.foreign += 1
             return
-        try:
-            outs = self.missions.handle(msg, self.time_s, index)
-        except (ValueError, TypeError, OverflowError) as exc:
-            self.counters.internal_errors += 1
-            self.counters.last_error = f"{msg.get_type()}: {type(exc).__name__}: {exc}"
-            return
-        self._send_mission(index, outs)
+        self._send_mission(index, self.missions.handle(msg, self.time_s, index))
         nav = self.autopilot.navigator
         if self.missions.changed:
             self.missions.changed = False
@@ -663,6 +654,7 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "TIMESYNC": Plant._on_timesync,
     "PING": Plant._on_ping,
     "HEARTBEAT": Plant._on_heartbeat,
+    **{kind: Plant._on_mission for kind in _MISSION_MESSAGES},
 }
 
 

@@ -376,6 +376,8 @@ def test_bad_items_get_a_reason_and_a_nan_altitude_keeps_the_height():
 
     nan_lat = wire(mavlink.MAVLink_mission_item_message(1, 1, 0, 3, 16, 0, 1, 0, 0, 0, 0, math.nan, 8.5, 10.0, 0))
     assert parse_item(nan_lat, False, 0) == (None, mavlink.MAV_MISSION_INVALID_PARAM5_X)
+    off_globe = wire(mavlink.MAVLink_mission_item_message(1, 1, 0, 3, 16, 0, 1, 0, 0, 0, 0, 47.0, 1e30, 10.0, 0))
+    assert parse_item(off_globe, False, 0) == (None, mavlink.MAV_MISSION_INVALID_PARAM6_Y)
     nan_alt = wire(mavlink.MAVLink_mission_item_int_message(1, 1, 0, 6, 16, 0, 1, 0, 2, 0, math.nan, 473979219, 85455940, math.nan, 0))
     item, result = parse_item(nan_alt, True, 0)
     nav = Navigator(plant_params(VehicleParams()), frame=HOME)
