@@ -413,3 +413,24 @@ def test_change_speed_sets_the_speed_of_the_next_reposition():
     trace = fly(nav, 15.0, pos=(0.0, 0.0, -5.0))
     speeds = [math.dist(a[1], b[1]) / (b[0] - a[0]) for a, b in zip(trace, trace[1:])]
     assert max(speeds) == pytest.approx(1.5, abs=0.01) and trace[-1][1][0] == pytest.approx(15.0, abs=0.1)
+
+
+def test_a_return_item_hands_the_mission_over_to_return_mode():
+    from helpers.mission_client import Item
+    from sitl_plant.mission import parse_item
+
+    ap = Autopilot(plant_params(VehicleParams()), home_alt_amsl_m=488.0)
+    ap.set_origin(HOME.origin_lat_deg, HOME.origin_lon_deg, HOME.origin_alt_amsl_m)
+    items = [Item(6, 22, (0, 0, 0, math.nan), 473977420, 85455940, 5.0), Item(2, 20, (0, 0, 0, 0), 0, 0, 0.0)]
+    ap.navigator.load([parse_item(wire(item_int(it, s)), True, 0)[0] for s, it in enumerate(items)])
+    ap.set_mode(Mode.AUTO_MISSION, 0.0)
+    ap.arm(0.0)
+    nav = ap.navigator
+    for k in range(200):  # a vehicle at its setpoint: up to the take-off height, then the RTL item
+        sp = nav.setpoint()
+        down = max(sp.pos_ned_m[2], -0.1 * k) if sp is not None else 0.0
+        ap.observe(type("S", (), {"pos_ned_m": np.array([0.0, 0.0, down]), "euler_rad": np.zeros(3), "on_ground": down >= 0})())
+        ap.update(k * 0.1)
+        if ap.mode is Mode.AUTO_RTL:
+            break
+    assert ap.mode is Mode.AUTO_RTL and nav.reached_seq == 1 and nav.activity == "rtl"
