@@ -15,7 +15,7 @@ import pytest
 from pymavlink import mavutil
 
 from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
-from helpers.mission_client import MAV, Item, MissionClient, fly_mission, items_from_file, start_plant
+from helpers.mission_client import MAV, Item, MissionClient, fly_mission, items_from_file, quiet_streams, start_plant
 from offboard.demo import stop_process
 from offboard.missions import MISSIONS_DIR
 
@@ -32,6 +32,8 @@ def vehicles(tmp_path_factory):
         assert hb is not None, "PX4 sent no heartbeat"
         plant_conn, proc = start_plant("--speed", "50", "--physics-dt", "0.004")
         try:
+            quiet_streams(conn, hb.get_srcSystem())
+            quiet_streams(plant_conn, 1)
             yield {"px4": (conn, hb.get_srcSystem()), "plant": (plant_conn, 1)}
         finally:
             stop_process(proc)
@@ -223,4 +225,5 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         assert plant[key] == pytest.approx(px4[key], abs=1.5), key
     assert px4["landed from home m"] < 2.5 and plant["landed from home m"] < 2.5
     assert plant["modes"] == px4["modes"] == [(4, 3), (4, 5), (4, 3)]  # Hold, Return, Hold once disarmed
-    assert plant["return s"] == pytest.approx(px4["return s"], rel=0.4)
+    # RTL -> disarmed: PX4 25-29 s, the plant 19-20 s (no land detector delay, straight legs)
+    assert 0.4 * px4["return s"] <= plant["return s"] <= px4["return s"]

@@ -231,8 +231,19 @@ def fly_mission(conn, target_system: int, timeout_s: float, *, until_landed: boo
             continue
         flight.note(msg)
         if until_landed and flight.disarmed_at_ms is not None:
-            break
+            deadline = min(deadline, time.monotonic() + 1.0)  # the last MISSION_ITEM_REACHED's repeats
     return flight
+
+
+#: Streams a mission client does not read: switched off (SET_MESSAGE_INTERVAL -1) to spare the
+#: loopback and the client's parsing on a loaded machine (ATTITUDE, ATTITUDE_QUATERNION,
+#: HIGHRES_IMU, ATTITUDE_TARGET, SERVO_OUTPUT_RAW, VFR_HUD, GPS_RAW_INT).
+UNREAD_STREAMS = (30, 31, 105, 83, 36, 74, 24)
+
+
+def quiet_streams(conn, target_system: int) -> None:
+    for message_id in UNREAD_STREAMS:
+        command(conn, target_system, MAV.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, -1, timeout_s=1.0)
 
 
 def start_plant(*args: str) -> tuple[mavutil.mavfile, "subprocess.Popen"]:
