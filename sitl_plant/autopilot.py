@@ -11,7 +11,9 @@ Modes are PX4's (``px4_custom_mode.h``): the heartbeat's ``custom_mode`` is
 - **Takeoff** (AUTO_TAKEOFF): climb to the takeoff height, then Hold.
 - **Land** (AUTO_LAND): descend at ``MPC_LAND_SPEED`` over the current point; once on the
   ground, disarm after ``COM_DISARM_LAND``.
-- **Return** (AUTO_RTL): fly to home at the current height, then land there.
+- **Return** (AUTO_RTL), **Mission** (AUTO_MISSION) and **Orbit** (POSCTL sub mode 1, entered
+  by MAV_CMD_DO_ORBIT) fly what the navigator (sitl_plant/navigator.py) says; so does Hold after
+  MAV_CMD_DO_REPOSITION. Return climbs to the return height, comes home, descends and lands.
 - **Offboard**: fly the latest setpoint. Entered only while setpoints arrive (the last one is
   not older than ``COM_OF_LOSS_T``), else ``MAV_RESULT_TEMPORARILY_REJECTED``; setpoints outside
   Offboard are remembered as proof of life but not flown. If they stop for ``COM_OF_LOSS_T``
@@ -34,6 +36,7 @@ from typing import Union
 
 import numpy as np
 
+from sitl_plant.navigator import Frame, Navigator
 from sitl_plant.params import OBL_ACT_LAND, ParamTable
 from offboard.model.state import VehicleState
 
@@ -63,6 +66,8 @@ MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_MISSION_START = 300
+MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_RUN_PREARM_CHECKS = 401
@@ -87,6 +92,7 @@ class Mode(Enum):
     AUTO_MISSION = (4, 4)
     AUTO_RTL = (4, 5)
     AUTO_LAND = (4, 6)
+    ORBIT = (3, 1)  # PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT: entered by MAV_CMD_DO_ORBIT
     ACRO = (5, 0)
     OFFBOARD = (6, 0)
     STABILIZED = (7, 0)
@@ -103,8 +109,9 @@ class Mode(Enum):
 
     @classmethod
     def from_custom(cls, main: int, sub: int) -> Mode | None:
-        """The mode for PX4's (main, sub); sub is ignored for non-AUTO main modes."""
-        key = (main, sub if main == 4 else 0)
+        """The mode for PX4's (main, sub); sub is ignored for main modes other than AUTO and
+        POSCTL (whose sub mode 1 is Orbit)."""
+        key = (main, sub if main in (3, 4) else 0)
         return _BY_VALUE.get(key)
 
     @classmethod
@@ -123,12 +130,15 @@ _LABELS = {
     Mode.AUTO_RTL: "Return",
     Mode.AUTO_LAND: "Land",
     Mode.ACRO: "Acro",
+    Mode.ORBIT: "Orbit",
     Mode.OFFBOARD: "Offboard",
     Mode.STABILIZED: "Stabilized",
 }
 _BY_VALUE = {m.value: m for m in Mode}
 _NEEDS_MANUAL_INPUT = (Mode.MANUAL, Mode.ALTCTL, Mode.POSCTL, Mode.ACRO, Mode.STABILIZED)
-_ARMABLE = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.OFFBOARD)
+_ARMABLE = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.OFFBOARD, Mode.AUTO_MISSION)
+#: Modes whose setpoint the navigator gives (sitl_plant/navigator.py).
+_NAVIGATED = (Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.ORBIT)
 
 
 # --- what comes in ------------------------------------------------------------------------------
@@ -317,6 +327,8 @@ class Autopilot:
         self._yaw = 0.0
         self._landed = True
         self.counters: dict[str, int] = {"setpoints": 0, "ignored_setpoints": 0}
+        self.navigator = Navigator(params)
+        self.origin = (0.0, 0.0, home_alt_amsl_m)  # lat, lon (deg), alt AMSL (m) of the local frame's origin
 
     # -- status ----------------------------------------------------------------------------------
 
@@ -335,12 +347,20 @@ class Autopilot:
             prearm_ok=not self.failures,
         )
 
+    def set_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
+        """Where the local NED frame's origin is on the globe (for mission items and commands)."""
+        self.origin = (lat_deg, lon_deg, alt_amsl_m)
+
+    def frame(self) -> Frame:
+        """The local frame and home, as the navigator converts global positions."""
+        return Frame(self.origin[0], self.origin[1], self.origin[2], self.home_ned_m)
+
     def landed_state(self) -> int:
         if self._landed:
             return MAV_LANDED_STATE_ON_GROUND
         if self.armed and self.mode is Mode.AUTO_TAKEOFF:
             return MAV_LANDED_STATE_TAKEOFF
-        if self.armed and (self.mode is Mode.AUTO_LAND or self._m.rtl_landing):
+        if self.armed and (self.mode is Mode.AUTO_LAND or (self.mode in _NAVIGATED and self.navigator.landing)):
             return MAV_LANDED_STATE_LANDING
         return MAV_LANDED_STATE_IN_AIR
 
@@ -381,6 +401,8 @@ class Autopilot:
             MAV_CMD_NAV_RETURN_TO_LAUNCH: self._cmd_rtl,
             MAV_CMD_INJECT_FAILURE: self._cmd_inject_failure,
             MAV_CMD_RUN_PREARM_CHECKS: self._cmd_prearm,
+            MAV_CMD_MISSION_START: self._cmd_mission_start,
+            MAV_CMD_DO_CHANGE_SPEED: self._cmd_change_speed,
         }.get(cmd.command)
         return None if handler is None else handler(cmd, now_s)
 
@@ -392,8 +414,12 @@ class Autopilot:
             return Reply(MAV_RESULT_ACCEPTED)
         if mode in _NEEDS_MANUAL_INPUT:
             return _refuse(f"Switching to {mode.label} is currently not possible: no manual control input")
-        if mode in (Mode.AUTO_MISSION, Mode.AUTO_READY):
+        if mode is Mode.AUTO_READY:
             return _refuse(f"Switching to {mode.label} is currently not possible: no mission")
+        if mode is Mode.ORBIT:
+            return _refuse("Switching to Orbit is currently not possible: send MAV_CMD_DO_ORBIT")
+        if mode is Mode.AUTO_MISSION and self.armed and not self.navigator.items:
+            return _refuse("Switching to Mission is currently not possible: no valid mission")  # PX4 1.16 in the air
         if mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s):
             return _refuse("Switching to Offboard is currently not possible: no offboard signal")
         if mode is Mode.AUTO_TAKEOFF:
@@ -429,11 +455,7 @@ class Autopilot:
                 self._enter(Mode.AUTO_LOITER, now_s)
                 m.hold_pos = (m.hold_pos[0], m.hold_pos[1], target_down)
                 texts.append(StatusText(MAV_SEVERITY_INFO, "Takeoff complete, holding"))
-        if self.armed and self.mode is Mode.AUTO_RTL and not m.rtl_landing:
-            dist = math.hypot(self._pos[0] - self.home_ned_m[0], self._pos[1] - self.home_ned_m[1])
-            if dist <= p["NAV_ACC_RAD"]:
-                m.rtl_landing = True
-                texts.append(StatusText(MAV_SEVERITY_INFO, "Return: landing at home"))
+        texts.extend(self._navigate(now_s))
         texts.extend(self._auto_disarm(now_s))
         return texts
 
@@ -447,15 +469,15 @@ class Autopilot:
             return OffboardTask(m.last_setpoint)
         if mode is Mode.AUTO_TAKEOFF:
             return PositionTask((m.hold_pos[0], m.hold_pos[1], self._takeoff_down_m()), m.hold_yaw, max_climb_m_s=self.params["MPC_TKO_SPEED"])
+        nav = self.navigator.setpoint() if (mode in _NAVIGATED or self.navigator.activity == "reposition") else None
+        if nav is not None:
+            if self._landed and (nav.landing or (not m.has_taken_off and nav.max_climb_m_s is None)):
+                return IdleTask()
+            return PositionTask(nav.pos_ned_m, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=nav.max_climb_m_s, vel_ned_m_s=nav.vel_ned_m_s)
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
             return PositionTask(m.hold_pos, m.hold_yaw, descend_m_s=self.params["MPC_LAND_SPEED"])
-        if mode is Mode.AUTO_RTL:
-            home = self.home_ned_m
-            if m.rtl_landing:
-                return PositionTask((home[0], home[1], m.hold_pos[2]), m.hold_yaw, descend_m_s=self.params["MPC_LAND_SPEED"])
-            return PositionTask((home[0], home[1], m.hold_pos[2]), m.hold_yaw)
         return PositionTask(m.hold_pos, m.hold_yaw)
 
     # -- commands --------------------------------------------------------------------------------
@@ -485,6 +507,8 @@ class Autopilot:
         if self._landed:
             self.home_ned_m = (float(self._pos[0]), float(self._pos[1]), float(self._pos[2]))
         self._set_hold_here()
+        if self.mode is Mode.AUTO_MISSION:
+            self.navigator.start("mission", now_s)
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO, "Armed by external command"),))
 
     def disarm(self, now_s: float, *, forced: bool = False) -> Reply:
@@ -529,6 +553,50 @@ class Autopilot:
         self._enter(Mode.AUTO_RTL, now_s, by_client=True)
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO, "Returning to launch"),))
 
+    def _cmd_mission_start(self, cmd: Command, now_s: float) -> Reply:
+        """MAV_CMD_MISSION_START: Mission mode, from item param1 when it is one (PX4's commander)."""
+        first = cmd.params[0]
+        if math.isfinite(first) and 0 < first < len(self.navigator.items):
+            self.navigator.set_current(int(first))
+        return self.set_mode(Mode.AUTO_MISSION, now_s)
+
+    def reposition(self, target_ned_m: tuple[float, float, float], speed_m_s: float, yaw_rad: float | None, now_s: float) -> Reply:
+        """MAV_CMD_DO_REPOSITION (the server has turned its global position into local NED):
+        Hold mode, flying to the point and holding there (PX4's navigator reposition). As PX4 v1.16
+        was measured: disarmed it is ACCEPTED and nothing happens; armed on the ground the vehicle
+        takes off towards the point (climbing at most MPC_TKO_SPEED)."""
+        if not self.armed:
+            return Reply(MAV_RESULT_ACCEPTED)
+        self._enter(Mode.AUTO_LOITER, now_s, by_client=True)
+        self.navigator.reposition(target_ned_m, speed_m_s, yaw_rad, now_s, from_ground=self._landed)
+        return Reply(MAV_RESULT_ACCEPTED)
+
+    def _cmd_change_speed(self, cmd: Command, now_s: float) -> Reply:
+        """MAV_CMD_DO_CHANGE_SPEED: param2 m/s (-2: back to MPC_XY_CRUISE) for the legs that follow."""
+        self.navigator.change_speed(cmd.params[1])
+        return Reply(MAV_RESULT_ACCEPTED)
+
+    def orbit(self, centre_ned_m: tuple[float, float, float], radius_m: float, speed_m_s: float, now_s: float) -> Reply:
+        """MAV_CMD_DO_ORBIT: Orbit mode (POSCTL sub mode 1) around the centre. Disarmed, PX4 v1.16
+        takes the command and the mode (it was measured); armed on the ground it is refused."""
+        if self.armed and self._landed:
+            return _refuse("Orbit denied: not flying")  # (not measured on PX4)
+        self._enter(Mode.ORBIT, now_s, by_client=True)
+        self.navigator.orbit(centre_ned_m, radius_m, speed_m_s, now_s)
+        return Reply(MAV_RESULT_ACCEPTED)
+
+    def _navigate(self, now_s: float) -> list[StatusText]:
+        nav = self.navigator
+        nav.frame = self.frame()
+        nav.observe((float(self._pos[0]), float(self._pos[1]), float(self._pos[2])), self._yaw, self._landed)
+        if not self.armed:
+            return []
+        nav.update(now_s)
+        if nav.wants_rtl and self.mode is Mode.AUTO_MISSION:
+            self._enter(Mode.AUTO_RTL, now_s)
+            return [StatusText(MAV_SEVERITY_INFO, "Mission: returning to launch")]
+        return []
+
     def _cmd_inject_failure(self, cmd: Command, now_s: float) -> Reply:
         if int(self.params["SYS_FAILURE_EN"]) != 1:
             return Reply(MAV_RESULT_DENIED, (StatusText(MAV_SEVERITY_CRITICAL, "Failure injection disabled (SYS_FAILURE_EN)"),))
@@ -572,6 +640,15 @@ class Autopilot:
         self._set_hold_here()
         self._m.rtl_landing = False
         self.mode = mode
+        nav = self.navigator
+        nav.stop()
+        nav.observe((float(self._pos[0]), float(self._pos[1]), float(self._pos[2])), self._yaw, self._landed)
+        if self.armed and mode is Mode.AUTO_MISSION:
+            nav.frame = self.frame()
+            nav.start("mission", now_s)
+        elif mode is Mode.AUTO_RTL:
+            nav.frame = self.frame()
+            nav.start("rtl", now_s)
 
     def _auto_disarm(self, now_s: float) -> list[StatusText]:
         if not self.armed:

@@ -490,3 +490,61 @@ def addressed_to(msg: MAVLinkMessage, sysid: int, compid: int) -> bool:
         return False
     tc = getattr(msg, "target_component", None)
     return tc is None or tc in (0, compid)
+
+
+# --- the mission protocol (sitl_plant/mission.py) -----------------------------------------------
+
+_MISSION_CONSTRUCTORS = {
+    "MISSION_REQUEST_INT": mavlink.MAVLink_mission_request_int_message,
+    "MISSION_REQUEST": mavlink.MAVLink_mission_request_message,
+    "MISSION_ACK": mavlink.MAVLink_mission_ack_message,
+    "MISSION_COUNT": mavlink.MAVLink_mission_count_message,
+    "MISSION_ITEM_INT": mavlink.MAVLink_mission_item_int_message,
+    "MISSION_ITEM": mavlink.MAVLink_mission_item_message,
+}
+
+
+def mission_message(out: object) -> MAVLinkMessage:
+    """The pymavlink message of a ``mission.Out`` (target system and component first, for the
+    messages that have them)."""
+    kind, target, fields = out.kind, out.target, out.fields  # type: ignore[attr-defined]
+    if kind == "MISSION_CURRENT":
+        return mavlink.MAVLink_mission_current_message(*fields)
+    if kind == "MISSION_ITEM_REACHED":
+        return mavlink.MAVLink_mission_item_reached_message(*fields)
+    return _MISSION_CONSTRUCTORS[kind](target[0], target[1], *fields)
+
+
+_UNSET_E7 = (0, 2**31 - 1)  # COMMAND_INT x/y that mean "here" (0, or INT32_MAX as PX4's "not set")
+
+
+def command_position_ned(msg: MAVLinkMessage, frame: object, here_ned_m: np.ndarray) -> tuple[float, float, float] | None:
+    """The position of a DO_REPOSITION / DO_ORBIT command in local NED (m), or None for a frame
+    the plant does not take. ``frame`` is the autopilot's ``navigator.Frame``.
+
+    COMMAND_LONG: param5, param6 latitude, longitude in degrees (NaN: here), param7 altitude AMSL
+    (NaN: the current one). COMMAND_INT in MAV_FRAME_GLOBAL(_INT): x, y degE7 (0: here), z AMSL.
+    COMMAND_INT in the global-relative frames, as PX4 v1.16 SITL was measured to fly them
+    (docs/parity/mission.md): x, y are not taken (the vehicle stays where it is) and z is read as
+    an altitude AMSL, so a height of 12 m above home sends it down towards the ground.
+    """
+    here = (float(here_ned_m[0]), float(here_ned_m[1]), float(here_ned_m[2]))
+    if msg.get_type() == "COMMAND_INT":
+        if msg.frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
+            unset = msg.x in _UNSET_E7 and msg.y in _UNSET_E7
+        elif msg.frame in (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
+            unset = True
+        else:
+            return None
+        lat, lon, alt = msg.x * 1e-7, msg.y * 1e-7, float(msg.z)
+    else:
+        unset = not (math.isfinite(msg.param5) and math.isfinite(msg.param6))
+        lat, lon, alt = float(msg.param5), float(msg.param6), float(msg.param7)
+    if not (unset or (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0)):
+        return None
+    n, e, d = frame.to_ned(0.0 if unset else lat, 0.0 if unset else lon, alt if math.isfinite(alt) else 0.0, False)  # type: ignore[attr-defined]
+    if unset:
+        n, e = here[0], here[1]
+    if not math.isfinite(alt):
+        d = here[2]
+    return n, e, d

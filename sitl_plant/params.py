@@ -210,7 +210,23 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
         ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s"),
         ParamSpec("MPC_TKO_SPEED", 1.5, min=1.0, max=5.0, unit="m/s"),
         ParamSpec("MIS_TAKEOFF_ALT", 2.5, min=0.0, max=80.0, unit="m", description="default takeoff height"),
-        ParamSpec("NAV_ACC_RAD", 2.0, min=0.05, max=200.0, unit="m", description="RTL acceptance radius"),
+        ParamSpec("NAV_ACC_RAD", 2.0, min=0.05, max=200.0, unit="m", description="acceptance radius (mission waypoints without their own, Return at home)"),
+        # the navigator (Mission, Return, Reposition, Orbit; sitl_plant/navigator.py): PX4 v1.16's defaults
+        ParamSpec("NAV_MC_ALT_RAD", 0.8, min=0.05, max=200.0, unit="m", description="vertical acceptance radius of mission items"),
+        ParamSpec("MIS_YAW_ERR", 12.0, min=0.0, max=90.0, unit="deg", description="heading error accepted at a waypoint with a yaw"),
+        ParamSpec("MPC_XY_CRUISE", 5.0, min=3.0, max=20.0, unit="m/s", description="horizontal speed of the auto modes (DO_CHANGE_SPEED changes it for a mission)"),
+        ParamSpec("MPC_ACC_HOR", 3.0, min=2.0, max=15.0, unit="m/s^2", description="acceleration along the auto modes' legs"),
+        ParamSpec("MPC_JERK_AUTO", 4.0, min=1.0, max=80.0, unit="m/s^3", description="jerk limit of the auto modes' legs"),
+        ParamSpec("MPC_Z_V_AUTO_UP", 3.0, min=0.5, max=8.0, unit="m/s", description="climb speed of the auto modes"),
+        ParamSpec("MPC_Z_V_AUTO_DN", 1.5, min=0.5, max=4.0, unit="m/s", description="descent speed of the auto modes (and of a landing above MPC_LAND_ALT1)"),
+        ParamSpec("MPC_LAND_ALT1", 10.0, min=0.0, max=122.0, unit="m", description="a mission or Return landing slows from MPC_Z_V_AUTO_DN below this height"),
+        ParamSpec("MPC_LAND_ALT2", 5.0, min=0.0, max=122.0, unit="m", description="... to MPC_LAND_SPEED below this height"),
+        ParamSpec("RTL_TYPE", 0, kind=INT, choices=(0,), description="Return: 0 straight home (the only one simulated)"),
+        ParamSpec("RTL_RETURN_ALT", 30.0, min=0.0, max=150.0, unit="m", description="Return: height above home to come back at (at least the current one)"),
+        ParamSpec("RTL_DESCEND_ALT", 10.0, min=0.0, max=150.0, unit="m", description="Return: height over home to descend to before landing"),
+        ParamSpec("RTL_LAND_DELAY", 0.0, min=-1.0, max=300.0, unit="s", description="Return: wait at RTL_DESCEND_ALT before landing (< 0: for ever)"),
+        ParamSpec("RTL_MIN_DIST", 10.0, min=0.5, max=100.0, unit="m", description="Return: within this distance of home the cone (RTL_CONE_ANG) lowers the return height"),
+        ParamSpec("RTL_CONE_ANG", 45, kind=INT, min=0, max=90, unit="deg", description="Return: half angle of the cone over home that sets the return height near home (0: always RTL_RETURN_ALT)"),
     ]
 
 

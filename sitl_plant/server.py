@@ -42,6 +42,8 @@ from sitl_plant.ftp import FtpFormatError, FtpServer
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
 from sitl_plant.logserve import LogServer
+from sitl_plant.mission import MissionManager, Reporter
+from sitl_plant.navigator import DEFAULT_ORBIT_RADIUS_M, DEFAULT_ORBIT_SPEED_M_S
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
 from offboard.model.state import VehicleState
@@ -243,6 +245,10 @@ class Plant:
         self._rigid = not isinstance(model, PaperModel)
         self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]
         self.autopilot.observe(self._truth)
+        self.missions = MissionManager()
+        self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
+        self._mission_reports = Reporter()
+        self._mission_streams: list[list[mavlink.MAVLink_message]] = [[], []]  # go out with the telemetry
 
     # -- time ------------------------------------------------------------------------------------
 
@@ -294,6 +300,7 @@ class Plant:
         ap.observe(self._truth)
         for text in ap.update(self.time_s):
             self._announce(text)
+        self._mission_tick()
         self._apply_task()
 
     def model_position(self, x: np.ndarray) -> np.ndarray:
@@ -330,7 +337,7 @@ class Plant:
         if handler is None:
             self.counters.unhandled += 1
             return
-        if not codec.addressed_to(msg, self.config.sysid, self.config.compid):
+        if kind not in _MISSION_MESSAGES and not codec.addressed_to(msg, self.config.sysid, self.config.compid):
             self.counters.foreign += 1
             return
         try:
@@ -392,6 +399,10 @@ class Plant:
         cmd = codec.decode_command(msg)
         reply = self._link_command(index, cmd)
         if reply is None:
+            reply = self._nav_command(msg, cmd)
+            if reply is not None:
+                self._apply_task()
+        if reply is None:
             reply = self.autopilot.on_command(cmd, self.time_s)
             if reply is not None:
                 self._apply_task()
@@ -403,6 +414,65 @@ class Plant:
         follow = getattr(reply, "follow_up", None)
         if follow:
             self.outbox[index].extend(follow)
+
+    # -- the mission protocol and the navigation commands (sitl_plant/mission.py, navigator.py) --
+
+    def _on_mission(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        """MISSION_* messages, addressed as PX4 checks them (our system; our component, the
+        mission planner's or 0)."""
+        if not MissionManager.addressed_to_us(msg, self.config.sysid, self.config.compid):
+            self.counters.foreign += 1
+            return
+        self._send_mission(index, self.missions.handle(msg, self.time_s, index))
+        nav = self.autopilot.navigator
+        if self.missions.changed:
+            self.missions.changed = False
+            nav.load(self.missions.mission, self.missions.current_seq)
+        elif msg.get_type() == "MISSION_SET_CURRENT" and self.missions.current_seq != nav.current_seq:
+            nav.set_current(self.missions.current_seq)
+        self._mission_tick(force=True)
+
+    def _send_mission(self, index: int, outs: list) -> None:
+        for out in outs:
+            if out.kind == "STATUSTEXT":
+                self._announce(StatusText(*out.fields))
+            else:
+                self.outbox[index].append(codec.mission_message(out))
+
+    def mission_current(self) -> mavlink.MAVLink_message:
+        """MISSION_CURRENT as PX4 v1.16 fills it (for a stream: seq, total, state, mode)."""
+        return mavlink.MAVLink_mission_current_message(*self.missions.mission_current())
+
+    def _mission_tick(self, *, force: bool = False) -> None:
+        """Transfer retries and timeouts; the navigator's current item into the mission list; the
+        MISSION_CURRENT / MISSION_ITEM_REACHED due (``mission.Reporter``), sent with the telemetry."""
+        mm, nav = self.missions, self.autopilot.navigator
+        if not force:
+            link = mm.busy_link
+            outs = mm.update(self.time_s)
+            if outs:
+                self._send_mission(link if link is not None else API, outs)
+        if nav.items and nav.current_seq != mm.current_seq and not force:
+            mm.current_seq = nav.current_seq
+        outs = self._mission_reports.due(self.time_s, mm.mission_current(), nav.reached_seq, nav.reached_count, bool(mm.mission))
+        for pending in self._mission_streams:
+            pending.extend(codec.mission_message(o) for o in outs)
+
+    def _nav_command(self, msg: mavlink.MAVLink_message, cmd: Command) -> Reply | None:
+        """MAV_CMD_DO_REPOSITION and MAV_CMD_DO_ORBIT, whose global position the plant turns into
+        local NED here; None for the other commands."""
+        if cmd.command not in (mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_CMD_DO_ORBIT):
+            return None
+        target = codec.command_position_ned(msg, self.autopilot.frame(), self._truth.pos_ned_m)
+        if target is None:
+            return Reply(mavlink.MAV_RESULT_DENIED)
+        p = cmd.params
+        if cmd.command == mavlink.MAV_CMD_DO_REPOSITION:
+            yaw = math.radians(p[3]) if math.isfinite(p[3]) else None
+            return self.autopilot.reposition(target, p[0] if math.isfinite(p[0]) and p[0] > 0 else -1.0, yaw, self.time_s)
+        radius = p[0] if math.isfinite(p[0]) and p[0] != 0 else DEFAULT_ORBIT_RADIUS_M
+        speed = abs(p[1]) if math.isfinite(p[1]) and p[1] != 0 else DEFAULT_ORBIT_SPEED_M_S
+        return self.autopilot.orbit(target, radius, speed, self.time_s)
 
     def _link_command(self, index: int, cmd: Command) -> Reply | None:
         """Commands about the link itself (streams, requested messages); None for the others."""
@@ -571,7 +641,11 @@ class Plant:
         for mid in force:
             if mid not in due:
                 due.append(mid)
-        return [m for m in (self._build(mid) for mid in due) if m is not None]
+        out = [m for m in (self._build(mid) for mid in due) if m is not None]
+        if index < len(self._mission_streams) and self._mission_streams[index]:
+            out += self._mission_streams[index]
+            self._mission_streams[index] = []
+        return out
 
     def _build(self, mid: int) -> mavlink.MAVLink_message | None:
         t_ms, t_us = self.time_ms, self.time_us
@@ -644,6 +718,12 @@ class Plant:
         return f"t={self.time_s:8.2f}s {st.mode.label:<8} {arm:<8}{fs} N={p[0]:7.2f} E={p[1]:7.2f} D={p[2]:7.2f}"
 
 
+#: The mission protocol's messages (sitl_plant/mission.py), addressed by PX4's own rule.
+_MISSION_MESSAGES = frozenset({
+    "MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST", "MISSION_REQUEST_INT",
+    "MISSION_REQUEST_LIST", "MISSION_ACK", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
+})  # fmt: skip
+
 _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "SET_ATTITUDE_TARGET": Plant._on_attitude_target,
     "SET_ACTUATOR_CONTROL_TARGET": Plant._on_actuator_target,
@@ -666,6 +746,7 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "LOG_ERASE": Plant._on_log_erase,
     "SERIAL_CONTROL": Plant._on_serial_control,
     "STATUSTEXT": Plant._on_statustext,
+    **{kind: Plant._on_mission for kind in _MISSION_MESSAGES},
 }
 
 
