@@ -31,12 +31,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
+# two workers: the tests that fly on the wall clock run one at a time on one of them
+# (tests/conftest.py, REALTIME_MODULES), everything else fills both
 test: $(TEST_STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadgroup
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
 test-fast: $(TEST_STAMP)
-	$(PY) -m pytest -q tests/unit -m "not slow and not e2e"
+	$(PY) -m pytest -q -n 2 tests/unit -m "not slow and not e2e"
 
 # the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
 bench: $(STAMP)

@@ -18,10 +18,25 @@ from helpers import FakeClock
 E2E_DIR = Path(__file__).resolve().parent / "e2e"
 
 
+#: e2e modules whose tests fly on the wall clock (a real-time plant, PX4 at --speed, timeouts and
+#: rates measured in wall time): with ``make test``'s two workers (pytest-xdist, --dist
+#: loadgroup) they run one at a time on one worker, so that no two of them share the cores; the
+#: rest (pure tests, lockstep flights, in-process sweeps) fill both workers.
+REALTIME_MODULES = frozenset({
+    "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fuzz",
+    "test_killed", "test_lost_track", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
+    "test_plant_services_e2e",
+})  # fmt: skip
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
-        if E2E_DIR in Path(str(item.fspath)).resolve().parents:
+        path = Path(str(item.fspath)).resolve()
+        if E2E_DIR in path.parents:
             item.add_marker(pytest.mark.e2e)
+        if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or path.stem.startswith("test_px4"):
+            item.add_marker(pytest.mark.realtime)
+            item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
 @pytest.fixture
