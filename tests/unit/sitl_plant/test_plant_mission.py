@@ -434,3 +434,20 @@ def test_a_return_item_hands_the_mission_over_to_return_mode():
         if ap.mode is Mode.AUTO_RTL:
             break
     assert ap.mode is Mode.AUTO_RTL and nav.reached_seq == 1 and nav.activity == "rtl"
+
+
+def test_requests_outside_a_transfer_are_ignored_and_one_of_an_empty_list_is_an_error():
+    mm = MissionManager()
+    assert mm.handle(wire(mavlink.MAVLink_mission_request_int_message(1, 1, 0, 0)), 0.0) == []  # PX4: silence
+    assert kinds(mm.handle(wire(mavlink.MAVLink_mission_request_list_message(1, 1, 0)), 0.1)) == [("MISSION_COUNT", 0)]
+    outs = mm.handle(wire(mavlink.MAVLink_mission_request_int_message(1, 1, 0, 0)), 0.2)
+    assert ("MISSION_ACK", mavlink.MAV_MISSION_ERROR) in kinds(outs)
+
+
+def test_a_clear_during_an_upload_is_ignored_and_the_upload_goes_on():
+    mm = MissionManager()
+    upload(mm, BOX)
+    mm.handle(wire(mavlink.MAVLink_mission_count_message(1, 1, 2, 0)), 1.0)
+    outs = mm.handle(wire(mavlink.MAVLink_mission_clear_all_message(1, 1, 0)), 1.1)
+    assert [o.kind for o in outs] == ["STATUSTEXT"] and "Busy" in str(outs[0].fields)
+    assert mm.state is TransferState.GETLIST and len(mm.mission) == len(BOX)  # nothing cleared

@@ -1,0 +1,52 @@
+"""docs/parity/*.md, the table "PX4 v1.16 and sitl-plant": every row names the tests that
+checked it against PX4 (or the plant), and those tests exist, so a row cannot outlive its test."""
+
+from __future__ import annotations
+
+import re
+
+from helpers import REPO
+
+PARITY = REPO / "docs" / "parity"
+
+
+def test_functions() -> set[str]:
+    names = set()
+    for path in (REPO / "tests").rglob("test_*.py"):
+        names.update(re.findall(r"^(?:async )?def (test_\w+)", path.read_text(), re.M))
+    return names
+
+
+test_functions.__test__ = False  # a helper, not a test
+
+
+def rows(path) -> list[list[str]]:
+    out = []
+    for line in path.read_text().splitlines():
+        if line.startswith("|") and not set(line) <= set("|-: "):
+            out.append([cell.strip() for cell in line.strip("|").split("|")])
+    return out
+
+
+def test_every_parity_row_names_tests_that_exist():
+    files = sorted(PARITY.glob("*.md"))
+    assert len(files) >= 2
+    known = test_functions()
+    for path in files:
+        table = rows(path)
+        header, body = table[0], table[1:]
+        assert header[-1] == "checked by" and "PX4" in header[1], f"{path.name}: header {header}"
+        assert body, f"{path.name}: no rows"
+        for row in body:
+            named = re.findall(r"`(test_\w+)`", row[-1])
+            if row[-1].startswith("not checked"):
+                continue  # said so, in so many words
+            assert named, f"{path.name}: row {row[0]!r} names no test (or says 'not checked')"
+            missing = [n for n in named if n not in known]
+            assert not missing, f"{path.name}: row {row[0]!r} names tests that do not exist: {missing}"
+
+
+def test_the_plant_page_links_every_parity_file():
+    text = (REPO / "docs" / "plant.md").read_text()
+    for path in PARITY.glob("*.md"):
+        assert f"parity/{path.name}" in text, f"docs/plant.md does not link docs/parity/{path.name}"
