@@ -1135,7 +1135,6 @@ class Flight:
     def _vehicle_clock_sample_if_due(self) -> None:
         """On the vehicle's clock: a sample when the position's ``time_boot_ms`` reaches the next
         tick (late by whole periods: those are skipped and counted, as in real time)."""
-        cfg = self.config
         if not self._on_vehicle_clock or self._source is None or self._att is None or self._lpn is None:
             return
         t_ms = float(self._lpn.time_boot_ms)

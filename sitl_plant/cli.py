@@ -23,7 +23,8 @@ from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, p
 from offboard.model.tlog import TlogWriter
 from sitl_plant.link import Endpoint, Link, parse_address
 from sitl_plant.params import plant_params
-from sitl_plant.server import LOCKSTEP_EPOCH_S, MODELS, Plant, PlantConfig, run_lockstep, run_realtime
+from sitl_plant.server import LOCKSTEP_EPOCH_S, Plant, PlantConfig, run_lockstep, run_realtime
+from sitl_plant.simulation import MODELS
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link

@@ -45,7 +45,7 @@ from sitl_plant.logserve import LogServer
 from sitl_plant.mission import MissionManager, Reporter
 from sitl_plant.navigator import DEFAULT_ORBIT_RADIUS_M, DEFAULT_ORBIT_SPEED_M_S
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
-from sitl_plant.simulation import MODELS, Model, PaperModel, VehicleSim, make_model
+from sitl_plant.simulation import Model, PaperModel, VehicleSim, make_model
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 

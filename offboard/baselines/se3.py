@@ -28,6 +28,8 @@ controller's attitude loop runs faster than its position loop.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import math
 from dataclasses import dataclass
 
@@ -119,7 +121,7 @@ def _quat_from_matrix(r: tuple[Vec3, Vec3, Vec3]) -> tuple[float, float, float, 
     return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
-def _matrix(q: tuple[float, float, float, float] | np.ndarray) -> tuple[Vec3, Vec3, Vec3]:
+def _matrix(q: Sequence[float] | np.ndarray) -> tuple[Vec3, Vec3, Vec3]:
     """Rows of R(q), ``v_ned = R v_frd``, for a unit (w, x, y, z)."""
     w, x, y, z = (float(v) for v in q)
     return (

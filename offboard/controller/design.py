@@ -710,4 +710,4 @@ def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: floa
     a2, b2 = (g.ravel() for g in np.meshgrid(a[best] * fine, b[best] * fine, indexing="ij"))
     cand2 = AxisGains(np.exp(-a2 * to), np.exp(-b2 * to), 0.0, ki)
     best2 = int(np.argmin(_search((plant,), cand2, to, spec)))
-    return AxisGains(round(float(cand2.k_pos[best2]), 4), round(float(cand2.k_vel[best2]), 4), 0.0, ki)
+    return AxisGains(round(float(np.asarray(cand2.k_pos)[best2]), 4), round(float(np.asarray(cand2.k_vel)[best2]), 4), 0.0, ki)

@@ -6,6 +6,8 @@ validated on load with a one-line error naming the file and field.
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -172,7 +174,7 @@ class ControllerParams:
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
 
-    def with_changes(self, **changes: object) -> ControllerParams:
+    def with_changes(self, **changes: Any) -> ControllerParams:
         return replace(self, **changes)
 
 

@@ -24,7 +24,12 @@ from __future__ import annotations
 
 import math
 
+from collections.abc import Sequence
+
 import numpy as np
+
+#: Three angles, rates or torques: an array, or a tuple where the hot path avoids building one.
+Vec3Like = Sequence[float] | np.ndarray
 
 _FORM = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
 
@@ -114,9 +119,9 @@ def coriolis_vector(
 
 
 def real_torques(
-    eta: np.ndarray,
-    eta_dot: np.ndarray,
-    tau_tilde: np.ndarray,
+    eta: Vec3Like,
+    eta_dot: Vec3Like,
+    tau_tilde: Vec3Like,
     inertia: np.ndarray,
     form: str = "castillo",
 ) -> np.ndarray:

@@ -18,6 +18,8 @@ coefficient in metres (``drag_to_thrust_m``).
 
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -109,7 +111,7 @@ class VehicleParams:
         """Torque with one diagonal pair at top speed and the other stopped."""
         return 2.0 * self.drag_to_thrust_m * self.max_rotor_thrust_n
 
-    def with_changes(self, **changes: object) -> VehicleParams:
+    def with_changes(self, **changes: Any) -> VehicleParams:
         from dataclasses import replace
 
         return replace(self, **changes)

@@ -182,9 +182,9 @@ class Helix(Segment):
         c, s = math.cos(phi), math.sin(phi)
         cx, cy, cz = self.center_ned_m
         return Reference(
-            (cx + r * c, cy + r * s, cz - self.climb_rate_m_s * t_s),
-            (-r * w * s, r * w * c, -self.climb_rate_m_s),
-            (-r * w * w * c, -r * w * w * s, 0.0),
+            np.array((cx + r * c, cy + r * s, cz - self.climb_rate_m_s * t_s)),
+            np.array((-r * w * s, r * w * c, -self.climb_rate_m_s)),
+            np.array((-r * w * w * c, -r * w * w * s, 0.0)),
             self._yaw0 + self._yaw_rate * t_s,
             self._yaw_rate,
         )

@@ -335,7 +335,8 @@ class WaypointLegs(Segment):
         for k in range(n):
             u = units[k]
             if u is not None:
-                trim_end = arcs[k][1] if arcs[k] is not None else 0.0
+                corner = arcs[k]
+                trim_end = corner[1] if corner is not None else 0.0
                 length = lengths[k] - trim_start - trim_end
                 if length > LENGTH_EPS_M:
                     events.append(("move", _Line(points[k] + u * trim_start, u, length), speeds[k], False, k))

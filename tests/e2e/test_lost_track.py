@@ -125,8 +125,8 @@ def test_simulate_says_lost_track_with_its_exit_code(tmp_path):
                           capture_output=True, text=True, env=ENV, timeout=300)  # fmt: skip
     assert proc.returncode == FlightStatus.LOST_TRACK.exit_code == 9, proc.stderr
     assert "status lost_track (flown to its end but 188.9 m from the reference" in proc.stdout
-    assert proc.stderr.splitlines() == [f"offboard simulate: LOST_TRACK: flown to its end but 188.9 m from the reference: "
-                                        f"more than 10 m off through the whole of its last 1 s"]  # fmt: skip
+    assert proc.stderr.splitlines() == ["offboard simulate: LOST_TRACK: flown to its end but 188.9 m from the reference: "
+                                        "more than 10 m off through the whole of its last 1 s"]  # fmt: skip
     assert '"status": "lost_track"' in (tmp_path / "run" / "summary.json").read_text()
 
 

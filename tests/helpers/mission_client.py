@@ -12,6 +12,7 @@ MISSION_CLEAR_ALL -> MISSION_ACK.
 from __future__ import annotations
 
 import math
+import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

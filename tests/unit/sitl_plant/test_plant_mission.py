@@ -197,7 +197,6 @@ def fly(nav: Navigator, seconds: float, dt: float = 0.05, start_s: float = 0.0, 
 
 
 def mission_nav() -> Navigator:
-    from helpers.mission_client import Item
     from sitl_plant.mission import parse_item
 
     nav = Navigator(plant_params(VehicleParams()), frame=HOME)

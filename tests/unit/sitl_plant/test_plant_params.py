@@ -123,7 +123,6 @@ def test_long_names_rejected():
 
 
 def test_every_parameter_is_documented(table):
-    from pathlib import Path
 
     doc = (REPO / "docs" / "plant.md").read_text()
     rows = {line.split("|")[1].strip().strip("`") for line in doc.splitlines() if line.startswith("| `")}
