@@ -381,7 +381,7 @@ def plant_periods(tlog: Path) -> int:
         size = length + (12 + (13 if magic == 0xFD and i + 10 < len(data) and data[i + 10] & 1 else 0) if magic == 0xFD else 8)
         i += 8 + size
         last = stamp
-    from sitl_plant.server import LOCKSTEP_EPOCH_S
+    from offboard.model.tlog import LOCKSTEP_EPOCH_S
 
     return round((last - LOCKSTEP_EPOCH_S * 1_000_000) / 1e6 / LOCKSTEP_PERIOD_S)
 

@@ -55,13 +55,13 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
+from offboard.model.tlog import LOCKSTEP_EPOCH_S
 from offboard.trajectory.base import Trajectory
 from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
 OUTPUTS = codec.OUTPUTS
 #: tlog and TIMESYNC origin in lockstep (the plant uses the same: 2020-01-01T00:00:00Z).
-LOCKSTEP_EPOCH_S = 1_577_836_800
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
 DEFAULT_TILT_MAX_DEG = 35.0

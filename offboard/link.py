@@ -37,7 +37,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.signing import SigningSession, Verdict
 from offboard.model.errors import LinkError
-from offboard.model.tlog import TlogWriter
+from offboard.model.tlog import TlogWriter, wall_clock_us
 
 __all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
 
@@ -47,11 +47,6 @@ SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
 DUPLICATE_WINDOW = 64
 ONBOARD_SYSID = 245  # MAVSDK's default system id for an API client
 ONBOARD_COMPID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
-
-
-def wall_clock_us() -> int:
-    """Microseconds since the Unix epoch (the tlog's usual timestamp)."""
-    return int(time.time() * 1e6)
 
 
 @dataclass

@@ -23,7 +23,8 @@ from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, p
 from offboard.model.tlog import TlogWriter
 from sitl_plant.link import Endpoint, Link, parse_address
 from sitl_plant.params import plant_params
-from sitl_plant.server import LOCKSTEP_EPOCH_S, Plant, PlantConfig, run_lockstep, run_realtime
+from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
+from sitl_plant.server import Plant, PlantConfig, run_lockstep, run_realtime
 from sitl_plant.simulation import MODELS
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
@@ -152,10 +153,6 @@ def _address(text: str | None, default: str, what: str) -> tuple[str, int] | Non
         raise ArgumentError(str(exc)) from None
 
 
-def _wall_clock_us() -> int:
-    return time.time_ns() // 1000
-
-
 def _unhealthy(text: str) -> set[str]:
     units = {u.strip().lower() for u in text.split(",") if u.strip()}
     unknown = units - set(FAILURE_UNITS.values())
@@ -272,7 +269,7 @@ def _run(args: argparse.Namespace) -> int:
         for e in endpoints:
             e.close()
         raise
-    link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else _wall_clock_us, lockstep=args.lockstep)
+    link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else wall_clock_us, lockstep=args.lockstep)
     for direction, spec in (("in", impair_in), ("out", impair_out)):
         if spec is not None:
             link.note(f"link {direction}: {spec.describe()} (seed {args.seed})")

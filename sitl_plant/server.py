@@ -51,7 +51,6 @@ from offboard.model.vehicle import VehicleParams
 
 TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied within 4 ms
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers
-LOCKSTEP_EPOCH_S = 1_577_836_800  # 2020-01-01T00:00:00Z: tlog and SYSTEM_TIME origin in lockstep
 API, GCS = 0, 1
 MAX_DISTANCE_M = 1e7  # beyond this from home the simulation is taken as broken down
 
@@ -162,7 +161,7 @@ class PlantConfig:
     home: Home = field(default_factory=Home)
     sysid: int = 1
     compid: int = mavlink.MAV_COMP_ID_AUTOPILOT1
-    start_epoch_s: float = 0.0  # tlog / SYSTEM_TIME origin; LOCKSTEP_EPOCH_S in lockstep
+    start_epoch_s: float = 0.0  # tlog / SYSTEM_TIME origin; offboard.model.tlog.LOCKSTEP_EPOCH_S in lockstep
     log_path: Path | None = None  # the tlog (--log), served by log download
     ftp_root: Path | None = None  # the folder MAVLink FTP serves, read-only (--ftp-root)
 

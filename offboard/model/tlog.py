@@ -7,6 +7,7 @@ big-endian timestamp (µs since the Unix epoch) and the raw MAVLink packet.
 from __future__ import annotations
 
 import struct
+import time
 from pathlib import Path
 from typing import BinaryIO
 
@@ -14,6 +15,15 @@ from offboard.model.errors import LinkError
 from offboard.model.paths import output_file_problem
 
 _TLOG_STAMP = struct.Struct(">Q")
+
+#: 2020-01-01T00:00:00Z: the origin of the tlog stamps (and SYSTEM_TIME) of a lockstep flight, on
+#: both sides, so that two lockstep runs write the same bytes.
+LOCKSTEP_EPOCH_S = 1_577_836_800
+
+
+def wall_clock_us() -> int:
+    """Microseconds since the Unix epoch (the tlog's usual timestamp)."""
+    return time.time_ns() // 1000
 
 
 class TlogWriter:
