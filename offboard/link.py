@@ -9,7 +9,12 @@ On top of it this module does what a flight needs of a link and pymavlink leaves
 - **duplicate suppression**: a packet whose source, sequence number and bytes equal one of the
   latest received is dropped (a lockstep plant resends its last telemetry as a keepalive while
   nobody answers; those copies are not news);
-- **loss counting** from the sequence numbers of each source (``LinkStats.lost``);
+- **loss counting** from the sequence numbers of each source (``LinkStats.lost``); frames of
+  message ids that common.xml lacks (PX4 sends its development dialect: LINK_NODE_STATUS,
+  TIME_ESTIMATE_TO_TARGET, CURRENT_MODE, CURRENT_EVENT_SEQUENCE...) are well-formed packets that
+  use a sequence number too: pymavlink hands them over as ``MAVLink_unknown`` with no header
+  decoded (source 0/0, sequence 0), so their source and sequence are read from the frame itself;
+  they advance the count and are counted in ``LinkStats.unknown`` (not handed to the caller);
 - a **tlog** of every packet sent and received, in the order the flight handled them, stamped
   by an injected clock (wall time, or simulation time in lockstep so that two lockstep runs
   write the same bytes). pymavlink's ``mavutil.mavlink_connection(path)`` and ``mavlogdump.py``
@@ -35,7 +40,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.link import LinkError, TlogWriter
 
-__all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
+__all__ = ["LinkError", "LinkStats", "MavLink", "frame_header", "wall_clock_us"]
 
 #: Connection-string prefixes accepted (pymavlink's); anything else must be a serial device.
 SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
@@ -50,6 +55,17 @@ def wall_clock_us() -> int:
     return int(time.time() * 1e6)
 
 
+def frame_header(msg: mavlink.MAVLink_message) -> tuple[int, int, int]:
+    """(sequence, system id, component id) read from a message's own frame bytes (MAVLink 1 or
+    2); pymavlink leaves them 0 in a ``MAVLink_unknown``. (0, 0, 0) for a frame too short."""
+    buf = msg.get_msgbuf()
+    if len(buf) >= 7 and buf[0] == mavlink.PROTOCOL_MARKER_V2:
+        return buf[4], buf[5], buf[6]
+    if len(buf) >= 5 and buf[0] == mavlink.PROTOCOL_MARKER_V1:
+        return buf[2], buf[3], buf[4]
+    return 0, 0, 0
+
+
 @dataclass
 class LinkStats:
     """Packet counters of one link (what the summary reports as sent/received/lost)."""
@@ -59,6 +75,7 @@ class LinkStats:
     lost: int = 0  # sequence-number gaps of the sources we heard
     duplicates: int = 0
     bad: int = 0  # bytes that did not parse as MAVLink (CRC errors, truncation, junk)
+    unknown: int = 0  # well-formed frames of message ids common.xml lacks (also in received)
     sent_by_type: dict[str, int] = field(default_factory=dict)
     received_by_type: dict[str, int] = field(default_factory=dict)
 
@@ -69,6 +86,7 @@ class LinkStats:
             "lost": self.lost,
             "duplicates": self.duplicates,
             "bad": self.bad,
+            "unknown": self.unknown,
             "sent_by_type": dict(sorted(self.sent_by_type.items())),
             "received_by_type": dict(sorted(self.received_by_type.items())),
         }
@@ -236,18 +254,29 @@ class MavLink:
             if msg.get_type() == "BAD_DATA":
                 self.stats.bad += 1
                 continue
-            if self._is_duplicate(msg):
+            unknown = isinstance(msg, mavlink.MAVLink_unknown)
+            if self._is_duplicate(msg, frame_header(msg) if unknown else None):
                 self.stats.duplicates += 1
                 continue
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
+            if unknown:
+                # a message of another dialect: counted and logged, but nothing a flight reads
+                self.stats.unknown += 1
+                if self._tlog is not None:
+                    self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+                continue
             self._queue.append(msg)
 
-    def _is_duplicate(self, msg: mavlink.MAVLink_message) -> bool:
-        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost."""
-        key = (msg.get_srcSystem(), msg.get_srcComponent())
-        seq = msg.get_seq()
+    def _is_duplicate(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> bool:
+        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost.
+
+        ``header`` (sequence, system, component) read from the frame, for messages whose header
+        pymavlink did not decode (``MAVLink_unknown``)."""
+        if header is None:
+            header = (msg.get_seq(), msg.get_srcSystem(), msg.get_srcComponent())
+        seq, key = header[0], (header[1], header[2])
         packet = bytes(msg.get_msgbuf())
         src = self._sources.get(key)
         if src is None:
