@@ -191,12 +191,19 @@ def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessa
     )
 
 
+def ground_course(st: VehicleState, *, unknown_cdeg: int) -> tuple[float, int]:
+    """(ground speed m/s, course over ground in cdeg 0..35999); ``unknown_cdeg`` below 0.1 m/s."""
+    v = st.vel_ned_m_s
+    ground = math.hypot(float(v[0]), float(v[1]))
+    if ground <= 0.1:
+        return ground, unknown_cdeg
+    return ground, _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000
+
+
 def gps_raw_int(t_us: int, st: VehicleState, home: Home, healthy: bool = True) -> MAVLinkMessage:
     """A 3D fix with 10 satellites (no fix when the GPS failure is injected)."""
     lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
-    v = st.vel_ned_m_s
-    ground = math.hypot(float(v[0]), float(v[1]))
-    cog = _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000 if ground > 0.1 else 65535
+    ground, cog = ground_course(st, unknown_cdeg=65535)
     fix = mavlink.GPS_FIX_TYPE_3D_FIX if healthy else mavlink.GPS_FIX_TYPE_NO_FIX
     return mavlink.MAVLink_gps_raw_int_message(
         t_us, fix, _clip32(lat * 1e7), _clip32(lon * 1e7), _clip32(alt * 1000.0), 70, 100,
@@ -357,8 +364,7 @@ def open_drone_id_location(st: VehicleState, home: Home, airborne: bool) -> MAVL
     heading (cdeg), speeds (cm/s), heights; unknown timestamp 0xFFFF, no id_or_mac."""
     lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
     v = st.vel_ned_m_s
-    ground = math.hypot(float(v[0]), float(v[1]))
-    direction = _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000 if ground > 0.1 else 36100
+    ground, direction = ground_course(st, unknown_cdeg=36100)
     status = mavlink.MAV_ODID_STATUS_AIRBORNE if airborne else mavlink.MAV_ODID_STATUS_GROUND
     return mavlink.MAVLink_open_drone_id_location_message(
         0, 0, [0] * 20, status, direction, min(_clip32(ground * 100.0), 25425), _clip16(-float(v[2]) * 100.0),

@@ -115,3 +115,22 @@ def test_an_int_parameter_travels_bytewise():
 
 
 REAL_KIND = "real"
+
+
+def test_the_vehicle_files_hover_as_px4_sitl():
+    from dataclasses import replace
+
+    from sitl_plant.cli import build_parser
+    from sitl_plant.vehicle import DEFAULT_VEHICLE_FILE, PX4_SIH_VEHICLE_FILE
+
+    sih = load_vehicle(PX4_SIH_VEHICLE_FILE)
+    # PX4 SIH (its README): 1 kg, 4 x 5 N, 0.1 N m per rotor, inertia, T_TAU, KDV; hover 0.49
+    assert (sih.mass_kg, sih.max_thrust_n, sih.max_yaw_torque_nm) == (1.0, pytest.approx(20.0), pytest.approx(0.2))
+    assert sih.inertia_kg_m2 == (0.025, 0.025, 0.03) and sih.motor_time_constant_s == 0.05
+    assert sih.linear_drag_n_s_m == (1.0, 1.0, 1.0) and sih.max_roll_pitch_torque_nm == pytest.approx(2 * 0.2 * 5.0)
+    default = load_vehicle(DEFAULT_VEHICLE_FILE)
+    assert build_parser().parse_args([]).vehicle == DEFAULT_VEHICLE_FILE
+    assert default.mass_kg * default.gravity_m_s2 / default.max_thrust_n == pytest.approx(0.5, abs=0.002)
+    paper = load_vehicle(PAPER_VEHICLE_FILE)  # the paper's reproduction flies this one, unchanged
+    assert paper.max_thrust_n == pytest.approx(19.6)
+    assert replace(default, rotor_speed_max_rad_s=paper.rotor_speed_max_rad_s) == paper  # only the top speed differs
