@@ -26,6 +26,7 @@ from pathlib import Path
 from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
 from sitl_plant.clihelp import HelpFormatter
+from sitl_plant.vehicle import PAPER_VEHICLE_FILE
 from sitl_plant.paths import output_folder
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     plant_port, offboard_port = free_udp_ports(2)
     python = sys.executable
     plant_cmd = [
-        python, "-m", "sitl_plant.cli", "--model", args.model,
+        python, "-m", "sitl_plant.cli", "--model", args.model, "--vehicle", str(PAPER_VEHICLE_FILE),  # the paper's quad
         "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote", f"127.0.0.1:{offboard_port}",
         "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"),
     ]  # fmt: skip  (not --quiet: plant.log keeps its banner, a status line every 10 s and its summary)

@@ -14,7 +14,8 @@ On top of it this module does what a flight needs of a link and pymavlink leaves
   TIME_ESTIMATE_TO_TARGET, CURRENT_MODE, CURRENT_EVENT_SEQUENCE...) are well-formed packets that
   use a sequence number too: pymavlink hands them over as ``MAVLink_unknown`` with no header
   decoded (source 0/0, sequence 0), so their source and sequence are read from the frame itself;
-  they advance the count and are counted in ``LinkStats.unknown`` (not handed to the caller);
+  they advance the count, are counted in ``LinkStats.unknown`` and logged in their place, but not
+  handed to the caller;
 - a **tlog** of every packet sent and received, in the order the flight handled them, stamped
   by an injected clock (wall time, or simulation time in lockstep so that two lockstep runs
   write the same bytes). pymavlink's ``mavutil.mavlink_connection(path)`` and ``mavlogdump.py``
@@ -38,6 +39,7 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.codec import frame_header
 from sitl_plant.link import LinkError, TlogWriter
 
 __all__ = ["LinkError", "LinkStats", "MavLink", "frame_header", "wall_clock_us"]
@@ -53,17 +55,6 @@ ONBOARD_COMPID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 def wall_clock_us() -> int:
     """Microseconds since the Unix epoch (the tlog's usual timestamp)."""
     return int(time.time() * 1e6)
-
-
-def frame_header(msg: mavlink.MAVLink_message) -> tuple[int, int, int]:
-    """(sequence, system id, component id) read from a message's own frame bytes (MAVLink 1 or
-    2); pymavlink leaves them 0 in a ``MAVLink_unknown``. (0, 0, 0) for a frame too short."""
-    buf = msg.get_msgbuf()
-    if len(buf) >= 7 and buf[0] == mavlink.PROTOCOL_MARKER_V2:
-        return buf[4], buf[5], buf[6]
-    if len(buf) >= 5 and buf[0] == mavlink.PROTOCOL_MARKER_V1:
-        return buf[2], buf[3], buf[4]
-    return 0, 0, 0
 
 
 @dataclass
@@ -193,33 +184,54 @@ class MavLink:
     # -- receiving ---------------------------------------------------------------------------------
 
     def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None:
-        """The next new message (logged now), or None when none came within ``timeout_s``."""
-        if not self._queue:
-            self._fill(timeout_s)
-        if not self._queue:
-            return None
-        msg = self._queue.popleft()
-        if self._tlog is not None:
-            self._tlog.write(self.log_time_us(), msg.get_msgbuf())
-        return msg
+        """The next new message (logged now), or None when none came within ``timeout_s``.
+
+        Frames of other dialects are logged in their place and never returned."""
+        deadline = time.monotonic() + max(timeout_s, 0.0)
+        while True:
+            self._pass_unknown()
+            if self._queue:
+                msg = self._queue.popleft()
+                if self._tlog is not None:
+                    self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+                return msg
+            read = self._fill(max(deadline - time.monotonic(), 0.0))
+            if not read and time.monotonic() >= deadline:
+                self._pass_unknown()
+                return None
 
     def pending(self) -> bool:
         """Whether a message is already waiting (without blocking)."""
-        if not self._queue:
-            self._fill(0.0)
-        return bool(self._queue)
+        while True:
+            self._pass_unknown()
+            if self._queue:
+                return True
+            if not self._fill(0.0):
+                return False
 
-    def _fill(self, timeout_s: float) -> None:
+    def _pass_unknown(self) -> None:
+        """Log the other dialects' frames at the head of the queue, in order, and drop them."""
+        queue = self._queue
+        while queue and isinstance(queue[0], mavlink.MAVLink_unknown):
+            msg = queue.popleft()
+            if self._tlog is not None:
+                self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+
+    def _fill(self, timeout_s: float) -> bool:
+        """Read until something is queued or ``timeout_s`` passed; whether any datagram came."""
         deadline = time.monotonic() + max(timeout_s, 0.0)
+        read = False
         while not self._queue:
             data = self._read()
             if data:
+                read = True
                 self._parse(data)
                 continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                return
+                return read
             self._wait(remaining)
+        return read
 
     def _read(self) -> bytes:
         try:
@@ -261,12 +273,8 @@ class MavLink:
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
-            if unknown:
-                # a message of another dialect: counted and logged, but nothing a flight reads
+            if unknown:  # another dialect's message: counted, and logged in its place (recv), never handed over
                 self.stats.unknown += 1
-                if self._tlog is not None:
-                    self._tlog.write(self.log_time_us(), msg.get_msgbuf())
-                continue
             self._queue.append(msg)
 
     def _is_duplicate(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> bool:

@@ -600,6 +600,8 @@ class Plant:
         mode's target; NaN (ignored) where nothing is commanded, as PX4 sends it."""
         task = self.autopilot.task()
         none3 = (None, None, None)
+        if not self.autopilot.armed:  # PX4 on the ground, disarmed: everything ignored (measured)
+            return codec.position_target_local_ned(t_ms, none3, none3, none3, float(self._truth.euler_rad[2]))
         if isinstance(task, OffboardTask) and isinstance(task.setpoint, PositionSetpoint):
             sp = task.setpoint
             yaw = sp.yaw_rad if sp.yaw_rad is not None else float(self._truth.euler_rad[2])

@@ -7,7 +7,8 @@ from __future__ import annotations
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from offboard.link import MavLink, frame_header
+from offboard.codec import frame_header
+from offboard.link import MavLink
 from sitl_plant import codec
 
 
