@@ -4,9 +4,9 @@ parameters clients read; and the offboard link's loss counter on PX4's dialect f
 
 Both are listened to as a common.xml client hears them (pymavlink's common dialect: PX4's
 development-dialect messages arrive as UNKNOWN_<id>). Rates are per second of the vehicle's own
-clock (the span of ATTITUDE's time_boot_ms). PX4 sends each stream at its configured rate (on a
-loaded machine at 75-90 % of it: its loop's granularity); the plant at the configured rate: a
-ratio of 0.75 .. 1.35 is "the same" (a stream at another PX4 default, e.g. 5 instead of 10 Hz, is not).
+clock (the span of ATTITUDE's time_boot_ms). PX4 sends each stream at its configured rate, on a
+loaded machine at 55-90 % of it (its loop falls behind); the plant at the configured rate: a
+ratio plant / PX4 of 0.75 .. 1.9 is "the same" (a stream at half or twice PX4's is not).
 """
 
 from __future__ import annotations
@@ -176,7 +176,7 @@ def test_the_plant_streams_what_px4_streams_at_px4s_rates(px4, plant, link):
     assert not extra, f"the plant sends, PX4 not: {sorted(extra)}"
     for name in steady:
         if theirs[name] >= 2.0:  # enough samples for a rate
-            assert 0.75 <= ours[name] / theirs[name] <= 1.35, f"{name}: PX4 {theirs[name]:.2f} Hz, plant {ours[name]:.2f} Hz"
+            assert 0.75 <= ours[name] / theirs[name] <= 1.9, f"{name}: PX4 {theirs[name]:.2f} Hz, plant {ours[name]:.2f} Hz"
 
 
 def test_autopilot_version_is_px4s(px4, plant):

@@ -134,3 +134,13 @@ def test_the_vehicle_files_hover_as_px4_sitl():
     paper = load_vehicle(PAPER_VEHICLE_FILE)  # the paper's reproduction flies this one, unchanged
     assert paper.max_thrust_n == pytest.approx(19.6)
     assert replace(default, rotor_speed_max_rad_s=paper.rotor_speed_max_rad_s) == paper  # only the top speed differs
+
+
+def test_position_target_is_empty_on_the_ground_as_px4s():
+    """PX4 v1.16 disarmed in Hold sent type_mask 63 with NaN position and velocity (measured)."""
+    vehicle = load_vehicle(PAPER_VEHICLE_FILE)
+    params = plant_params(vehicle)
+    plant = Plant(PlantConfig(), vehicle, params, Autopilot(params))
+    msg = plant._build(mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED)
+    assert msg.type_mask & 0b111111 == 0b111111 and all(v != v for v in (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
+    assert msg.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED
