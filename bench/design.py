@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from offboard.model.vehicle import PAPER_VEHICLE_FILE
+
 ROOT = Path(__file__).resolve().parents[1]
 MISSIONS = ROOT / "missions"
 #: The bundled missions ``offboard fly`` flies (the paper-sim* files are in-process scenarios).
@@ -96,7 +98,8 @@ def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep:
     link = DelayedLink(plant_port, offboard_port, delay_s=DELAY_S, jitter_s=JITTER_S) if delay else None
     remote = link.port if link is not None else offboard_port
     plant_cmd = [sys.executable, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote",
-                 f"127.0.0.1:{remote}", "--gcs-bind", "none", "--quiet", *(["--lockstep"] if lockstep else [])]  # fmt: skip
+                 f"127.0.0.1:{remote}", "--gcs-bind", "none", "--quiet", "--vehicle", str(PAPER_VEHICLE_FILE),
+                 *(["--lockstep"] if lockstep else [])]  # fmt: skip  (the paper's quad, whose figures RESULTS.md keeps)
     run_dir.mkdir(parents=True, exist_ok=True)
     fly = plant = None
     try:

@@ -52,6 +52,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from offboard.demo import free_udp_ports  # noqa: E402  (after the path is set)
+from offboard.model.vehicle import PAPER_VEHICLE_FILE  # noqa: E402
 
 PY = sys.executable
 PAPER_HELIX = ROOT / "missions" / "paper-helix.toml"
@@ -156,7 +157,7 @@ def fly(
     run_dir.mkdir(parents=True, exist_ok=True)
     plant_port, fly_port = free_udp_ports(2)
     plant_cmd = [
-        "-m", "sitl_plant.cli", "--model", "rigid-body", "--api-bind", f"127.0.0.1:{plant_port}",
+        "-m", "sitl_plant.cli", "--model", "rigid-body", "--vehicle", str(PAPER_VEHICLE_FILE), "--api-bind", f"127.0.0.1:{plant_port}",
         "--api-remote", f"127.0.0.1:{fly_port}", "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"), "--quiet",
         *(["--lockstep"] if lockstep else []), *plant_args,
     ]  # fmt: skip

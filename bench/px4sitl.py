@@ -77,6 +77,7 @@ class Px4:
     pid: int
     log: Path
     api_listen_port: int  # where PX4 sends its API link: offboard fly --connect udpin:127.0.0.1:PORT
+    gcs_listen_port: int = 0  # where PX4 sends its ground-station link
 
 
 @contextmanager
@@ -97,7 +98,7 @@ def running_px4(workdir: Path, *, speed: float = 1.0) -> Iterator[Px4]:
     assert started.returncode == 0 and "PX4_PID" in values, f"PX4 SITL did not start:\n{started.stderr}"
     pid = int(values["PX4_PID"])
     try:
-        yield Px4(pid, Path(values.get("PX4_LOG", workdir / "px4.log")), api_remote)
+        yield Px4(pid, Path(values.get("PX4_LOG", workdir / "px4.log")), api_remote, gcs_remote)
     finally:
         try:
             os.kill(pid, 15)

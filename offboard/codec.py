@@ -433,3 +433,14 @@ def timesync_offset_ns(ts1_ns: int, tc1_ns: int, now_ns: int) -> tuple[int, int]
     """
     rtt = now_ns - ts1_ns
     return tc1_ns - (ts1_ns + now_ns) // 2, rtt
+
+
+def frame_header(msg: mavlink.MAVLink_message) -> tuple[int, int, int]:
+    """(sequence, system id, component id) read from a message's own frame bytes (MAVLink 1 or
+    2); pymavlink leaves them 0 in a ``MAVLink_unknown``. (0, 0, 0) for a frame too short."""
+    buf = msg.get_msgbuf()
+    if len(buf) >= 7 and buf[0] == mavlink.PROTOCOL_MARKER_V2:
+        return buf[4], buf[5], buf[6]
+    if len(buf) >= 5 and buf[0] == mavlink.PROTOCOL_MARKER_V1:
+        return buf[2], buf[3], buf[4]
+    return 0, 0, 0

@@ -27,6 +27,7 @@ from offboard.errors import UserError
 from offboard.missions import MISSIONS_DIR
 from offboard.model.clihelp import HelpFormatter
 from offboard.model.paths import output_folder
+from offboard.model.vehicle import PAPER_VEHICLE_FILE
 
 PAPER_HELIX = MISSIONS_DIR / "paper-helix.toml"
 STOP_TIMEOUT_S = 5.0
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     plant_port, offboard_port = free_udp_ports(2)
     python = sys.executable
     plant_cmd = [
-        python, "-m", "sitl_plant.cli", "--model", args.model,
+        python, "-m", "sitl_plant.cli", "--model", args.model, "--vehicle", str(PAPER_VEHICLE_FILE),  # the paper's quad
         "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote", f"127.0.0.1:{offboard_port}",
         "--gcs-bind", "none", "--log", str(run_dir / "plant.tlog"),
     ]  # fmt: skip  (not --quiet: plant.log keeps its banner, a status line every 10 s and its summary)

@@ -1026,7 +1026,9 @@ class Flight:
             if name == self._param_wanted:
                 self.vehicle_params[name] = value
         elif kind == "TIMESYNC":
-            if self._timesync_ts1 is not None and int(msg.ts1) == self._timesync_ts1:  # our request, answered
+            # our request, answered; tc1 = 0 is the vehicle's own request (PX4 sends them at 10 Hz),
+            # whose ts1 equals ours in lockstep, where both are the simulation time
+            if self._timesync_ts1 is not None and int(msg.tc1) != 0 and int(msg.ts1) == self._timesync_ts1:
                 self._timesync_reply = (int(msg.tc1), self._now_ns())
         elif kind == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)

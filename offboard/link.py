@@ -9,7 +9,13 @@ On top of it this module does what a flight needs of a link and pymavlink leaves
 - **duplicate suppression**: a packet whose source, sequence number and bytes equal one of the
   latest received is dropped (a lockstep plant resends its last telemetry as a keepalive while
   nobody answers; those copies are not news);
-- **loss counting** from the sequence numbers of each source (``LinkStats.lost``);
+- **loss counting** from the sequence numbers of each source (``LinkStats.lost``); frames of
+  message ids that common.xml lacks (PX4 sends its development dialect: LINK_NODE_STATUS,
+  TIME_ESTIMATE_TO_TARGET, CURRENT_MODE, CURRENT_EVENT_SEQUENCE...) are well-formed packets that
+  use a sequence number too: pymavlink hands them over as ``MAVLink_unknown`` with no header
+  decoded (source 0/0, sequence 0), so their source and sequence are read from the frame itself;
+  they advance the count, are counted in ``LinkStats.unknown`` and logged in their place, but not
+  handed to the caller;
 - **signing** (``offboard.signing``, optional): what we send is signed, and frames not signed with
   the key are refused and counted (``LinkStats.refused``) after the duplicate filter;
 - a **tlog** of every packet sent and received, in the order the flight handled them, stamped
@@ -35,11 +41,12 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from offboard.signing import SigningSession, Verdict
+from offboard.codec import frame_header
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter, wall_clock_us
+from offboard.signing import SigningSession, Verdict
 
-__all__ = ["LinkError", "LinkStats", "MavLink", "wall_clock_us"]
+__all__ = ["LinkError", "LinkStats", "MavLink", "frame_header", "wall_clock_us"]
 
 #: Connection-string prefixes accepted (pymavlink's); anything else must be a serial device.
 SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
@@ -58,6 +65,7 @@ class LinkStats:
     lost: int = 0  # sequence-number gaps of the sources we heard
     duplicates: int = 0
     bad: int = 0  # bytes that did not parse as MAVLink (CRC errors, truncation, junk)
+    unknown: int = 0  # well-formed frames of message ids common.xml lacks (also in received)
     #: well-formed frames refused by signing (``offboard.signing.Verdict``: unsigned, bad_signature,
     #: replayed, stale_stream), never handed to the flight
     refused: dict[str, int] = field(default_factory=dict)
@@ -71,6 +79,7 @@ class LinkStats:
             "lost": self.lost,
             "duplicates": self.duplicates,
             "bad": self.bad,
+            "unknown": self.unknown,
             "refused": dict(sorted(self.refused.items())),
             "sent_by_type": dict(sorted(self.sent_by_type.items())),
             "received_by_type": dict(sorted(self.received_by_type.items())),
@@ -186,35 +195,56 @@ class MavLink:
     # -- receiving ---------------------------------------------------------------------------------
 
     def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None:
-        """The next new message (logged now), or None when none came within ``timeout_s``."""
-        if not self._queue:
-            self._fill(timeout_s)
-        if not self._queue:
-            return None
-        msg = self._queue.popleft()
-        if self._tlog is not None:
-            self._tlog.write(self.log_time_us(), msg.get_msgbuf())
-        return msg
+        """The next new message (logged now), or None when none came within ``timeout_s``.
+
+        Frames of other dialects are logged in their place and never returned."""
+        deadline = time.monotonic() + max(timeout_s, 0.0)
+        while True:
+            self._pass_unknown()
+            if self._queue:
+                msg = self._queue.popleft()
+                if self._tlog is not None:
+                    self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+                return msg
+            read = self._fill(max(deadline - time.monotonic(), 0.0))
+            if not read and time.monotonic() >= deadline:
+                self._pass_unknown()
+                return None
 
     def pending(self) -> bool:
         """Whether a message is already waiting (without blocking)."""
-        if not self._queue:
-            self._fill(0.0)
-        return bool(self._queue)
+        while True:
+            self._pass_unknown()
+            if self._queue:
+                return True
+            if not self._fill(0.0):
+                return False
 
-    def _fill(self, timeout_s: float) -> None:
+    def _pass_unknown(self) -> None:
+        """Log the other dialects' frames at the head of the queue, in order, and drop them."""
+        queue = self._queue
+        while queue and isinstance(queue[0], mavlink.MAVLink_unknown):
+            msg = queue.popleft()
+            if self._tlog is not None:
+                self._tlog.write(self.log_time_us(), msg.get_msgbuf())
+
+    def _fill(self, timeout_s: float) -> bool:
+        """Read until something is queued or ``timeout_s`` passed; whether any datagram came."""
         deadline = time.monotonic() + max(timeout_s, 0.0)
+        read = False
         while not self._queue:
             before = getattr(self.conn, "last_address", None)
             data = self._read()
             if data:
+                read = True
                 if not self._parse(data) and self._datagrams and before is not None:
                     self.conn.last_address = before  # a stranger's datagram: keep answering the vehicle
                 continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                return
+                return read
             self._wait(remaining)
+        return read
 
     def _read(self) -> bytes:
         try:
@@ -252,12 +282,15 @@ class MavLink:
             if msg.get_type() == "BAD_DATA":
                 self.stats.bad += 1
                 continue
-            if self._is_duplicate(msg):  # first: a lockstep keepalive's copy is a duplicate, not a replay
+            unknown = isinstance(msg, mavlink.MAVLink_unknown)
+            header = frame_header(msg) if unknown else None  # (seq, system, component): pymavlink decodes none
+            if self._is_duplicate(msg, header):  # first: a lockstep keepalive's copy is a duplicate, not a replay
                 self.stats.duplicates += 1
                 continue
             verified = True
             if self.signing is not None:
-                verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), msg.get_srcSystem(), msg.get_srcComponent())
+                sysid, compid = (header[1], header[2]) if header is not None else (msg.get_srcSystem(), msg.get_srcComponent())
+                verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), sysid, compid)
                 if not verdict.accepted:
                     self.stats.refused[verdict.value] = self.stats.refused.get(verdict.value, 0) + 1
                     continue
@@ -265,15 +298,21 @@ class MavLink:
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
+            if unknown:  # another dialect's message: counted, and logged in its place (recv), never handed over
+                self.stats.unknown += 1
             self._queue.append(msg)
             if verified and (self.trusted is None or (msg.get_srcSystem(), msg.get_srcComponent()) == self.trusted):
                 trusted = True
         return trusted
 
-    def _is_duplicate(self, msg: mavlink.MAVLink_message) -> bool:
-        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost."""
-        key = (msg.get_srcSystem(), msg.get_srcComponent())
-        seq = msg.get_seq()
+    def _is_duplicate(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> bool:
+        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost.
+
+        ``header`` (sequence, system, component) read from the frame, for messages whose header
+        pymavlink did not decode (``MAVLink_unknown``)."""
+        if header is None:
+            header = (msg.get_seq(), msg.get_srcSystem(), msg.get_srcComponent())
+        seq, key = header[0], (header[1], header[2])
         packet = bytes(msg.get_msgbuf())
         src = self._sources.get(key)
         if src is None:

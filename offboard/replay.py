@@ -434,8 +434,12 @@ class LogScan:
         self.messages += 1
         self.last_time_s = t_s
         src = (msg.get_srcSystem(), msg.get_srcComponent())
+        seq = msg.get_seq()
         if kind.startswith("UNKNOWN"):
+            # another dialect's message (PX4 sends LINK_NODE_STATUS, CURRENT_MODE ...): pymavlink
+            # leaves its header 0/0, seq 0; it is the sender's, and uses one of its sequence numbers
             self.unknown_messages += 1
+            seq, src = codec.frame_header(msg)[0], codec.frame_header(msg)[1:]
         key = (src[0], src[1], kind)
         stream = self.streams.get(key)
         if stream is None:
@@ -444,7 +448,7 @@ class LogScan:
         counter = self.seq.get(src)
         if counter is None:
             counter = self.seq[src] = SeqCounter()
-        counter.add(msg.get_seq())
+        counter.add(seq)
         handler = _HANDLERS.get(kind)
         if handler is not None:
             handler(self, t_s, src, msg)
@@ -505,6 +509,8 @@ class LogScan:
         mask = int(msg.type_mask)
         nan = math.nan
         pos = (nan, nan, nan) if mask & _POS_IGNORE else (msg.x, msg.y, msg.z)
+        if not any(math.isfinite(p) for p in pos):
+            return  # no position targeted (PX4 and the plant send NaN while attitude is flown): no reference
         yaw = nan if mask & _YAW_IGNORE else msg.yaw
         self.position_targets.setdefault(src[0], []).append((int(msg.time_boot_ms), *pos, yaw, t_s))
 
@@ -878,12 +884,13 @@ def build_record(
             columns["ref_pos_ned_m"][k] = ref.pos_ned_m
             columns["ref_yaw_rad"][k] = ref.yaw_rad
     elif scan.position_targets.get(vehicle):
-        reference_source = "POSITION_TARGET_LOCAL_NED"
         targets = np.array(_unique_by_time(scan.position_targets[vehicle]), dtype=float)
         j = _latest(targets[:, 0], grid)
         ok = j >= 0
-        columns["ref_pos_ned_m"][ok] = targets[j[ok], 1:4]
-        columns["ref_yaw_rad"][ok] = targets[j[ok], 4]
+        if ok.any():  # targets the vehicle flew during the samples (not only after them, e.g. landing)
+            reference_source = "POSITION_TARGET_LOCAL_NED"
+            columns["ref_pos_ned_m"][ok] = targets[j[ok], 1:4]
+            columns["ref_yaw_rad"][ok] = targets[j[ok], 4]
 
     if len(setpoints) and n:
         j = rows if commanded else _latest(setpoints.time_boot_ms, grid)
@@ -1090,7 +1097,7 @@ def stream_log(
         kind = msg.get_type()
         if kind == "BAD_DATA":
             continue
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        src = codec.frame_header(msg)[1:] if kind.startswith("UNKNOWN") else (msg.get_srcSystem(), msg.get_srcComponent())
         if systems is not None and src[0] not in systems:
             continue
         if logged.time_s != now_stamp:

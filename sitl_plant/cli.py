@@ -24,9 +24,9 @@ from offboard.model.tlog import TlogWriter
 from sitl_plant.link import Endpoint, Link, parse_address
 from sitl_plant.params import plant_params
 from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
+from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
 from sitl_plant.server import Plant, PlantConfig, run_lockstep, run_realtime
 from sitl_plant.simulation import MODELS
-from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
 GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link
@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_version(parser, "sitl-plant")
     sim = parser.add_argument_group("simulation")
     sim.add_argument("--model", choices=MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
-    sim.add_argument("--vehicle", metavar="FILE", type=Path, default=PAPER_VEHICLE_FILE, help="vehicle parameter file (TOML)")
+    sim.add_argument("--vehicle", metavar="FILE", type=Path, default=DEFAULT_VEHICLE_FILE,
+                     help="vehicle parameter file (TOML); bundled: sitl-quad (default, hovers at 0.5 as PX4 SITL), "
+                          "paper-quad (the paper's, hovers at 0.25), px4-sih (PX4 SITL's SIH quadrotor)")
     sim.add_argument("--inner-loop", choices=InnerLoops.KINDS, default="px4", help="how attitude setpoints are flown: PX4's attitude/rate controllers, or the paper's tau_tilde with eq. 16")
     sim.add_argument("--wind", metavar="SPEC", default="none", help="wind: none | constant:N,E,D | dryden:SPEED[,dir=DEG,...] | gust:t=S,amp=M_S,dur=S, joined with '+'")
     sim.add_argument("--noise", metavar="SPEC", default="clean", help="sensor model for the telemetry: clean | paper[:FRACTION] | imu[:pos=M,vel=M_S,att=RAD,rate=RAD_S,acc=M_S2]")

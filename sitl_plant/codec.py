@@ -39,7 +39,28 @@ EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 # Earth's magnetic field near PX4 SITL's default home (Zurich), gauss, NED
 MAG_FIELD_NED_GAUSS = (0.21, 0.0, 0.43)
 
-PX4_FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # "v1.14.0", official release
+#: AUTOPILOT_VERSION as PX4 v1.16.0 SITL answers it (measured, tests/e2e/test_px4_parity_wire.py):
+#: version words major << 24 | minor << 16 | patch << 8 | FIRMWARE_VERSION_TYPE_OFFICIAL (255),
+#: the same word for the middleware, board_version 1, the first bytes of the release's git hash
+#: (6ea3539157...) in flight/middleware_custom_version, last byte first (PX4's version.c).
+PX4_FLIGHT_SW_VERSION = (1 << 24) | (16 << 16) | (0 << 8) | 255  # "v1.16.0", official release
+PX4_GIT_HASH_BYTES = (0, 0, 0, 0x57, 0x91, 0x53, 0xA3, 0x6E)
+PX4_BOARD_VERSION = 1
+#: PX4's capabilities (mavlink_main.cpp, get_capabilities; measured 0xE8FF).
+PX4_CAPABILITIES = (
+    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_FTP
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | mavlink.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+)
 
 #: Sensors the plant reports in SYS_STATUS, and the failure unit that makes each unhealthy.
 SENSOR_BITS = {
@@ -170,12 +191,19 @@ def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessa
     )
 
 
+def ground_course(st: VehicleState, *, unknown_cdeg: int) -> tuple[float, int]:
+    """(ground speed m/s, course over ground in cdeg 0..35999); ``unknown_cdeg`` below 0.1 m/s."""
+    v = st.vel_ned_m_s
+    ground = math.hypot(float(v[0]), float(v[1]))
+    if ground <= 0.1:
+        return ground, unknown_cdeg
+    return ground, _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000
+
+
 def gps_raw_int(t_us: int, st: VehicleState, home: Home, healthy: bool = True) -> MAVLinkMessage:
     """A 3D fix with 10 satellites (no fix when the GPS failure is injected)."""
     lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
-    v = st.vel_ned_m_s
-    ground = math.hypot(float(v[0]), float(v[1]))
-    cog = _clip32(math.degrees(math.atan2(float(v[1]), float(v[0]))) * 100.0) % 36000 if ground > 0.1 else 65535
+    ground, cog = ground_course(st, unknown_cdeg=65535)
     fix = mavlink.GPS_FIX_TYPE_3D_FIX if healthy else mavlink.GPS_FIX_TYPE_NO_FIX
     return mavlink.MAVLink_gps_raw_int_message(
         t_us, fix, _clip32(lat * 1e7), _clip32(lon * 1e7), _clip32(alt * 1000.0), 70, 100,
@@ -254,6 +282,144 @@ def servo_output_raw(t_us: int, motor_speeds_rad_s: np.ndarray, max_speed_rad_s:
     return mavlink.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0)
 
 
+# --- the streams PX4 v1.16 adds on its links (mavlink_main.cpp, configure_streams_to_default) ---
+
+_NAN = float("nan")
+_UNKNOWN_COVARIANCE = [_NAN] * 21  # MAVLink: NaN in the first element = unknown
+
+
+def odometry(t_us: int, st: VehicleState) -> MAVLinkMessage:
+    """ODOMETRY as PX4's ODOMETRY.hpp sends its estimate: MAV_FRAME_LOCAL_NED pose, body-FRD
+    velocity frame id MAV_FRAME_BODY_FRD... PX4 sends child_frame_id LOCAL_NED (1) with the
+    velocity in NED; the plant does the same (measured: frame_id 1, child_frame_id 1)."""
+    p, v, q, w = st.pos_ned_m, st.vel_ned_m_s, st.quat_wxyz, st.body_rate_frd_rad_s
+    return mavlink.MAVLink_odometry_message(
+        t_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, p[0], p[1], p[2], [float(c) for c in q],
+        v[0], v[1], v[2], w[0], w[1], w[2], _UNKNOWN_COVARIANCE, _UNKNOWN_COVARIANCE, 0, mavlink.MAV_ESTIMATOR_TYPE_NAIVE, 100,
+    )  # fmt: skip
+
+
+def altitude(t_us: int, st: VehicleState, home: Home, home_alt_m: float) -> MAVLinkMessage:
+    """ALTITUDE (m): AMSL as monotonic and AMSL, local = -down, relative to home, terrain and
+    bottom clearance from the flat ground at the home's altitude."""
+    amsl = home.alt_m - float(st.pos_ned_m[2])
+    height = -float(st.pos_ned_m[2])
+    return mavlink.MAVLink_altitude_message(t_us, amsl, amsl, height, amsl - home_alt_m, home.alt_m, height)
+
+
+def distance_sensor(t_ms: int) -> MAVLinkMessage:
+    """DISTANCE_SENSOR as PX4 SIH sends it without a range finder (measured): 0 .. 10000 cm,
+    current 0, MAV_DISTANCE_SENSOR_LASER, facing down (MAV_SENSOR_ROTATION_PITCH_270)."""
+    return mavlink.MAVLink_distance_sensor_message(t_ms, 0, 10000, 0, mavlink.MAV_DISTANCE_SENSOR_LASER, 0,
+                                                   mavlink.MAV_SENSOR_ROTATION_PITCH_270, 0)  # fmt: skip
+
+
+def position_target_local_ned(t_ms: int, pos_ned_m: tuple, vel_ned_m_s: tuple, acc_ned_m_s2: tuple, yaw_rad: float) -> MAVLinkMessage:
+    """POSITION_TARGET_LOCAL_NED: what the position controller flies; None entries are NaN
+    (PX4 sends NaN position/velocity and type_mask 63 when only thrust/attitude is set)."""
+    vals = [_NAN if v is None else float(v) for v in (*pos_ned_m, *vel_ned_m_s)]
+    mask = 0
+    for i, v in enumerate(vals):
+        if math.isnan(v):
+            mask |= 1 << i
+    acc = [0.0 if a is None else float(a) for a in acc_ned_m_s2]
+    return mavlink.MAVLink_position_target_local_ned_message(t_ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *vals, *acc, yaw_rad, 0.0)
+
+
+def timesync_request(now_ns: int) -> MAVLinkMessage:
+    """PX4's own TIMESYNC request (10 Hz on the API link): tc1 = 0, ts1 = its time in ns."""
+    return mavlink.MAVLink_timesync_message(0, now_ns)
+
+
+def ping_request(t_us: int, seq: int) -> MAVLinkMessage:
+    """PX4's PING request to everyone (target 0/0): time and a counter."""
+    return mavlink.MAVLink_ping_message(t_us, seq & 0xFFFFFFFF, 0, 0)
+
+
+def estimator_status(t_us: int, healthy: bool = True) -> MAVLinkMessage:
+    """ESTIMATOR_STATUS of a converged estimator (flags 1023 as PX4's EKF2 sends them; the plant
+    has no estimator: the test ratios are 0, accuracies those of its noise-free GPS)."""
+    flags = 1023 if healthy else mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_VERT | mavlink.ESTIMATOR_POS_VERT_ABS
+    return mavlink.MAVLink_estimator_status_message(t_us, flags, 0.0, 0.0, 0.0, 0.0, 0.0, _NAN, 0.3, 0.3)
+
+
+def scaled_pressure(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessage:
+    """SCALED_PRESSURE: ISA static pressure (hPa) at the altitude, 25 C."""
+    return mavlink.MAVLink_scaled_pressure_message(t_ms, pressure_hpa(home.alt_m - float(st.pos_ned_m[2])), 0.0, 2500, 0)
+
+
+def vibration(t_us: int) -> MAVLinkMessage:
+    """VIBRATION of a simulation: no vibration, no clipping."""
+    return mavlink.MAVLink_vibration_message(t_us, 0.0, 0.0, 0.0, 0, 0, 0)
+
+
+def open_drone_id_location(st: VehicleState, home: Home, airborne: bool) -> MAVLinkMessage:
+    """OPEN_DRONE_ID_LOCATION as PX4 sends it (its open_drone_id streams, common.xml): position,
+    heading (cdeg), speeds (cm/s), heights; unknown timestamp 0xFFFF, no id_or_mac."""
+    lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
+    v = st.vel_ned_m_s
+    ground, direction = ground_course(st, unknown_cdeg=36100)
+    status = mavlink.MAV_ODID_STATUS_AIRBORNE if airborne else mavlink.MAV_ODID_STATUS_GROUND
+    return mavlink.MAVLink_open_drone_id_location_message(
+        0, 0, [0] * 20, status, direction, min(_clip32(ground * 100.0), 25425), _clip16(-float(v[2]) * 100.0),
+        _clip32(lat * 1e7), _clip32(lon * 1e7), alt, alt, mavlink.MAV_ODID_HEIGHT_REF_OVER_TAKEOFF, -float(st.pos_ned_m[2]),
+        mavlink.MAV_ODID_HOR_ACC_1_METER, mavlink.MAV_ODID_VER_ACC_1_METER, 0, mavlink.MAV_ODID_SPEED_ACC_0_3_METERS_PER_SECOND,
+        65535.0, 0,
+    )  # fmt: skip
+
+
+def open_drone_id_system(home: Home, unix_s: float) -> MAVLinkMessage:
+    """OPEN_DRONE_ID_SYSTEM: the operator at home (take-off location), one area, EU class unknown."""
+    odid_epoch = 1_546_300_800  # 2019-01-01T00:00:00Z, Open Drone ID's time origin
+    stamp = int(max(unix_s - odid_epoch, 0)) & 0xFFFFFFFF
+    return mavlink.MAVLink_open_drone_id_system_message(
+        0, 0, [0] * 20, mavlink.MAV_ODID_OPERATOR_LOCATION_TYPE_TAKEOFF, mavlink.MAV_ODID_CLASSIFICATION_TYPE_UNDECLARED,
+        _clip32(home.lat_deg * 1e7), _clip32(home.lon_deg * 1e7), 1, 0, -1000.0, -1000.0, 0, 0, home.alt_m, stamp,
+    )  # fmt: skip
+
+
+class DialectMessage(MAVLinkMessage):
+    """A message of PX4's dialect that pymavlink's common.xml (and development.xml) lack: its id,
+    CRC extra and little-endian payload layout (fields in wire order), packed like pymavlink's.
+
+    The CRC extras were checked against PX4 v1.16's own frames."""
+
+    def __init__(self, msg_id: int, name: str, crc_extra: int, layout: str, fields: tuple[str, ...], values: tuple) -> None:
+        super().__init__(msg_id, name)
+        self.id, self.msgname, self.crc_extra = msg_id, name, crc_extra
+        self._layout = struct.Struct("<" + layout)
+        self._fieldnames = list(fields)
+        for name_, value in zip(fields, values):
+            setattr(self, name_, value)
+
+    def pack(self, mav: MAVLink, force_mavlink1: bool = False) -> bytes:
+        payload = self._layout.pack(*(getattr(self, f) for f in self._fieldnames))
+        return self._pack(mav, self.crc_extra, payload, force_mavlink1=force_mavlink1)
+
+
+def link_node_status(t_ms: int, sent: int, received: int) -> MAVLinkMessage:
+    """LINK_NODE_STATUS (id 8, PX4's development dialect): the link's own counters."""
+    fields = ("timestamp", "tx_rate", "rx_rate", "messages_sent", "messages_received", "messages_lost",
+              "rx_parse_err", "tx_overflows", "rx_overflows", "tx_buf", "rx_buf")  # fmt: skip
+    values = (t_ms, 0, 0, sent & 0xFFFFFFFF, received & 0xFFFFFFFF, 0, 0, 0, 0, 0, 0)
+    return DialectMessage(8, "LINK_NODE_STATUS", 117, "QIIIIIHHHBB", fields, values)
+
+
+def time_estimate_to_target(seconds: tuple[int, int, int, int, int] = (-1, -1, -1, -1, -1)) -> MAVLinkMessage:
+    """TIME_ESTIMATE_TO_TARGET (id 380, development dialect): safe return, land, next item,
+    mission end, commanded action, in s; -1 = unknown. PX4 SIH on the ground sends 0 for safe
+    return and -1 for the rest (measured)."""
+    fields = ("safe_return", "land", "mission_next_item", "mission_end", "commanded_action")
+    return DialectMessage(380, "TIME_ESTIMATE_TO_TARGET", 232, "iiiii", fields, seconds)
+
+
+def current_mode(custom_mode: int, intended_custom_mode: int) -> MAVLinkMessage:
+    """CURRENT_MODE (id 436, development dialect; pymavlink's development.py has it)."""
+    from pymavlink.dialects.v20 import development
+
+    return development.MAVLink_current_mode_message(0, custom_mode, intended_custom_mode)
+
+
 def system_time(unix_us: int, t_ms: int) -> MAVLinkMessage:
     return mavlink.MAVLink_system_time_message(unix_us, t_ms & 0xFFFFFFFF)
 
@@ -298,15 +464,14 @@ def param_name(raw: bytes | str) -> str:
 
 
 def autopilot_version(sysid: int) -> MAVLinkMessage:
-    caps = (
-        mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-        | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-        | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-        | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    )
+    """AUTOPILOT_VERSION with PX4 v1.16.0's version words and capabilities (``PX4_*`` above).
+
+    os_sw_version stays 0 (PX4 reports its host's kernel) and the uid is the plant's own
+    (``0x5171_0000 + sysid``: one per vehicle, never 0, uid2 zero as in PX4 SITL)."""
     return mavlink.MAVLink_autopilot_version_message(
-        caps, PX4_FLIGHT_SW_VERSION, 0, 0, 0, list(b"sitlplnt"), [0] * 8, [0] * 8, 0, 0, 0x5171_0000 + sysid
-    )
+        PX4_CAPABILITIES, PX4_FLIGHT_SW_VERSION, PX4_FLIGHT_SW_VERSION, 0, PX4_BOARD_VERSION,
+        list(PX4_GIT_HASH_BYTES), list(PX4_GIT_HASH_BYTES), [0] * 8, 0, 0, 0x5171_0000 + sysid,
+    )  # fmt: skip
 
 
 def timesync_reply(now_ns: int, ts1: int) -> MAVLinkMessage:

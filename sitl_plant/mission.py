@@ -418,9 +418,10 @@ class MissionManager:
 
 @dataclass
 class Reporter:
-    """When MISSION_CURRENT and MISSION_ITEM_REACHED go out (PX4's MavlinkMissionManager::send):
-    MISSION_CURRENT on every change and at 1 Hz; MISSION_ITEM_REACHED on every change of the
-    item reached last, then again at 1 Hz ten more times."""
+    """When MISSION_CURRENT and MISSION_ITEM_REACHED go out besides the streams (PX4's
+    MavlinkMissionManager::send): MISSION_CURRENT on every change (its 1 Hz is the plant's stream,
+    server.STREAMS); MISSION_ITEM_REACHED on every change of the item reached last, then again at
+    1 Hz ten more times."""
 
     REPEATS = 10
     _sent_current: tuple = ()
@@ -433,7 +434,7 @@ class Reporter:
         ``reached_count`` grows with every item reached (``Navigator.reached_count``)."""
         tick = now_s >= self._next_s - 1e-9
         out = []
-        if current != self._sent_current or tick:
+        if self._sent_current and current != self._sent_current:  # (the first: the stream's)
             out.append(Out("MISSION_CURRENT", None, current))
         if reached_count != self._sent_reached and reached_seq >= 0:
             out.append(Out("MISSION_ITEM_REACHED", None, (reached_seq,)))

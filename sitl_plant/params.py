@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import math
 import struct
+import tomllib
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 from typing import Iterator
 
 from offboard.model.vehicle import VehicleParams
@@ -26,6 +29,9 @@ INT = "int"
 
 #: Physical parameters whose change rebuilds the simulated vehicle (refused while armed).
 PHYSICAL = ("SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KF", "SIM_KM_KF", "SIM_W_MAX", "SIM_MOT_TAU")
+
+#: PX4 v1.16 SITL's parameters that clients read, with PX4's types and values (the file says which).
+PX4_PARAMS_FILE = Path(__file__).with_name("px4_params.toml")
 
 #: COM_OBL_RC_ACT values the plant implements (PX4's numbering).
 OBL_ACT_LAND = 4
@@ -137,14 +143,36 @@ class ParamTable:
 # --- the table --------------------------------------------------------------------------------
 
 
+@lru_cache(maxsize=1)
+def px4_published() -> dict[str, tuple[str, float]]:
+    """name -> (kind, value) of ``PX4_PARAMS_FILE``: what PX4 v1.16 SITL publishes and clients read."""
+    with PX4_PARAMS_FILE.open("rb") as fh:
+        table = tomllib.load(fh)
+    return {name: (entry["type"], float(entry["value"])) for name, entry in table.items()}
+
+
 def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpec]:
-    """Every parameter of the plant, with defaults from ``vehicle`` (see docs/plant.md)."""
+    """Every parameter of the plant, sorted by name as PX4 indexes them: the plant's own (defaults
+    from ``vehicle``, see docs/plant.md) and PX4 v1.16 SITL's others that clients read, with
+    PX4's type and value (``px4_published``: stored and answered, not used by the simulation)."""
+    own = _own_param_specs(vehicle, sysid=sysid)
+    names = {s.name for s in own}
+    published = [
+        ParamSpec(name, value, INT if kind == "int" else REAL, description="PX4 v1.16 SITL's value (published for clients)")
+        for name, (kind, value) in px4_published().items()
+        if name not in names
+    ]
+    return sorted(own + published, key=lambda spec: spec.name)
+
+
+def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpec]:
+    """The parameters the plant implements."""
     ixx, iyy, izz = vehicle.inertia_kg_m2
     thr_max = vehicle.max_thrust_n
     hover = min(0.9, max(0.05, vehicle.mass_kg * vehicle.gravity_m_s2 / thr_max))
     return [
         # identity, as a ground station expects of PX4
-        ParamSpec("SYS_AUTOSTART", 10016, INT, read_only=True, description="airframe id (PX4 SITL quadrotor)"),
+        ParamSpec("SYS_AUTOSTART", 10040, INT, read_only=True, description="airframe id (PX4 SITL's SIH quadrotor, sihsim_quadx)"),
         ParamSpec("MAV_SYS_ID", sysid, INT, read_only=True, description="MAVLink system id (set with --sysid)"),
         ParamSpec("MAV_TYPE", 2, INT, read_only=True, description="MAV_TYPE_QUADROTOR"),
         ParamSpec("SYS_FAILURE_EN", 0, INT, 0, 1, description="enable MAV_CMD_INJECT_FAILURE"),

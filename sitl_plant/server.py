@@ -74,25 +74,45 @@ def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleS
 
 # --- telemetry streams ---------------------------------------------------------------------------
 
-#: message id -> (name, default rate Hz on the onboard/API link, on the GCS link); PX4's
-#: ``configure_streams_to_default`` for MAVLINK_MODE_ONBOARD and MAVLINK_MODE_NORMAL.
-STREAMS: dict[int, tuple[str, float, float]] = {
+#: message id -> (name, default rate Hz on the onboard/API link, on the GCS link), 0 = off: PX4
+#: v1.16 SITL's, ``configure_streams_to_default`` (mavlink_main.cpp) for MAVLINK_MODE_ONBOARD (API)
+#: and MAVLINK_MODE_NORMAL (GCS), with the GCS link's ``mavlink stream -r 50`` of px4-rc.mavlink
+#: (attitude, positions, targets, servo outputs at 50 Hz). Measured on PX4 v1.16 SITL (SIH),
+#: docs/parity/wire.md: the same set, each at ~75-90 % of these rates (its loop's granularity).
+#: GPS_RAW_INT is "unlimited" on ONBOARD: sent as SIH's GPS updates, 8 Hz. TIME_ESTIMATE_TO_TARGET
+#: and CURRENT_MODE go out as their topics update (measured ~0.5 Hz on both links).
+STREAMS: dict[int, tuple[str, float, float]] = dict(sorted({
     mavlink.MAVLINK_MSG_ID_HEARTBEAT: ("HEARTBEAT", 1.0, 1.0),
+    8: ("LINK_NODE_STATUS", 1.0, 1.0),  # PX4's development dialect
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: ("SYS_STATUS", 5.0, 1.0),
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: ("SYSTEM_TIME", 1.0, 0.0),
-    mavlink.MAVLINK_MSG_ID_ATTITUDE: ("ATTITUDE", 100.0, 15.0),
-    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: ("ATTITUDE_QUATERNION", 50.0, 10.0),
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: ("LOCAL_POSITION_NED", 30.0, 1.0),
-    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: ("GLOBAL_POSITION_INT", 50.0, 5.0),
-    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: ("GPS_RAW_INT", 10.0, 5.0),  # ONBOARD: as the GPS updates (10 Hz)
+    mavlink.MAVLINK_MSG_ID_PING: ("PING", 1.0, 0.1),
+    mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE: ("SCALED_PRESSURE", 1.0, 1.0),
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: ("ATTITUDE", 100.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: ("ATTITUDE_QUATERNION", 50.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: ("LOCAL_POSITION_NED", 30.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: ("GLOBAL_POSITION_INT", 50.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: ("GPS_RAW_INT", 8.0, 5.0),
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: ("SERVO_OUTPUT_RAW", 10.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: ("MISSION_CURRENT", 1.0, 1.0),
     mavlink.MAVLINK_MSG_ID_VFR_HUD: ("VFR_HUD", 10.0, 4.0),
-    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: ("SERVO_OUTPUT_RAW", 10.0, 1.0),
-    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: ("ATTITUDE_TARGET", 10.0, 2.0),
+    mavlink.MAVLINK_MSG_ID_TIMESYNC: ("TIMESYNC", 10.0, 0.0),  # PX4's own requests (tc1 = 0)
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: ("POSITION_TARGET_LOCAL_NED", 10.0, 50.0),
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: ("ATTITUDE_TARGET", 10.0, 50.0),
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: ("HIGHRES_IMU", 50.0, 0.0),
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: ("DISTANCE_SENSOR", 10.0, 0.5),
+    mavlink.MAVLINK_MSG_ID_ALTITUDE: ("ALTITUDE", 10.0, 1.0),
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: ("BATTERY_STATUS", 0.5, 0.5),
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: ("ESTIMATOR_STATUS", 1.0, 0.5),
+    mavlink.MAVLINK_MSG_ID_VIBRATION: ("VIBRATION", 0.5, 0.1),
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: ("HOME_POSITION", 0.5, 0.5),
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: ("EXTENDED_SYS_STATE", 5.0, 1.0),
-}
+    mavlink.MAVLINK_MSG_ID_ODOMETRY: ("ODOMETRY", 30.0, 0.0),
+    380: ("TIME_ESTIMATE_TO_TARGET", 0.5, 0.5),  # PX4's development dialect
+    436: ("CURRENT_MODE", 0.5, 0.5),  # development.xml
+    mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_LOCATION: ("OPEN_DRONE_ID_LOCATION", 1.0, 1.0),
+    mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_SYSTEM: ("OPEN_DRONE_ID_SYSTEM", 1.0, 1.0),
+}.items()))
 #: Sent every lockstep period on the API link whatever their interval: the lockstep contract.
 LOCKSTEP_STREAMS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
 _STATE_STREAMS = {
@@ -103,6 +123,10 @@ _STATE_STREAMS = {
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
     mavlink.MAVLINK_MSG_ID_VFR_HUD,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY,
+    mavlink.MAVLINK_MSG_ID_ALTITUDE,
+    mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE,
+    mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_LOCATION,
 }
 
 
@@ -229,6 +253,7 @@ class Plant:
         self.loops = InnerLoops(params, model, config.physics_dt_s, config.inner_loop)
         self.streams = [StreamSchedule(API), StreamSchedule(GCS)]
         self.counters = Counters()
+        self._ping_seq = 0
         self.outbox: list[list[mavlink.MAVLink_message]] = [[], []]
         self._newest_setpoint_ms: dict[tuple[int, int], int] = {}  # per sender (system, component)
         #: a SETUP_SIGNING key accepted, for the loop to apply to the links (then None)
@@ -666,6 +691,14 @@ class Plant:
                 return codec.gps_raw_int(t_us, st, self.config.home, "gps" not in self.autopilot.failures)
             if mid == mavlink.MAVLINK_MSG_ID_VFR_HUD:
                 return codec.vfr_hud(st, self.config.home, self._attitude_target()[2])
+            if mid == mavlink.MAVLINK_MSG_ID_ODOMETRY:
+                return codec.odometry(t_us, st)
+            if mid == mavlink.MAVLINK_MSG_ID_ALTITUDE:
+                return codec.altitude(t_us, st, self.config.home, self.config.home.alt_m - self.autopilot.home_ned_m[2])
+            if mid == mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE:
+                return codec.scaled_pressure(t_ms, st, self.config.home)
+            if mid == mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_LOCATION:
+                return codec.open_drone_id_location(st, self.config.home, not self._truth_on_ground())
             return codec.highres_imu(t_us, st, self.config.home, self.vehicle.gravity_m_s2)
         if mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
             return codec.sys_status(self.autopilot.status(), bad_packets=self.counters.refused_setpoints)
@@ -684,7 +717,54 @@ class Plant:
             return codec.attitude_target(t_ms, q, rates, thrust)
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return codec.autopilot_version(self.config.sysid)
+        return self._build_px4_extra(mid, t_ms, t_us)
+
+    def _build_px4_extra(self, mid: int, t_ms: int, t_us: int) -> mavlink.MAVLink_message | None:
+        """The streams PX4 v1.16 sends that carry no simulated state worth the name (docs/parity/wire.md)."""
+        if mid == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+            return codec.timesync_request(max(t_us * 1000, 1))
+        if mid == mavlink.MAVLINK_MSG_ID_PING:
+            self._ping_seq += 1
+            return codec.ping_request(t_us, self._ping_seq)
+        if mid == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
+            return self.mission_current()  # the stream at 1 Hz; on every change too (mission.Reporter)
+        if mid == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
+            return self._position_target(t_ms)
+        if mid == mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR:
+            return codec.distance_sensor(t_ms)
+        if mid == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+            return codec.estimator_status(t_us, "gps" not in self.autopilot.failures)
+        if mid == mavlink.MAVLINK_MSG_ID_VIBRATION:
+            return codec.vibration(t_us)
+        if mid == mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_SYSTEM:
+            return codec.open_drone_id_system(self.config.home, self.epoch_us() * 1e-6)
+        if mid == 8:
+            return codec.link_node_status(t_ms, 0, 0)
+        if mid == 380:
+            return codec.time_estimate_to_target()
+        if mid == 436:
+            custom = self.autopilot.status().mode.custom_mode
+            return codec.current_mode(custom, custom)
         return None
+
+    def _truth_on_ground(self) -> bool:
+        return bool(self.sim.on_ground)
+
+    def _position_target(self, t_ms: int) -> mavlink.MAVLink_message:
+        """What the position controller flies: the offboard position setpoint or the auto
+        mode's target; NaN (ignored) where nothing is commanded, as PX4 sends it."""
+        task = self.autopilot.task()
+        none3 = (None, None, None)
+        if not self.autopilot.armed:  # PX4 on the ground, disarmed: everything ignored (measured)
+            return codec.position_target_local_ned(t_ms, none3, none3, none3, float(self._truth.euler_rad[2]))
+        if isinstance(task, OffboardTask) and isinstance(task.setpoint, PositionSetpoint):
+            sp = task.setpoint
+            yaw = sp.yaw_rad if sp.yaw_rad is not None else float(self._truth.euler_rad[2])
+            return codec.position_target_local_ned(t_ms, sp.pos_ned_m, sp.vel_ned_m_s, none3, yaw)
+        if isinstance(task, PositionTask):
+            vel = task.vel_ned_m_s if task.descend_m_s is None else (task.vel_ned_m_s[0], task.vel_ned_m_s[1], task.descend_m_s)
+            return codec.position_target_local_ned(t_ms, task.pos_ned_m, vel, none3, task.yaw_rad)
+        return codec.position_target_local_ned(t_ms, none3, none3, none3, float(self._truth.euler_rad[2]))
 
     def _motor_speeds(self) -> np.ndarray:
         if self._rigid:

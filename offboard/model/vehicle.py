@@ -31,6 +31,10 @@ from offboard.model.tomlfile import Fields, read_toml
 #: path so that reading one imports nothing of the simulator.
 VEHICLES_DIR = Path(__file__).resolve().parents[2] / "sitl_plant" / "vehicles"
 PAPER_VEHICLE_FILE = VEHICLES_DIR / "paper-quad.toml"
+#: sitl-plant's default: the paper's quad with PX4 SITL's headroom, hovering at 0.5 (the file says why).
+DEFAULT_VEHICLE_FILE = VEHICLES_DIR / "sitl-quad.toml"
+#: PX4 v1.16 SITL's SIH quadrotor (airframe 10040), to fly the vehicle PX4 SITL flies.
+PX4_SIH_VEHICLE_FILE = VEHICLES_DIR / "px4-sih.toml"
 
 EULER_RATE_FORMS = ("castillo", "printed", "zyx")
 

@@ -23,12 +23,14 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.model.rotations import quat_from_euler
+from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
 from helpers import REPO
 
 pytestmark = pytest.mark.e2e
 
 NAN = math.nan
-HOVER = 0.5 * 9.81 / 19.6  # the paper quad: m g / SIM_THR_MAX
+_DEFAULT = load_vehicle(DEFAULT_VEHICLE_FILE)
+HOVER = _DEFAULT.mass_kg * _DEFAULT.gravity_m_s2 / _DEFAULT.max_thrust_n  # the default vehicle: m g / SIM_THR_MAX, ~0.5
 IGNORE_ALL = 0b11000111  # SET_ATTITUDE_TARGET with nothing to fly: a lockstep tick, no proof of life
 
 
@@ -191,7 +193,9 @@ def test_parameters(start):
     for name in ("SIM_MASS", "SIM_THR_MAX", "SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX", "COM_OF_LOSS_T", "PAP_TO", "MC_ROLLRATE_P"):
         assert name in names
     assert names["SIM_MASS"].param_value == pytest.approx(0.5)
-    assert names["SIM_THR_MAX"].param_value == pytest.approx(19.6)
+    # the default vehicle (sitl-quad.toml): the paper's quad at 495 rad/s, hovering at 0.5 as PX4 SITL
+    assert names["SIM_THR_MAX"].param_value == pytest.approx(_DEFAULT.max_thrust_n) == pytest.approx(4 * 1e-5 * 495.0**2)
+    assert names["MPC_THR_HOVER"].param_value == pytest.approx(0.5, abs=0.001)
     assert names["COM_OBL_RC_ACT"].param_type == mavlink.MAV_PARAM_TYPE_INT32
     assert sorted(pv.param_index for pv in names.values()) == list(range(first.param_count))
     # read by index

@@ -22,6 +22,7 @@ from pymavlink import mavutil
 
 from bench.linkdelay import DelayedLink
 from offboard.demo import free_udp_ports, stop_process
+from offboard.model.vehicle import PAPER_VEHICLE_FILE
 
 PY = sys.executable
 ENV = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
@@ -121,7 +122,10 @@ def fly(
                "--run-dir", str(run_dir), "--log", str(tlog), "--no-plots", "--json", *fly_args]
     if lockstep:
         fly_cmd.append("--lockstep")
-    plant_cmd = [PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--quiet", "--log", str(plant_tlog),
+    # the flights here are the paper's (its quad, Table I or designed gains, figures from its runs):
+    # the paper's vehicle unless the test names one (the plant's default hovers at 0.5 as PX4 SITL)
+    vehicle = [] if "--vehicle" in plant_args else ["--vehicle", str(PAPER_VEHICLE_FILE)]
+    plant_cmd = [PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--quiet", "--log", str(plant_tlog), *vehicle,
                  *(["--gcs-bind", f"127.0.0.1:{gcs_port}", "--gcs-remote", "none"] if gcs else ["--gcs-bind", "none"]),
                  *plant_args]
     if lockstep:

@@ -38,7 +38,7 @@ def test_every_parity_row_names_tests_that_exist():
         assert header[-1] == "checked by" and "PX4" in header[1], f"{path.name}: header {header}"
         assert body, f"{path.name}: no rows"
         for row in body:
-            named = re.findall(r"`(test_\w+)`", row[-1])
+            named = re.findall(r"`(test_\w+)(?:\[[^\]`]*\])?`", row[-1])  # a parametrised one: test_name[id]
             if row[-1].startswith("not checked"):
                 continue  # said so, in so many words
             assert named, f"{path.name}: row {row[0]!r} names no test (or says 'not checked')"

@@ -115,7 +115,8 @@ def test_tune_reads_a_live_vehicle(tmp_path, capsys):
     """--connect: the parameters come over MAVLink from a running sitl-plant."""
     plant_port, our_port = free_udp_ports(2)
     plant = subprocess.Popen([PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--api-remote",
-                              f"127.0.0.1:{our_port}", "--gcs-bind", "none", "--quiet"], env=ENV)  # fmt: skip
+                              f"127.0.0.1:{our_port}", "--gcs-bind", "none", "--quiet", "--vehicle", str(PAPER_VEHICLE_FILE)],
+                             env=ENV)  # fmt: skip  (the vehicle the file below names: the same design both ways)
     try:
         time.sleep(0.5)
         live = tmp_path / "live.toml"

@@ -126,5 +126,8 @@ def test_every_parameter_is_documented(table):
 
     doc = (REPO / "docs" / "plant.md").read_text()
     rows = {line.split("|")[1].strip().strip("`") for line in doc.splitlines() if line.startswith("| `")}
-    missing = [name for name in table if name not in rows]
-    assert missing == []
+    # the plant's own parameters each have a row; PX4's others it only publishes are listed, with
+    # their provenance, in sitl_plant/px4_params.toml, which the page names
+    own = [name for name in table if table.spec(name).description != "PX4 v1.16 SITL's value (published for clients)"]
+    missing = [name for name in own if name not in rows]
+    assert missing == [] and "px4_params.toml" in doc
