@@ -59,10 +59,17 @@ def run(plant: Plant, seconds: float, each=None) -> None:
 
 
 def take_off_and_switch_to_offboard(plant: Plant, height_m: float = 3.0) -> None:
-    """Take off in AUTO_TAKEOFF, settle in Hold, then enter Offboard at rest."""
+    """Take off in AUTO_TAKEOFF (no spool-up, no ramp: these tests are about the loops), settle in
+    Hold, then enter Offboard at rest."""
+    plant.params.set("COM_SPOOLUP_TIME", 0.0)
+    plant.params.set("MPC_TKO_RAMP_T", 0.0)
     assert command(plant, mavlink.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, plant.config.home.alt_m + height_m) == 0
     assert command(plant, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == 0
-    run(plant, 4.0)
+    for _ in range(12):
+        run(plant, 0.5)
+        if plant.autopilot.mode is Mode.AUTO_LOITER:
+            break
+    run(plant, 0.5)
     assert plant.autopilot.mode is Mode.AUTO_LOITER
     assert plant.sim.truth().pos_ned_m[2] == pytest.approx(-height_m, abs=0.15)
     attitude_target(plant, thrust=hover_thrust(plant))
@@ -171,7 +178,8 @@ def test_land_then_auto_disarm():
     plant = make_plant()
     take_off_and_switch_to_offboard(plant, 2.0)
     assert command(plant, mavlink.MAV_CMD_NAV_LAND) == 0
-    run(plant, 2.0 / plant.params["MPC_LAND_SPEED"] + 2.0 + plant.params["COM_DISARM_LAND"])
+    run(plant, 1.0 / plant.params["MPC_LAND_SPEED"] + 1.0 / plant.params["MPC_LAND_CRWL"] + 1.0
+        + plant.params["LNDMC_TRIG_TIME"] + plant.params["COM_DISARM_LAND"])
     assert plant.sim.on_ground and not plant.autopilot.armed
 
 
