@@ -14,10 +14,10 @@ what to fly. What PX4 v1.16 SITL does was measured (docs/parity/commander.md) an
 - **Takeoff**: PX4's takeoff handling (``mc_pos_control/Takeoff``): the motors spool up for
   ``COM_SPOOLUP_TIME`` after arming, then the upward velocity limit ramps over ``MPC_TKO_RAMP_T``
   from the value that gives no thrust (``-g / MPC_Z_VEL_P_ACC``) to ``MPC_TKO_SPEED``; the climb
-  slows near the takeoff height; then Hold.
+  slows near the takeoff height; within ``NAV_MC_ALT_RAD`` of it, Hold (at the takeoff height).
 - **Land**: PX4's speed profile (``FlightTaskAuto``): ``MPC_Z_V_AUTO_DN`` above ``MPC_LAND_ALT1``,
   blended down to ``MPC_LAND_SPEED`` at ``MPC_LAND_ALT2``, ``MPC_LAND_CRWL`` below ``MPC_LAND_ALT3``.
-  Landing is detected ``LNDMC_TRIG_TIME`` after touch-down (PX4's land detector), disarm
+  Landing is detected ``LNDMC_TRIG_TIME`` + 2 s after touch-down (PX4's land detector), disarm
   ``COM_DISARM_LAND`` later, and the mode goes back to the last one that allows arming.
 - **Return** (AUTO_RTL): fly to home at the current height, then land there.
 - **Offboard**: fly the latest setpoint. Offboard loss (no setpoint for ``COM_OF_LOSS_T``, armed)
@@ -528,7 +528,7 @@ class Autopilot:
         texts.extend(self._manual_control_loss(now_s))
         if self.armed and self.mode is Mode.AUTO_TAKEOFF and m.has_taken_off:
             target_down = self._takeoff_down_m()
-            if self._pos[2] <= target_down + TAKEOFF_DONE_M:
+            if self._pos[2] <= target_down + p["NAV_MC_ALT_RAD"]:  # PX4's navigator: within the altitude acceptance
                 self._enter(Mode.AUTO_LOITER, now_s)
                 m.hold_pos = (m.hold_pos[0], m.hold_pos[1], target_down)
                 texts.append(StatusText(MAV_SEVERITY_INFO, "Takeoff complete, holding"))
@@ -603,12 +603,12 @@ class Autopilot:
             return speed
         init = -G_M_S2 / max(p["MPC_Z_VEL_P_ACC"], 0.01)
         progress = 1.0 if ramp_t <= 0 else min(max((now_s - start) / ramp_t, 0.0), 1.0)
-        limit = init + progress * (speed - init)
-        if not approach or limit <= 0:
-            return limit
-        # near the takeoff height the climb slows as PX4's trajectory does (fitted, docs/parity)
-        remaining = max(float(self._pos[2]) - self._takeoff_down_m(), 0.0)
-        return min(limit, TAKEOFF_APPROACH_GAIN * math.sqrt(remaining))
+        target = speed
+        if approach:
+            # the climb PX4's takeoff trajectory asks for slows near the height (fitted, docs/parity)
+            remaining = max(float(self._pos[2]) - self._takeoff_down_m(), 0.0)
+            target = min(speed, TAKEOFF_APPROACH_GAIN * math.sqrt(remaining))
+        return init + progress * (target - init)
 
     # -- the manual modes --------------------------------------------------------------------------
 
@@ -871,8 +871,8 @@ class Autopilot:
         self.mode = mode
 
     def _land_detector(self, now_s: float) -> list[StatusText]:
-        """PX4's land detector in miniature: landed LNDMC_TRIG_TIME after the ground contact began
-        (at once while disarmed or before the takeoff)."""
+        """PX4's land detector in miniature: landed LNDMC_TRIG_TIME + LAND_DETECT_WINDDOWN_S after
+        the ground contact began (at once while disarmed or before the takeoff)."""
         m = self._m
         if not self._contact:
             m.contact_since_s = None
@@ -881,7 +881,8 @@ class Autopilot:
             return []
         if m.contact_since_s is None:
             m.contact_since_s = now_s
-        if not (self.armed and m.has_taken_off) or now_s - m.contact_since_s >= self.params["LNDMC_TRIG_TIME"] - EPS_S:
+        delay = self.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S
+        if not (self.armed and m.has_taken_off) or now_s - m.contact_since_s >= delay - EPS_S:
             self._landed = True
             if self.armed and m.has_taken_off:
                 m.landed_since_s = now_s
@@ -925,12 +926,14 @@ class Autopilot:
 
 
 EPS_S = 1e-9  # time comparisons: sums of ticks are not exact
-#: Takeoff is complete this close (m) to the takeoff height (then Hold).
-TAKEOFF_DONE_M = 0.1
-#: The takeoff climb near the height, v <= K sqrt(remaining m), K in m^0.5/s: fitted to PX4 v1.16
-#: SITL's takeoffs (0.8-0.86 m/s at 1-2 m to go, 0.4 at 0.2 m), whose trajectory generator this
-#: stands for.
-TAKEOFF_APPROACH_GAIN = 0.8
+#: Touch-down to "Landing detected" took PX4 v1.16 SIH about 3 s (measured, docs/parity/commander.md):
+#: LNDMC_TRIG_TIME for its three detector stages, the rest (fitted) for the thrust to wind down to
+#: the landed threshold while the landing setpoint still pushes down.
+LAND_DETECT_WINDDOWN_S = 2.0
+#: The takeoff climb PX4's trajectory asks for, v = min(MPC_TKO_SPEED, K sqrt(remaining m)), K in
+#: m^0.5/s, the end of the ramp: fitted to PX4 v1.16 SITL's takeoffs to 2.5 m (climbing at up to
+#: 0.86-0.98 m/s, lift-off 2.7-4.2 s and 90 % of the height about 7 s after the command).
+TAKEOFF_APPROACH_GAIN = 0.6
 
 
 def _expo(value: float, e: float) -> float:

@@ -232,6 +232,7 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
         ParamSpec("MPC_Z_MAN_EXPO", 0.6, min=0.0, max=1.0, description="manual modes: throttle stick expo"),
         ParamSpec("MPC_YAW_EXPO", 0.6, min=0.0, max=1.0, description="manual modes: yaw stick expo"),
         ParamSpec("MIS_TAKEOFF_ALT", 2.5, min=0.0, max=80.0, unit="m", description="default takeoff height"),
+        ParamSpec("NAV_MC_ALT_RAD", 0.8, min=0.05, max=5.0, unit="m", description="takeoff complete this close to its height (then Hold)"),
         ParamSpec("NAV_ACC_RAD", 2.0, min=0.05, max=200.0, unit="m", description="RTL acceptance radius"),
     ]
 

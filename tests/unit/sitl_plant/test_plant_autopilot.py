@@ -9,6 +9,7 @@ import pytest
 
 from sitl_plant.autopilot import (
     FORCE_MAGIC,
+    LAND_DETECT_WINDDOWN_S,
     MAV_CMD_COMPONENT_ARM_DISARM,
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_INJECT_FAILURE,
@@ -272,11 +273,11 @@ def test_offboard_loss_terminate_and_disarm(ap):
     assert isinstance(ap.task(), IdleTask) and ap.armed and ap.failsafe  # motors stopped: it falls
     ap.observe(state(0.0))
     ap.update(1.6)
-    ap.update(3.0)
+    ap.update(1.6 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S)
     assert not ap.armed
     ap.params.set("COM_OBL_RC_ACT", 7)
     _flying_offboard(ap)
-    ap.update(5.0)
+    ap.update(6.0)
     assert not ap.armed
 
 
@@ -312,12 +313,13 @@ def test_takeoff_then_hold(ap):
     # PX4's ramp starts at the upward limit that gives no thrust, -g / MPC_Z_VEL_P_ACC
     assert task.max_climb_m_s == pytest.approx(-9.80665 / ap.params["MPC_Z_VEL_P_ACC"])
     ap.update(1.0 + ap.params["MPC_TKO_RAMP_T"] / 2)
-    assert ap.task().max_climb_m_s == pytest.approx((-9.80665 / 4.0 + 1.5) / 2)  # type: ignore[union-attr]
+    # ... to the climb the takeoff asks for, min(MPC_TKO_SPEED, 0.6 sqrt(4 m to go))
+    assert ap.task().max_climb_m_s == pytest.approx((-9.80665 / 4.0 + 1.2) / 2)  # type: ignore[union-attr]
     ap.observe(state(-2.0))
     ap.update(5.0)
-    assert ap.mode is Mode.AUTO_TAKEOFF
-    assert ap.task().max_climb_m_s == pytest.approx(min(1.5, 0.8 * math.sqrt(2.0)))  # type: ignore[union-attr]
-    ap.observe(state(-3.95))
+    assert ap.mode is Mode.AUTO_TAKEOFF  # 2 m to go: more than NAV_MC_ALT_RAD
+    assert ap.task().max_climb_m_s == pytest.approx(min(1.5, 0.6 * math.sqrt(2.0)))  # type: ignore[union-attr]
+    ap.observe(state(-3.25))  # within NAV_MC_ALT_RAD (0.8 m): done, Hold at the takeoff height
     texts = ap.update(6.0)
     assert ap.mode is Mode.AUTO_LOITER and texts
     assert ap.task().pos_ned_m[2] == pytest.approx(-4.0)  # type: ignore[union-attr]
@@ -346,11 +348,13 @@ def test_land_command_and_idle_on_the_ground(ap):
     assert ap.status().landed_state == 4  # MAV_LANDED_STATE_LANDING
     ap.observe(state(0.0))
     ap.update(0.3)
-    assert ap.status().landed_state == 4  # the land detector waits LNDMC_TRIG_TIME
-    texts = ap.update(1.3)
+    detected = 0.3 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S
+    ap.update(detected - 0.01)
+    assert ap.status().landed_state == 4  # the land detector waits
+    texts = ap.update(detected)
     assert isinstance(ap.task(), IdleTask) and [t.text for t in texts] == ["Landing detected"]
     assert ap.status().landed_state == 1  # ON_GROUND
-    ap.update(1.3 + ap.params["COM_DISARM_LAND"])
+    ap.update(detected + ap.params["COM_DISARM_LAND"])
     assert not ap.armed and ap.mode is Mode.AUTO_LOITER  # back to the last mode that allows arming
 
 
@@ -362,7 +366,7 @@ def test_after_landing_back_to_the_last_armable_mode(ap):
     ap.update(0.1)
     ap.on_command(cmd(MAV_CMD_NAV_LAND), 0.2)
     ap.observe(state(0.0))
-    for t in (0.3, 1.3, 3.3):
+    for t in (0.3, 3.3, 5.3):
         ap.on_manual_input(STICKS_CENTRED, t)
         ap.update(t)
     assert not ap.armed and ap.mode is Mode.POSCTL  # PX4 measured: Position -> Land -> Position
