@@ -37,7 +37,7 @@ pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
               pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
 
 mavlink = mavutil.mavlink
-SPEED = 5.0
+SPEED = 4.0
 NAN = math.nan
 CENTRE = (0, 0, 500, 0)  # MANUAL_CONTROL x, y, z, r: sticks centred (z 500 = throttle centre)
 
@@ -50,6 +50,12 @@ class Observed:
     heartbeat: dict[str, tuple[int, tuple[int, int], int]] = field(default_factory=dict)
     texts: dict[str, list[str]] = field(default_factory=dict)
     figures: dict[str, float] = field(default_factory=dict)
+
+
+def _rate(samples: list, what: str) -> float:
+    """Mean down speed (m/s) over ``samples`` (first to last)."""
+    assert len(samples) >= 2, f"too few samples for {what}"
+    return (samples[-1].pos_ned_m[2] - samples[0].pos_ned_m[2]) / (samples[-1].t_s - samples[0].t_s)
 
 
 def _hb(c: Client) -> tuple[int, tuple[int, int], int]:
@@ -97,7 +103,7 @@ def fly_script(c: Client, obs: Observed) -> None:
     obs.acks["arm in hold"] = c.arm()
     c.command(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
     t_cmd = c.t_s
-    c.pump(1.0)
+    _settle_heartbeat(c)
     obs.heartbeat["takeoff"] = _hb(c)
     c.wait(lambda: c.mode == AUTO_LOITER, 20.0, SPEED)
     obs.figures["takeoff: to Hold after the command (s)"] = c.t_s - t_cmd
@@ -112,7 +118,7 @@ def fly_script(c: Client, obs: Observed) -> None:
     obs.acks["offboard armed without setpoints"] = c.set_mode(OFFBOARD)
     obs.acks["position armed without sticks"] = c.set_mode(POSCTL)
     obs.acks["return"] = c.set_mode(AUTO_RTL)
-    c.pump(0.6)
+    _settle_heartbeat(c)
     obs.heartbeat["return"] = _hb(c)
     c.set_mode(AUTO_LOITER)
     # -- offboard to 20 m, then the setpoints stop -------------------------------------------------
@@ -120,15 +126,14 @@ def fly_script(c: Client, obs: Observed) -> None:
     obs.heartbeat["offboard armed"] = _hb(c)
     c.setpoint = None
     t_stop = c.t_s
-    c.wait(lambda: any("Failsafe activated" in text for _, text in c.texts if _ >= t_stop), 15.0, SPEED)
+    c.wait(lambda: any("Failsafe activated" in text for t, text in c.texts if t >= t_stop), 15.0, SPEED)
     t_fs = c.t_s
     obs.figures["offboard loss: failsafe after the last setpoint, less COM_OF_LOSS_T (s)"] = t_fs - t_stop - c.of_loss_t
     _settle_heartbeat(c)
     obs.heartbeat["offboard-loss failsafe"] = _hb(c)
     c.wait_sim(6.0)
     descent = [s for s in c.samples if s.t_s >= t_fs + 2.0]
-    obs.figures["offboard loss: descent rate without sticks (m/s)"] = (
-        (descent[-1].pos_ned_m[2] - descent[0].pos_ned_m[2]) / (descent[-1].t_s - descent[0].t_s))
+    obs.figures["offboard loss: descent rate without sticks (m/s)"] = _rate(descent, "the failsafe descent")
     # -- Position mode with virtual sticks -----------------------------------------------------
     c.sticks = CENTRE
     c.pump(0.3)
@@ -138,7 +143,7 @@ def fly_script(c: Client, obs: Observed) -> None:
     t = c.t_s
     c.wait_sim(3.0)
     up = [s for s in c.samples if s.t_s >= t + 1.0]
-    obs.figures["position: climb at full throttle (m/s)"] = -(up[-1].pos_ned_m[2] - up[0].pos_ned_m[2]) / (up[-1].t_s - up[0].t_s)
+    obs.figures["position: climb at full throttle (m/s)"] = -_rate(up, "the stick climb")
     c.sticks = (1000, 0, 500, 0)
     t = c.t_s
     c.wait_sim(4.0)
@@ -153,7 +158,7 @@ def fly_script(c: Client, obs: Observed) -> None:
     t_land = c.t_s
     obs.figures["land: from (m)"] = ground - c.down_m
     c.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
-    c.pump(0.5)
+    _settle_heartbeat(c)
     obs.heartbeat["land"] = _hb(c)
     c.wait(lambda: not c.armed, 60.0, SPEED)
     obs.figures["land: disarmed after the command (s)"] = c.t_s - t_land
@@ -161,8 +166,7 @@ def fly_script(c: Client, obs: Observed) -> None:
         below = next(s.t_s for s in c.samples if s.t_s >= t_land and s.pos_ned_m[2] > ground - h)
         obs.figures[f"land: below {h:g} m after the command (s)"] = below - t_land
     high = [s for s in c.samples if t_land + 1.5 <= s.t_s and s.pos_ned_m[2] < ground - 11.0]
-    obs.figures["land: descent rate above MPC_LAND_ALT1 (m/s)"] = (
-        (high[-1].pos_ned_m[2] - high[0].pos_ned_m[2]) / (high[-1].t_s - high[0].t_s))
+    obs.figures["land: descent rate above MPC_LAND_ALT1 (m/s)"] = _rate(high, "the descent above 11 m")
     _settle_heartbeat(c)
     obs.heartbeat["after landing"] = _hb(c)
     c.sticks = None
@@ -234,18 +238,22 @@ def test_offboard_loss_goes_to_position_and_descends_at_land_speed(runs):
     px4, plant = runs
     for obs in runs:
         assert obs.heartbeat["offboard-loss failsafe"][1] == POSCTL
+    # both at COM_OF_LOSS_T (PX4: 0.0-0.3 s later on an idle machine; its MAVLink timing is the
+    # wall clock's, so a loaded machine moves it by up to a second of vehicle time either way)
     name = "offboard loss: failsafe after the last setpoint, less COM_OF_LOSS_T (s)"
-    assert -0.1 <= plant.figures[name] <= px4.figures[name] + 1.0
+    # (the client's own clock, its last sample seen, lags by up to a few tenths under load too)
+    assert abs(px4.figures[name]) <= 1.0 and abs(plant.figures[name]) <= 0.5
     name = "offboard loss: descent rate without sticks (m/s)"
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.25)
 
 
 def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs):
     px4, plant = runs
-    assert abs(plant.figures["takeoff: lift-off after the command (s)"] - px4.figures["takeoff: lift-off after the command (s)"]) < 1.0
+    # PX4: 2.3-4.2 s over this work's runs (the old plant: at once)
+    assert abs(plant.figures["takeoff: lift-off after the command (s)"] - px4.figures["takeoff: lift-off after the command (s)"]) < 1.5
     assert plant.figures["takeoff: top climb rate (m/s)"] == pytest.approx(px4.figures["takeoff: top climb rate (m/s)"], rel=0.3)
-    # Hold within NAV_MC_ALT_RAD of the height (1 Hz heartbeats: +-1 s)
-    assert abs(plant.figures["takeoff: to Hold after the command (s)"] - px4.figures["takeoff: to Hold after the command (s)"]) < 1.5
+    # Hold within NAV_MC_ALT_RAD of the height (PX4 5.7-7.4 s; 1 Hz heartbeats: +-1 s)
+    assert abs(plant.figures["takeoff: to Hold after the command (s)"] - px4.figures["takeoff: to Hold after the command (s)"]) < 2.0
     for obs in runs:
         assert obs.figures["takeoff: height (m)"] == pytest.approx(2.5, abs=0.3)
 
@@ -253,10 +261,13 @@ def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs):
 def test_land_follows_px4s_speed_profile(runs):
     px4, plant = runs
     assert plant.figures["land: from (m)"] == pytest.approx(px4.figures["land: from (m)"], abs=1.0)
-    # PX4 itself took 25.6-28.3 s over this module's runs (its EKF and land detector), the plant
-    # 23.8-24.5 s: 20 % holds both; the old plant (0.7 m/s throughout) took 33 s
+    # down to 1 m (the speed profile): PX4 18.4-18.9 s, the plant 17.3 s; the old plant (0.7 m/s
+    # throughout) 27 s
+    name = "land: below 1 m after the command (s)"
+    assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.15)
+    # to disarmed PX4 took 25.6-32.9 s (its land detector after touch-down varies), the plant ~26 s
     name = "land: disarmed after the command (s)"
-    assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.2)
+    assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.25)
     name = "land: descent rate above MPC_LAND_ALT1 (m/s)"
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.15)
 

@@ -150,7 +150,11 @@ class Client:
         return self.samples[-1].pos_ned_m[2] if self.samples else 0.0
 
     def wait(self, cond: Callable[[], bool], sim_s: float, speed: float) -> bool:
-        return self.pump(sim_s / speed + 2.0, cond)
+        """Until ``cond()``, at most ``sim_s`` of vehicle time (a loaded machine may run the
+        vehicle slower than ``speed``: the wall-clock cap is generous)."""
+        t0 = self.t_s
+        self.pump(sim_s / speed * 4.0 + 10.0, lambda: cond() or self.t_s >= t0 + sim_s)
+        return cond()
 
     def wait_sim(self, sim_s: float) -> None:
         t0 = self.t_s
