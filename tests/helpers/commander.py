@@ -10,8 +10,8 @@ waits it keeps sending what it was told to: a GCS heartbeat every wall second, p
 
 from __future__ import annotations
 
-import math
 import os
+import struct
 import subprocess
 import sys
 import time
@@ -182,8 +182,6 @@ class Client:
 
     def set_param(self, name: str, value: float, integer: bool) -> None:
         c = self.conn
-        import struct
-
         if integer:
             raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
             kind = mavlink.MAV_PARAM_TYPE_INT32
@@ -194,8 +192,6 @@ class Client:
 
     def get_param(self, name: str) -> float | None:
         """PARAM_REQUEST_READ by name; the value (INT32 decoded from its bytes) or None."""
-        import struct
-
         c = self.conn
         got: list = []
 
@@ -239,19 +235,3 @@ class PlantProcess:
 
 def free_port() -> int:
     return free_udp_ports(1)[0]
-
-
-def descent_rate(samples: list[Sample], t0: float, t1: float) -> float:
-    """Mean descent speed (m/s, down positive) between vehicle times t0 and t1."""
-    inside = [s for s in samples if t0 <= s.t_s <= t1]
-    assert len(inside) >= 2, "too few samples"
-    return (inside[-1].pos_ned_m[2] - inside[0].pos_ned_m[2]) / (inside[-1].t_s - inside[0].t_s)
-
-
-def first_time(samples: list[Sample], cond: Callable[[Sample], bool]) -> float | None:
-    for s in samples:
-        if cond(s):
-            return s.t_s
-    return None
-
-
