@@ -79,7 +79,7 @@ def test_outage_past_the_vehicles_failsafe_hands_control_back_when_setpoints_res
     over in Position; when our setpoints resume it clears and the vehicle is in Offboard again, as
     PX4 v1.16 does (measured: back in Offboard within 1 s, docs/parity/commander.md), so the
     flight goes on and completes. (The plant used to stay in Hold and the flight ended LINK_LOST.)"""
-    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 10.0), lockstep=False, proxy=True,
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 6.0), lockstep=False, proxy=True,
                 fly_args=("--telemetry-timeout", "0.3"), during=_cut(2.5))
     assert flown.returncode == 0, flown.stderr
     assert "setpoints stopped" in flown.stderr and "setpoints resumed" in flown.stderr
