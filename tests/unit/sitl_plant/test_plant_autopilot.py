@@ -191,12 +191,17 @@ def test_position_refused_in_the_air_without_sticks(ap):
     assert ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.7).result == MAV_RESULT_ACCEPTED
 
 
-def test_position_mode_sticks(ap):
+def _in_position_at_5_m(ap: Autopilot) -> None:
+    """Armed with the sticks centred, in the air at 5 m, in Position."""
     ap.on_manual_input(STICKS_CENTRED, 0.0)
     ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
     ap.observe(state(-5.0))
     ap.update(0.0)
     ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.0)
+
+
+def test_position_mode_sticks(ap):
+    _in_position_at_5_m(ap)
     task = ap.task()
     assert isinstance(task, PositionTask) and task.pos_ned_m == (1.0, 2.0, -5.0)  # centred: hold
     t = 0.0
@@ -223,11 +228,7 @@ def test_position_without_sticks_descends_at_land_speed(ap):
 
 
 def test_manual_control_loss_holds_then_returns(ap):
-    ap.on_manual_input(STICKS_CENTRED, 0.0)
-    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
-    ap.observe(state(-5.0))
-    ap.update(0.0)
-    ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.0)
+    _in_position_at_5_m(ap)
     ap.update(0.5)
     assert ap.mode is Mode.POSCTL
     texts = ap.update(0.51)  # COM_RC_LOSS_T 0.5 s without MANUAL_CONTROL
