@@ -71,6 +71,7 @@ DEFAULT_TILT_MAX_DEG = 35.0
 RIGID_BODY_THRUST_MIN_FRACTION = 0.12
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
+MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second (the commander's)
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 
@@ -440,6 +441,8 @@ class _Pending:
     attempts: int = 0
     deadline: float = 0.0
     result: int | None = None
+    acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: the last counts)
+    first_ack_s: float | None = None
     #: what a heartbeat shows once the command is done, and whether one since the first try did
     took_effect: Callable[[VehicleStatus], bool] | None = None
     seen_done: bool = False
@@ -807,6 +810,10 @@ class Flight:
                            self.config.command_timeout_s)
                 if pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS:
                     break
+            if command == mavlink.MAV_CMD_DO_SET_MODE and pending.result is not None:
+                # PX4 answers a mode change twice: ACCEPTED from its MAVLink receiver at once, then
+                # the commander's own result 5-12 ms later; the last one is the answer
+                self._pump(lambda: pending.acks >= 2, MODE_ACK_GRACE_S)
         finally:
             self._pending = None
         if pending.result is None:
@@ -1021,6 +1028,9 @@ class Flight:
             p = self._pending
             if p is not None and int(msg.command) == p.command and int(getattr(msg, "target_system", 0)) in (0, self._own_sysid()):
                 p.result = int(msg.result)
+                p.acks += 1
+                if p.first_ack_s is None:
+                    p.first_ack_s = self.clock()
         elif kind == "PARAM_VALUE":
             name, value = codec.param_value(msg)
             if name == self._param_wanted:

@@ -626,13 +626,28 @@ def _unique_by_time(rows: list[tuple]) -> list[tuple]:
     return out
 
 
+def _mission_window(scan: LogScan, sysid: int) -> tuple[float, float]:
+    """Message numbers bounding the mission: the accepted arm of ``sysid`` (else the start) and
+    the first MAV_CMD_NAV_LAND after it (else the end)."""
+    arm = arm_accepted(scan, sysid)
+    first = arm[0] if arm is not None else -math.inf
+    lands = [c[0] for c in scan.commands if c[4] == mavlink.MAV_CMD_NAV_LAND and c[0] > first and c[3] in (sysid, 0)]
+    return first, (min(lands) if lands else math.inf)
+
+
 def setpoints_for(scan: LogScan, sysid: int) -> SetpointSeries:
     """The command stream to vehicle ``sysid`` (targeted at it or broadcast), the longer of the
     attitude and actuator streams; else the vehicle's ATTITUDE_TARGET reports."""
     att = scan.set_attitude.get(sysid, []) + scan.set_attitude.get(0, [])
     act = scan.set_actuator.get(sysid, []) + scan.set_actuator.get(0, [])
     if att or act:
-        rows, kind, width = (att, "attitude", 9) if len(att) >= len(act) else (act, "actuator", 4)
+        # the stream of the mission: between the accepted arm and the landing command, since an
+        # actuator flight keeps a level attitude target going while the vehicle lands, which in a
+        # long landing (PX4's: slower near the ground, ~3 s to detect it) outnumbers its setpoints
+        first, last = _mission_window(scan, sysid)
+        n_att = sum(1 for r in att if first < r[-1] < last)
+        n_act = sum(1 for r in act if first < r[-1] < last)
+        rows, kind, width = (att, "attitude", 9) if n_att >= n_act else (act, "actuator", 4)
         sources: dict[tuple[int, int], int] = {}
         for row in rows:
             sources[row[-3]] = sources.get(row[-3], 0) + 1

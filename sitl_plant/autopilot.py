@@ -1,26 +1,36 @@
 """The autopilot's state machine (PX4's commander, in miniature): pure, no sockets, no clock.
 
-It is given the time and events (commands, setpoints, the vehicle's state) and answers with
-results and effects (a ``MAV_RESULT``, STATUSTEXTs); ``task()`` tells the inner loops what to fly.
+It is given the time and events (commands, setpoints, virtual sticks, the vehicle's state) and
+answers with results and effects (a ``MAV_RESULT``, STATUSTEXTs); ``task()`` tells the inner loops
+what to fly. What PX4 v1.16 SITL does was measured (docs/parity/commander.md) and is followed:
 
-Modes are PX4's (``px4_custom_mode.h``): the heartbeat's ``custom_mode`` is
-``main_mode << 16 | sub_mode << 24``. What the plant implements:
-
-- **Hold** (AUTO_LOITER, the boot mode): hold the position where the mode was entered; on the
-  ground it stays there (armed on the ground it idles, as PX4 does until a takeoff).
-- **Takeoff** (AUTO_TAKEOFF): climb to the takeoff height, then Hold.
-- **Land** (AUTO_LAND): descend at ``MPC_LAND_SPEED`` over the current point; once on the
-  ground, disarm after ``COM_DISARM_LAND``.
+- **Mode changes** (DO_SET_MODE, SET_MODE) are always accepted while **disarmed**; whether arming
+  is then possible shows in the heartbeat's system status (UNINIT where it is not: Offboard without
+  setpoints, a manual mode without manual control input, Land, Return, Mission without a mission) and arming is
+  refused with PX4's "Arming denied: Resolve system health failures first". **Armed**, a mode that
+  cannot run is refused with "Switching to <mode> is currently not available" (Offboard without
+  setpoints, Position/Altitude/... without MANUAL_CONTROL).
+- **Hold** (AUTO_LOITER, the boot mode): hold the position where the mode was entered.
+- **Takeoff**: PX4's takeoff handling (``mc_pos_control/Takeoff``): the motors spool up for
+  ``COM_SPOOLUP_TIME`` after arming, then the upward velocity limit ramps over ``MPC_TKO_RAMP_T``
+  from the value that gives no thrust (``-g / MPC_Z_VEL_P_ACC``) to ``MPC_TKO_SPEED``; the climb
+  slows near the takeoff height; within ``NAV_MC_ALT_RAD`` of it, Hold (at the takeoff height).
+- **Land**: PX4's speed profile (``FlightTaskAuto``): ``MPC_Z_V_AUTO_DN`` above ``MPC_LAND_ALT1``,
+  blended down to ``MPC_LAND_SPEED`` at ``MPC_LAND_ALT2``, ``MPC_LAND_CRWL`` below ``MPC_LAND_ALT3``.
+  Landing is detected ``LNDMC_TRIG_TIME`` + 2 s after touch-down (PX4's land detector), disarm
+  ``COM_DISARM_LAND`` later, and the mode goes back to the last one that allows arming.
 - **Return** (AUTO_RTL), **Mission** (AUTO_MISSION) and **Orbit** (POSCTL sub mode 1, entered
   by MAV_CMD_DO_ORBIT) fly what the navigator (sitl_plant/navigator.py) says; so does Hold after
   MAV_CMD_DO_REPOSITION. Return climbs to the return height, comes home, descends and lands.
-- **Offboard**: fly the latest setpoint. Entered only while setpoints arrive (the last one is
-  not older than ``COM_OF_LOSS_T``), else ``MAV_RESULT_TEMPORARILY_REJECTED``; setpoints outside
-  Offboard are remembered as proof of life but not flown. If they stop for ``COM_OF_LOSS_T``
-  while armed, the failsafe switches to Hold (system status CRITICAL) and, with
-  ``COM_OBL_RC_ACT = 4``, to Land after ``COM_FAIL_ACT_T``.
-- Manual-input modes (Manual, Altitude, Position, Acro, Stabilized) need a remote control the
-  simulation does not have: refused, as PX4 refuses them without manual control input.
+- **Offboard**: fly the latest setpoint. Offboard loss (no setpoint for ``COM_OF_LOSS_T``, armed)
+  is PX4's mode fallback (``failsafe.cpp``, ``checkModeFallback``): at once, the action of
+  ``COM_OBL_RC_ACT`` (0 Position, 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate,
+  7 Disarm), system status CRITICAL, "Failsafe activated"; it ends when setpoints come back (the
+  vehicle returns to Offboard) or the client chooses a mode.
+- **Position / Altitude** (and Stabilized, Manual, Acro, flown like Altitude): MANUAL_CONTROL as
+  virtual sticks (``ManualInput``); without stick input they do what PX4's failsafe flight task
+  does: keep the horizontal position and descend at ``MPC_LAND_SPEED``. Sticks that stop for
+  ``COM_RC_LOSS_T`` in such a mode: Hold for ``COM_FAIL_ACT_T``, then ``NAV_RCL_ACT``.
 
 Arming (MAV_CMD_COMPONENT_ARM_DISARM) runs PX4-like pre-arm checks (simulated sensor failures,
 the mode's requirements); a refusal is ``TEMPORARILY_REJECTED`` with a STATUSTEXT, as PX4's
@@ -36,9 +46,9 @@ from typing import Union
 
 import numpy as np
 
-from sitl_plant.navigator import Frame, Navigator
-from sitl_plant.params import OBL_ACT_LAND, ParamTable
 from offboard.model.state import VehicleState
+from sitl_plant.navigator import Frame, Navigator, land_speed_m_s
+from sitl_plant.params import ParamTable
 
 # MAVLink enum values used here (common.xml), spelled out to keep this module free of pymavlink.
 MAV_RESULT_ACCEPTED = 0
@@ -52,6 +62,7 @@ MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 MAV_SEVERITY_INFO = 6
 
+MAV_STATE_UNINIT = 0
 MAV_STATE_STANDBY = 3
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
@@ -62,6 +73,11 @@ MAV_LANDED_STATE_TAKEOFF = 3
 MAV_LANDED_STATE_LANDING = 4
 
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_MODE_FLAG_AUTO_ENABLED = 4
+MAV_MODE_FLAG_GUIDED_ENABLED = 8
+MAV_MODE_FLAG_STABILIZE_ENABLED = 16
+MAV_MODE_FLAG_MANUAL_INPUT_ENABLED = 64
+MAV_MODE_FLAG_SAFETY_ARMED = 128
 
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
@@ -136,9 +152,42 @@ _LABELS = {
 }
 _BY_VALUE = {m.value: m for m in Mode}
 _NEEDS_MANUAL_INPUT = (Mode.MANUAL, Mode.ALTCTL, Mode.POSCTL, Mode.ACRO, Mode.STABILIZED)
-_ARMABLE = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.OFFBOARD, Mode.AUTO_MISSION)
+#: Modes PX4 arms in (with their requirements met: setpoints for Offboard, sticks for the manual
+#: ones, a mission for Mission); Land, Return and Ready are not among them.
+_ARMABLE = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.OFFBOARD, Mode.AUTO_MISSION, *_NEEDS_MANUAL_INPUT)
 #: Modes whose setpoint the navigator gives (sitl_plant/navigator.py).
 _NAVIGATED = (Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.ORBIT)
+_AUTO = (Mode.AUTO_READY, Mode.AUTO_TAKEOFF, Mode.AUTO_LOITER, Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.AUTO_LAND)
+
+#: COM_OBL_RC_ACT (PX4's offboard_loss_failsafe_mode) -> the mode the failsafe switches to; 6 is
+#: flight termination, 7 disarm (failsafe.cpp, fromOffboardLossActParam).
+OBL_ACTIONS = {0: Mode.POSCTL, 1: Mode.ALTCTL, 2: Mode.STABILIZED, 3: Mode.AUTO_RTL, 4: Mode.AUTO_LAND, 5: Mode.AUTO_LOITER}
+OBL_TERMINATE, OBL_DISARM = 6, 7
+#: NAV_RCL_ACT (manual control loss, after COM_FAIL_ACT_T of Hold): 1 Hold, 2 Return, 3 Land,
+#: 5 Terminate, 6 Disarm; 0 disabled (PX4's gcs_connection_loss_failsafe_mode numbering).
+RCL_ACTIONS = {1: Mode.AUTO_LOITER, 2: Mode.AUTO_RTL, 3: Mode.AUTO_LAND}
+RCL_TERMINATE, RCL_DISARM = 5, 6
+
+G_M_S2 = 9.80665  # PX4's CONSTANTS_ONE_G
+
+
+def base_mode_flags(mode: Mode, armed: bool, offboard_signal: bool) -> int:
+    """The heartbeat's ``base_mode`` as PX4 v1.16 sends it (measured): CUSTOM_MODE_ENABLED, plus
+    STABILIZE|GUIDED|AUTO in the auto modes (29, armed 157), MANUAL_INPUT|STABILIZE in Position,
+    Altitude, Stabilized and Manual (81 / 209), MANUAL_INPUT in Acro, and in Offboard STABILIZE
+    only while setpoints arrive (1 without, 17 / 145 with); SAFETY_ARMED when armed."""
+    flags = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if armed:
+        flags |= MAV_MODE_FLAG_SAFETY_ARMED
+    if mode in _AUTO:
+        flags |= MAV_MODE_FLAG_STABILIZE_ENABLED | MAV_MODE_FLAG_GUIDED_ENABLED | MAV_MODE_FLAG_AUTO_ENABLED
+    elif mode is Mode.ACRO:
+        flags |= MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    elif mode in _NEEDS_MANUAL_INPUT or mode is Mode.ORBIT:  # Orbit as Position (not measured)
+        flags |= MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | MAV_MODE_FLAG_STABILIZE_ENABLED
+    elif mode is Mode.OFFBOARD and offboard_signal:
+        flags |= MAV_MODE_FLAG_STABILIZE_ENABLED
+    return flags
 
 
 # --- what comes in ------------------------------------------------------------------------------
@@ -210,6 +259,18 @@ Setpoint = Union[AttitudeSetpoint, ActuatorSetpoint, PositionSetpoint]
 
 
 @dataclass(frozen=True)
+class ManualInput:
+    """MANUAL_CONTROL as PX4 reads it (``x`` pitch stick, forward +; ``y`` roll stick, right +;
+    ``r`` yaw stick, clockwise +; each -1..1; ``z`` throttle 0..1, 0.5 the centre): the raw
+    -1000..1000 and 0..1000 divided by 1000."""
+
+    x: float
+    y: float
+    z: float
+    r: float
+
+
+@dataclass(frozen=True)
 class Command:
     """COMMAND_LONG or COMMAND_INT (params 5, 6 are then the raw x, y integers)."""
 
@@ -253,15 +314,19 @@ class OffboardTask:
 @dataclass(frozen=True)
 class PositionTask:
     """Hold ``pos_ned_m`` and ``yaw_rad``; with ``descend_m_s`` the height is not held but the
-    vehicle descends at that speed (landing); ``max_climb_m_s`` limits the climb (takeoff).
+    vehicle descends at that speed (landing); ``max_climb_m_s`` limits the climb (takeoff: below
+    zero it asks for a descent of at least that speed, PX4's ramp start that gives no thrust).
     ``vel_ned_m_s`` is a velocity feed-forward, or the velocity setpoint of an axis whose
-    position is None (offboard position/velocity setpoints)."""
+    position is None (offboard position/velocity setpoints, the sticks of Position mode).
+    ``acc_ne_m_s2``: the horizontal acceleration wanted instead of any horizontal control
+    (Altitude mode's tilt sticks)."""
 
     pos_ned_m: tuple[float | None, float | None, float | None]
     yaw_rad: float
     descend_m_s: float | None = None
     max_climb_m_s: float | None = None
     vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    acc_ne_m_s2: tuple[float, float] | None = None
 
 
 Task = Union[IdleTask, OffboardTask, PositionTask]
@@ -278,6 +343,7 @@ class Status:
     failsafe: bool
     failures: frozenset[str]
     prearm_ok: bool
+    base_mode: int | None = None
 
 
 # --- the state machine ------------------------------------------------------------------------
@@ -287,14 +353,25 @@ class Status:
 class _Memory:
     last_setpoint: Setpoint | None = None
     last_setpoint_s: float | None = None
+    sticks: ManualInput | None = None
+    sticks_s: float | None = None
+    had_sticks: bool = False  # in this flight (manual control loss is judged against it)
     hold_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     hold_yaw: float = 0.0
     takeoff_height_m: float = 2.5
-    land_at_s: float | None = None  # failsafe: when hold turns into land
+    takeoff_wanted_s: float | None = None  # Takeoff: when the climb was asked for (the ramp starts then, after spool-up)
     armed_at_s: float = 0.0
+    contact_since_s: float | None = None  # ground contact, before the land detector says landed
     landed_since_s: float | None = None
     has_taken_off: bool = False
     rtl_landing: bool = False
+    last_armable: Mode = Mode.AUTO_LOITER  # the last mode chosen that allows arming
+    fallback_of_offboard: bool = False  # the failsafe is the offboard-loss fallback (ends when setpoints return)
+    rc_lost_act_at_s: float | None = None  # manual control loss: when the Hold turns into NAV_RCL_ACT
+    terminated: bool = False
+    vel_sp_ne: tuple[float, float] = (0.0, 0.0)  # Position mode: the stick velocity, shaped
+    manual_vz: float | None = None  # the throttle stick's climb (-) / descent (+) rate, m/s NED
+    last_update_s: float | None = None
 
 
 class Autopilot:
@@ -303,8 +380,8 @@ class Autopilot:
     Parameters
     ----------
     params : ParamTable
-        The plant's parameters (``COM_*``, ``MIS_TAKEOFF_ALT``, ...), read at every use so a
-        PARAM_SET takes effect at once.
+        The plant's parameters (``COM_*``, ``MPC_*``, ``MIS_TAKEOFF_ALT``, ...), read at every use
+        so a PARAM_SET takes effect at once.
     home_alt_amsl_m : float
         Home altitude, to turn MAV_CMD_NAV_TAKEOFF's AMSL param7 into a height.
     failures : iterable of str
@@ -324,19 +401,26 @@ class Autopilot:
         self.failsafe = False
         self._m = _Memory()
         self._pos = np.zeros(3)
+        self._vel = np.zeros(3)
         self._yaw = 0.0
-        self._landed = True
-        self.counters: dict[str, int] = {"setpoints": 0, "ignored_setpoints": 0}
+        self._contact = True  # the simulation's ground contact
+        self._landed = True  # the land detector's verdict (PX4: LNDMC_TRIG_TIME after contact)
+        self._now = 0.0
+        self.counters: dict[str, int] = {"setpoints": 0, "ignored_setpoints": 0, "manual_inputs": 0}
         self.navigator = Navigator(params)
         self.origin = (0.0, 0.0, home_alt_amsl_m)  # lat, lon (deg), alt AMSL (m) of the local frame's origin
 
     # -- status ----------------------------------------------------------------------------------
 
     def status(self) -> Status:
+        now = self._now
         if self.failsafe:
             system_status = MAV_STATE_CRITICAL
+        elif self.armed:
+            system_status = MAV_STATE_ACTIVE
         else:
-            system_status = MAV_STATE_ACTIVE if self.armed else MAV_STATE_STANDBY
+            # PX4: UNINIT while arming would be refused, STANDBY when it would be accepted
+            system_status = MAV_STATE_STANDBY if self.prearm_failure(now) is None else MAV_STATE_UNINIT
         return Status(
             armed=self.armed,
             mode=self.mode,
@@ -345,6 +429,7 @@ class Autopilot:
             failsafe=self.failsafe,
             failures=frozenset(self.failures),
             prearm_ok=not self.failures,
+            base_mode=base_mode_flags(self.mode, self.armed, self.offboard_signal_ok(now)),
         )
 
     def set_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
@@ -369,6 +454,11 @@ class Autopilot:
         last = self._m.last_setpoint_s
         return last is not None and now_s - last <= self.params["COM_OF_LOSS_T"]
 
+    def manual_input_ok(self, now_s: float) -> bool:
+        """Manual control present: the last MANUAL_CONTROL is not older than COM_RC_LOSS_T."""
+        last = self._m.sticks_s
+        return last is not None and now_s - last <= self.params["COM_RC_LOSS_T"]
+
     @property
     def last_setpoint(self) -> Setpoint | None:
         return self._m.last_setpoint
@@ -385,11 +475,24 @@ class Autopilot:
         self._m.last_setpoint_s = now_s
         return self.armed and self.mode is Mode.OFFBOARD
 
+    def on_manual_input(self, sticks: ManualInput, now_s: float) -> None:
+        """MANUAL_CONTROL (virtual sticks), flown in the manual modes."""
+        self.counters["manual_inputs"] += 1
+        m = self._m
+        m.sticks, m.sticks_s = sticks, now_s
+        m.had_sticks = True
+        if m.rc_lost_act_at_s is not None:  # manual control regained: the failsafe ends
+            m.rc_lost_act_at_s = None
+            self.failsafe = False
+
     def observe(self, truth: VehicleState) -> None:
         """Take in the vehicle's state (the autopilot's estimate is the truth here)."""
         self._pos = truth.pos_ned_m
+        self._vel = truth.vel_ned_m_s
         self._yaw = float(truth.euler_rad[2])
-        self._landed = bool(truth.on_ground)
+        self._contact = bool(truth.on_ground)
+        if not self._contact:
+            self._landed = False
 
     def on_command(self, cmd: Command, now_s: float) -> Reply | None:
         """Handle a flight command; ``None`` for commands the autopilot does not know."""
@@ -406,69 +509,75 @@ class Autopilot:
         }.get(cmd.command)
         return None if handler is None else handler(cmd, now_s)
 
+    def mode_can_run(self, mode: Mode, now_s: float) -> bool:
+        """Whether ``mode`` has what it needs (setpoints, sticks, a mission)."""
+        if mode is Mode.OFFBOARD:
+            return self.offboard_signal_ok(now_s)
+        if mode in _NEEDS_MANUAL_INPUT:
+            return self.manual_input_ok(now_s)
+        if mode is Mode.AUTO_MISSION:
+            return bool(self.navigator.items)  # PX4 1.16 in the air: refused without a valid mission
+        return mode not in (Mode.AUTO_READY, Mode.ORBIT)  # Orbit is entered by MAV_CMD_DO_ORBIT
+
     def set_mode(self, mode: Mode | None, now_s: float) -> Reply:
-        """A mode change asked by a client (DO_SET_MODE or the legacy SET_MODE)."""
+        """A mode change asked by a client (DO_SET_MODE or the legacy SET_MODE).
+
+        PX4 accepts every mode while disarmed (arming then says whether it can fly it); armed, a
+        mode that cannot run is refused."""
+        self._now = max(self._now, now_s)
         if mode is None:
             return Reply(MAV_RESULT_DENIED, (StatusText(MAV_SEVERITY_CRITICAL, "Unknown mode"),))
         if mode is self.mode and not self.failsafe:
             return Reply(MAV_RESULT_ACCEPTED)
-        if mode in _NEEDS_MANUAL_INPUT:
-            return _refuse(f"Switching to {mode.label} is currently not possible: no manual control input")
-        if mode is Mode.AUTO_READY:
-            return _refuse(f"Switching to {mode.label} is currently not possible: no mission")
-        if mode is Mode.ORBIT:
-            return _refuse("Switching to Orbit is currently not possible: send MAV_CMD_DO_ORBIT")
-        if mode is Mode.AUTO_MISSION and self.armed and not self.navigator.items:
-            return _refuse("Switching to Mission is currently not possible: no valid mission")  # PX4 1.16 in the air
-        if mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s):
-            return _refuse("Switching to Offboard is currently not possible: no offboard signal")
+        if self.armed and not self.mode_can_run(mode, now_s):
+            return _refuse(f"Switching to {mode.label} is currently not available")
         if mode is Mode.AUTO_TAKEOFF:
-            self._prepare_takeoff(math.nan)
+            self._prepare_takeoff(math.nan, now_s)
         self._enter(mode, now_s, by_client=True)
         return Reply(MAV_RESULT_ACCEPTED)
 
     def update(self, now_s: float) -> list[StatusText]:
-        """Time-driven logic: offboard loss, failsafe land, takeoff done, auto-disarm."""
+        """Time-driven logic: land detector, offboard and manual control loss, takeoff done, Return
+        at home, auto-disarm, the sticks' integration."""
         texts: list[StatusText] = []
         m = self._m
         p = self.params
-        if self.mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s):
-            if self.armed:
-                self.failsafe = True
-                self._enter(Mode.AUTO_LOITER, now_s)
-                land = int(p["COM_OBL_RC_ACT"]) == OBL_ACT_LAND
-                m.land_at_s = now_s + p["COM_FAIL_ACT_T"] if land else None
-                action = f"hold, land in {p['COM_FAIL_ACT_T']:g} s" if land else "hold"
-                texts.append(StatusText(MAV_SEVERITY_CRITICAL, f"Failsafe activated: no offboard signal, {action}"))
-            else:
-                self._enter(Mode.AUTO_LOITER, now_s)
-                texts.append(StatusText(MAV_SEVERITY_WARNING, "No offboard signal, switching to Hold"))
-        if self.failsafe and m.land_at_s is not None and now_s >= m.land_at_s and self.mode is Mode.AUTO_LOITER:
-            self._enter(Mode.AUTO_LAND, now_s)
-            m.land_at_s = None
-            texts.append(StatusText(MAV_SEVERITY_CRITICAL, "Failsafe: landing"))
+        dt = 0.0 if m.last_update_s is None else max(0.0, now_s - m.last_update_s)
+        m.last_update_s = now_s
+        self._now = now_s
+        texts.extend(self._land_detector(now_s))
         if self.armed and not self._landed:
             m.has_taken_off = True
-        if self.armed and self.mode is Mode.AUTO_TAKEOFF and not self._landed:
+        texts.extend(self._offboard_loss(now_s))
+        texts.extend(self._manual_control_loss(now_s))
+        if self.armed and self.mode is Mode.AUTO_TAKEOFF and m.has_taken_off:
             target_down = self._takeoff_down_m()
-            if self._pos[2] <= target_down + 0.1:
+            if self._pos[2] <= target_down + p["NAV_MC_ALT_RAD"]:  # PX4's navigator: within the altitude acceptance
                 self._enter(Mode.AUTO_LOITER, now_s)
                 m.hold_pos = (m.hold_pos[0], m.hold_pos[1], target_down)
                 texts.append(StatusText(MAV_SEVERITY_INFO, "Takeoff complete, holding"))
         texts.extend(self._navigate(now_s))
+        if self.armed and self.mode in _NEEDS_MANUAL_INPUT:
+            self._integrate_sticks(now_s, dt)
         texts.extend(self._auto_disarm(now_s))
         return texts
 
     def task(self) -> Task:
         """What the inner loops fly now."""
         m = self._m
-        if not self.armed:
+        if not self.armed or m.terminated:
             return IdleTask()
         mode = self.mode
+        now = self._now
         if mode is Mode.OFFBOARD and m.last_setpoint is not None:
             return OffboardTask(m.last_setpoint)
         if mode is Mode.AUTO_TAKEOFF:
-            return PositionTask((m.hold_pos[0], m.hold_pos[1], self._takeoff_down_m()), m.hold_yaw, max_climb_m_s=self.params["MPC_TKO_SPEED"])
+            limit = self._takeoff_climb_limit(now)
+            if limit is None:
+                return IdleTask()  # spooling up
+            return PositionTask((m.hold_pos[0], m.hold_pos[1], self._takeoff_down_m()), m.hold_yaw, max_climb_m_s=limit)
+        if mode in _NEEDS_MANUAL_INPUT:
+            return self._manual_task(now)
         nav = self.navigator.setpoint() if (mode in _NAVIGATED or self.navigator.activity == "reposition") else None
         if nav is not None:
             if self._landed and (nav.landing or (not m.has_taken_off and nav.max_climb_m_s is None)):
@@ -477,8 +586,114 @@ class Autopilot:
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
-            return PositionTask(m.hold_pos, m.hold_yaw, descend_m_s=self.params["MPC_LAND_SPEED"])
+            return PositionTask(m.hold_pos, m.hold_yaw, descend_m_s=self.land_speed_m_s())
         return PositionTask(m.hold_pos, m.hold_yaw)
+
+    # -- PX4's speed profiles ----------------------------------------------------------------------
+
+    def land_speed_m_s(self) -> float:
+        """PX4's landing speed at the current height (``navigator.land_speed_m_s``)."""
+        return land_speed_m_s(self.params.__getitem__, self.home_ned_m[2] - float(self._pos[2]))
+
+    def _takeoff_climb_limit(self, now_s: float, *, approach: bool = True) -> float | None:
+        """PX4's takeoff ramp (mc_pos_control/Takeoff, ``updateRamp``): None while the motors spool
+        up (COM_SPOOLUP_TIME after arming); then the upward velocity limit goes linearly over
+        MPC_TKO_RAMP_T from -g / MPC_Z_VEL_P_ACC (no thrust) to MPC_TKO_SPEED."""
+        m, p = self._m, self.params
+        spooled = m.armed_at_s + p["COM_SPOOLUP_TIME"]
+        if now_s < spooled:
+            return None
+        wanted = m.takeoff_wanted_s if m.takeoff_wanted_s is not None else now_s
+        start = max(spooled, wanted)
+        speed = p["MPC_TKO_SPEED"]
+        ramp_t = p["MPC_TKO_RAMP_T"]
+        if not self._landed and m.has_taken_off and ramp_t <= 0:
+            return speed
+        init = -G_M_S2 / max(p["MPC_Z_VEL_P_ACC"], 0.01)
+        progress = 1.0 if ramp_t <= 0 else min(max((now_s - start) / ramp_t, 0.0), 1.0)
+        target = speed
+        if approach:
+            # the climb PX4's takeoff trajectory asks for slows near the height (fitted, docs/parity)
+            remaining = max(float(self._pos[2]) - self._takeoff_down_m(), 0.0)
+            target = min(speed, TAKEOFF_APPROACH_GAIN * math.sqrt(remaining))
+        return init + progress * (target - init)
+
+    # -- the manual modes --------------------------------------------------------------------------
+
+    def _sticks_now(self, now_s: float) -> ManualInput | None:
+        return self._m.sticks if self.manual_input_ok(now_s) else None
+
+    def _integrate_sticks(self, now_s: float, dt: float) -> None:
+        """What the sticks ask for, with PX4's shaping (expo curves MPC_*_EXPO, the MPC_HOLD_DZ dead
+        zone): the yaw rate (MPC_MAN_Y_MAX), the climb rate (MPC_Z_VEL_MAX_UP / _DN, the height
+        held when the throttle is centred) and, in Position, the horizontal velocity: acceleration
+        MPC_ACC_HOR with the drag that gives MPC_VEL_MANUAL at full stick (StickAccelerationXY),
+        braking at MPC_ACC_HOR when released, then the position held where it stopped."""
+        m, p = self._m, self.params
+        sticks = self._sticks_now(now_s)
+        if sticks is None:
+            m.vel_sp_ne, m.manual_vz = (0.0, 0.0), None
+            return
+        rate = _expo(_deadzone(sticks.r, p["MPC_HOLD_DZ"]), p["MPC_YAW_EXPO"]) * math.radians(p["MPC_MAN_Y_MAX"])
+        m.hold_yaw = _wrap(m.hold_yaw + rate * dt)
+        throttle = _expo(_deadzone(2.0 * sticks.z - 1.0, p["MPC_HOLD_DZ"]), p["MPC_Z_MAN_EXPO"])
+        if throttle != 0.0:
+            m.manual_vz = -throttle * (p["MPC_Z_VEL_MAX_UP"] if throttle > 0 else p["MPC_Z_VEL_MAX_DN"])
+            m.hold_pos = (m.hold_pos[0], m.hold_pos[1], float(self._pos[2]))
+            if throttle > 0 and self._landed and m.takeoff_wanted_s is None:
+                m.takeoff_wanted_s = now_s  # PX4's takeoff ramp starts with the climb asked for
+        else:
+            if m.manual_vz is not None and m.manual_vz != 0.0:
+                m.hold_pos = (m.hold_pos[0], m.hold_pos[1], float(self._pos[2]))
+            m.manual_vz = 0.0
+        if self.mode is not Mode.POSCTL:
+            return
+        fwd = _expo(_deadzone(sticks.x, p["MPC_HOLD_DZ"]), p["MPC_XY_MAN_EXPO"])
+        right = _expo(_deadzone(sticks.y, p["MPC_HOLD_DZ"]), p["MPC_XY_MAN_EXPO"])
+        c, s = math.cos(m.hold_yaw), math.sin(m.hold_yaw)
+        stick_ne = (c * fwd - s * right, s * fwd + c * right)
+        acc_max, v_max = p["MPC_ACC_HOR"], p["MPC_VEL_MANUAL"]
+        drag = acc_max / v_max if v_max > 0 else 0.0
+        vn, ve = m.vel_sp_ne
+        if fwd == 0.0 and right == 0.0:
+            speed = math.hypot(vn, ve)
+            if speed > 0.0:
+                scale = max(speed - acc_max * dt, 0.0) / speed
+                vn, ve = vn * scale, ve * scale
+        else:
+            vn += (acc_max * stick_ne[0] - drag * vn) * dt
+            ve += (acc_max * stick_ne[1] - drag * ve) * dt
+        m.vel_sp_ne = (vn, ve)
+        if vn != 0.0 or ve != 0.0:
+            m.hold_pos = (float(self._pos[0]), float(self._pos[1]), m.hold_pos[2])
+
+    def _manual_task(self, now_s: float) -> Task:
+        """Position / Altitude (and the other manual modes, flown as Altitude) from the sticks
+        (``_integrate_sticks``); without stick input PX4's failsafe flight task: hold the
+        horizontal position, descend at MPC_LAND_SPEED."""
+        m, p = self._m, self.params
+        sticks = self._sticks_now(now_s)
+        vz = m.manual_vz
+        if sticks is None or vz is None:
+            if self._landed:
+                return IdleTask()
+            return PositionTask((m.hold_pos[0], m.hold_pos[1], None), m.hold_yaw, descend_m_s=p["MPC_LAND_SPEED"])
+        if self._landed and vz >= 0.0:
+            return IdleTask()
+        limit = None if m.has_taken_off else self._takeoff_climb_limit(now_s, approach=False)
+        if limit is None and not m.has_taken_off:
+            return IdleTask()  # spooling up
+        down = m.hold_pos[2] if vz == 0.0 else None
+        if self.mode is Mode.POSCTL:
+            vn, ve = m.vel_sp_ne
+            moving = vn != 0.0 or ve != 0.0
+            pos = (None if moving else m.hold_pos[0], None if moving else m.hold_pos[1], down)
+            return PositionTask(pos, m.hold_yaw, max_climb_m_s=limit, vel_ned_m_s=(vn, ve, vz))
+        tilt = math.radians(p["MPC_MAN_TILT_MAX"])
+        c, s = math.cos(m.hold_yaw), math.sin(m.hold_yaw)
+        a_fwd, a_right = G_M_S2 * math.tan(tilt * sticks.x), G_M_S2 * math.tan(tilt * sticks.y)
+        acc = (c * a_fwd - s * a_right, s * a_fwd + c * a_right)
+        return PositionTask((None, None, down), m.hold_yaw, max_climb_m_s=limit, vel_ned_m_s=(0.0, 0.0, vz), acc_ne_m_s2=acc)
 
     # -- commands --------------------------------------------------------------------------------
 
@@ -492,6 +707,7 @@ class Autopilot:
         return self.disarm(now_s, forced=forced)
 
     def arm(self, now_s: float, *, forced: bool = False) -> Reply:
+        self._now = max(self._now, now_s)
         if self.armed:
             return Reply(MAV_RESULT_ACCEPTED)
         if not forced:
@@ -504,6 +720,10 @@ class Autopilot:
         m.has_taken_off = not self._landed
         m.landed_since_s = None
         m.rtl_landing = False
+        m.terminated = False
+        m.takeoff_wanted_s = now_s if self.mode is Mode.AUTO_TAKEOFF else None
+        m.had_sticks = self.manual_input_ok(now_s)
+        m.vel_sp_ne = (0.0, 0.0)
         if self._landed:
             self.home_ned_m = (float(self._pos[0]), float(self._pos[1]), float(self._pos[2]))
         self._set_hold_here()
@@ -525,8 +745,8 @@ class Autopilot:
             return f"{', '.join(sorted(self.failures))} unhealthy (simulated failure)"
         if self.mode not in _ARMABLE:
             return f"not possible in {self.mode.label} mode"
-        if self.mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s):
-            return "no offboard signal"
+        if not self.mode_can_run(self.mode, now_s):
+            return "Resolve system health failures first"  # PX4's words for a mode that cannot run
         return None
 
     def _cmd_set_mode(self, cmd: Command, now_s: float) -> Reply:
@@ -541,7 +761,7 @@ class Autopilot:
     def _cmd_takeoff(self, cmd: Command, now_s: float) -> Reply:
         if not (self.armed or self._landed):
             return _refuse("Takeoff denied: already flying")
-        self._prepare_takeoff(cmd.params[6])
+        self._prepare_takeoff(cmd.params[6], now_s)
         self._enter(Mode.AUTO_TAKEOFF, now_s, by_client=True)
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO, f"Takeoff to {self._m.takeoff_height_m:.1f} m"),))
 
@@ -617,13 +837,70 @@ class Autopilot:
         text = "Preflight checks passed" if reason is None else f"Preflight Fail: {reason}"
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO if reason is None else MAV_SEVERITY_CRITICAL, text),))
 
+    # -- failsafes -------------------------------------------------------------------------------
+
+    def _offboard_loss(self, now_s: float) -> list[StatusText]:
+        """PX4's mode fallback for offboard loss (failsafe.cpp): at once, not deferred by
+        COM_FAIL_ACT_T; it clears when the setpoints come back (back to Offboard)."""
+        m = self._m
+        if m.fallback_of_offboard and self.failsafe and self.armed and self.offboard_signal_ok(now_s):
+            m.fallback_of_offboard = False
+            self.failsafe = False
+            self._enter(Mode.OFFBOARD, now_s)
+            return [StatusText(MAV_SEVERITY_INFO, "Failsafe deactivated: offboard signal back")]
+        if not (self.armed and self.mode is Mode.OFFBOARD and not self.offboard_signal_ok(now_s)):
+            return []
+        action = int(self.params["COM_OBL_RC_ACT"])
+        texts = [StatusText(MAV_SEVERITY_CRITICAL, "Failsafe activated")]
+        if action == OBL_DISARM:
+            self._disarm()
+            return texts
+        self.failsafe = True
+        m.fallback_of_offboard = True
+        if action == OBL_TERMINATE:
+            self._terminate()
+        else:
+            self._enter(OBL_ACTIONS.get(action, Mode.POSCTL), now_s)
+        return texts
+
+    def _manual_control_loss(self, now_s: float) -> list[StatusText]:
+        """Sticks gone for COM_RC_LOSS_T in a manual mode: Hold for COM_FAIL_ACT_T, then
+        NAV_RCL_ACT (PX4's manual-control-loss failsafe, deferred by its hold delay)."""
+        m, p = self._m, self.params
+        if m.rc_lost_act_at_s is not None:
+            if self.failsafe and self.mode is Mode.AUTO_LOITER and now_s >= m.rc_lost_act_at_s:
+                m.rc_lost_act_at_s = None
+                action = int(p["NAV_RCL_ACT"])
+                if action == RCL_DISARM:
+                    self._disarm()
+                elif action == RCL_TERMINATE:
+                    self._terminate()
+                elif action in RCL_ACTIONS and RCL_ACTIONS[action] is not Mode.AUTO_LOITER:
+                    self._enter(RCL_ACTIONS[action], now_s)
+                return [StatusText(MAV_SEVERITY_CRITICAL, "Failsafe activated")]
+            return []
+        if not (self.armed and m.had_sticks and self.mode in _NEEDS_MANUAL_INPUT and not self.manual_input_ok(now_s)):
+            return []
+        if int(p["NAV_RCL_ACT"]) == 0 or self._landed:
+            return []
+        self.failsafe = True
+        self._enter(Mode.AUTO_LOITER, now_s)
+        m.rc_lost_act_at_s = now_s + p["COM_FAIL_ACT_T"]
+        return [StatusText(MAV_SEVERITY_CRITICAL, f"Failsafe activated: entering Hold for {p['COM_FAIL_ACT_T']:g} seconds")]
+
+    def _terminate(self) -> None:
+        """Flight termination: the motors stop (the vehicle falls); disarmed once on the ground."""
+        self._m.terminated = True
+        self.mode = Mode.MANUAL  # PX4 reports NAVIGATION_STATE_TERMINATION as custom mode MANUAL
+
     # -- internals -------------------------------------------------------------------------------
 
-    def _prepare_takeoff(self, param7_amsl_m: float) -> None:
+    def _prepare_takeoff(self, param7_amsl_m: float, now_s: float) -> None:
         height = self.params["MIS_TAKEOFF_ALT"]
         if math.isfinite(param7_amsl_m) and param7_amsl_m - self.home_alt_amsl_m > 0.5:
             height = param7_amsl_m - self.home_alt_amsl_m
         self._m.takeoff_height_m = height
+        self._m.takeoff_wanted_s = now_s
 
     def _takeoff_down_m(self) -> float:
         return self.home_ned_m[2] - self._m.takeoff_height_m
@@ -634,11 +911,17 @@ class Autopilot:
 
     def _enter(self, mode: Mode, now_s: float, *, by_client: bool = False) -> None:
         """Switch mode; a mode the client chooses ends a failsafe (PX4: the user takes over)."""
+        m = self._m
         if by_client:
             self.failsafe = False
-            self._m.land_at_s = None
+            m.fallback_of_offboard = False
+            m.rc_lost_act_at_s = None
+            if mode in _ARMABLE:
+                m.last_armable = mode
         self._set_hold_here()
-        self._m.rtl_landing = False
+        m.rtl_landing = False
+        m.vel_sp_ne = (0.0, 0.0)
+        m.manual_vz = 0.0
         self.mode = mode
         nav = self.navigator
         nav.stop()
@@ -650,6 +933,25 @@ class Autopilot:
             nav.frame = self.frame()
             nav.start("rtl", now_s)
 
+    def _land_detector(self, now_s: float) -> list[StatusText]:
+        """PX4's land detector in miniature: landed LNDMC_TRIG_TIME + LAND_DETECT_WINDDOWN_S after
+        the ground contact began (at once while disarmed or before the takeoff)."""
+        m = self._m
+        if not self._contact:
+            m.contact_since_s = None
+            return []
+        if self._landed:
+            return []
+        if m.contact_since_s is None:
+            m.contact_since_s = now_s
+        delay = self.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S
+        if not (self.armed and m.has_taken_off) or now_s - m.contact_since_s >= delay - EPS_S:
+            self._landed = True
+            if self.armed and m.has_taken_off:
+                m.landed_since_s = now_s
+                return [StatusText(MAV_SEVERITY_INFO, "Landing detected")]
+        return []
+
     def _auto_disarm(self, now_s: float) -> list[StatusText]:
         if not self.armed:
             return []
@@ -660,9 +962,8 @@ class Autopilot:
         if m.has_taken_off:
             if m.landed_since_s is None:
                 m.landed_since_s = now_s
-                return [StatusText(MAV_SEVERITY_INFO, "Landing detected")]
             delay = p["COM_DISARM_LAND"]
-            if delay > 0 and now_s - m.landed_since_s >= delay:
+            if (delay > 0 and now_s - m.landed_since_s >= delay - EPS_S) or m.terminated:
                 self._disarm()
                 return [StatusText(MAV_SEVERITY_INFO, "Disarmed by landing")]
             return []
@@ -673,13 +974,48 @@ class Autopilot:
         return []
 
     def _disarm(self) -> None:
+        m = self._m
         self.armed = False
         self.failsafe = False
-        self._m.land_at_s = None
-        self._m.has_taken_off = False
-        self._m.landed_since_s = None
-        if self.mode in (Mode.AUTO_LAND, Mode.AUTO_RTL, Mode.AUTO_TAKEOFF):
-            self._enter(Mode.AUTO_LOITER, 0.0)
+        m.fallback_of_offboard = False
+        m.rc_lost_act_at_s = None
+        m.has_taken_off = False
+        m.landed_since_s = None
+        m.terminated = False
+        m.takeoff_wanted_s = None
+        if self.mode not in _ARMABLE:
+            # PX4: after a disarm the commander goes back to the last mode that allows arming
+            self._enter(m.last_armable, 0.0)
+
+
+EPS_S = 1e-9  # time comparisons: sums of ticks are not exact
+#: Touch-down to "Landing detected" took PX4 v1.16 SIH about 3 s (measured, docs/parity/commander.md):
+#: LNDMC_TRIG_TIME for its three detector stages, the rest (fitted) for the thrust to wind down to
+#: the landed threshold while the landing setpoint still pushes down.
+LAND_DETECT_WINDDOWN_S = 2.0
+#: The takeoff climb PX4's trajectory asks for, v = min(MPC_TKO_SPEED, K sqrt(remaining m)), K in
+#: m^0.5/s, the end of the ramp: fitted to PX4 v1.16 SITL's takeoffs to 2.5 m (climbing at up to
+#: 0.86-0.98 m/s, lift-off 2.7-4.2 s and 90 % of the height about 7 s after the command).
+TAKEOFF_APPROACH_GAIN = 0.6
+
+
+def _expo(value: float, e: float) -> float:
+    """PX4's math::expo: (1 - e) v + e v^3, v clipped to [-1, 1]."""
+    v = min(max(value, -1.0), 1.0)
+    e = min(max(e, 0.0), 1.0)
+    return (1.0 - e) * v + e * v * v * v
+
+
+def _deadzone(value: float, dz: float) -> float:
+    """PX4's math::deadzone: 0 within +-dz, rescaled to reach +-1 at the ends."""
+    v = min(max(value, -1.0), 1.0)
+    if abs(v) <= dz or dz >= 1.0:
+        return 0.0
+    return (v - math.copysign(dz, v)) / (1.0 - dz)
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _refuse(text: str) -> Reply:
@@ -694,6 +1030,7 @@ __all__ = [
     "PositionSetpoint",
     "Setpoint",
     "Command",
+    "ManualInput",
     "StatusText",
     "Reply",
     "Status",

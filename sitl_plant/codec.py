@@ -149,11 +149,13 @@ def pressure_hpa(alt_amsl_m: float) -> float:
 
 
 def heartbeat(status: Status) -> MAVLinkMessage:
-    base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-    if status.armed:
-        base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-    if status.mode in (Mode.OFFBOARD,) or status.mode.value[0] == 4:
-        base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+    base = status.base_mode  # the autopilot's, as PX4 sends it (autopilot.base_mode_flags)
+    if base is None:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if status.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        if status.mode in (Mode.OFFBOARD,) or status.mode.value[0] == 4:
+            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
     return mavlink.MAVLink_heartbeat_message(
         mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, status.mode.custom_mode, status.system_status, 3
     )

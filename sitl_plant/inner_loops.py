@@ -304,7 +304,8 @@ class Px4Loop:
             vsp[0] *= vxy_max / vxy
             vsp[1] *= vxy_max / vxy
         up_max = p["MPC_Z_VEL_MAX_UP"] if task.max_climb_m_s is None else min(p["MPC_Z_VEL_MAX_UP"], task.max_climb_m_s)
-        vsp[2] = min(max(vsp[2], -up_max), p["MPC_Z_VEL_MAX_DN"])
+        # the climb limit last: PX4's takeoff ramp starts below zero (a descent asked for: no thrust)
+        vsp[2] = max(min(vsp[2], p["MPC_Z_VEL_MAX_DN"]), -up_max)
         if task.descend_m_s is not None:
             vsp[2] = task.descend_m_s
         kp = (p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_P_ACC"], p["MPC_Z_VEL_P_ACC"])
@@ -312,6 +313,10 @@ class Px4Loop:
         g = 9.81
         acc = [0.0, 0.0, 0.0]
         for i in range(3):
+            if i < 2 and task.acc_ne_m_s2 is not None:  # Altitude mode: the sticks' tilt as acceleration
+                acc[i] = task.acc_ne_m_s2[i]
+                self._vel_int[i] = 0.0
+                continue
             err = vsp[i] - float(vel[i])
             acc[i] = kp[i] * err + self._vel_int[i]
             if not self.landed:

@@ -39,6 +39,8 @@ param2 m/s tangential speed (NaN: 1 m/s), the nose to the centre.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import math
 from dataclasses import dataclass, field
 
@@ -500,16 +502,23 @@ class Navigator:
         self._yaw_sp = _wrap(self._yaw_sp + max(-step, min(step, err)))
 
     def _land_speed(self) -> float:
-        """PX4's landing speed profile: MPC_Z_V_AUTO_DN above MPC_LAND_ALT1, MPC_LAND_SPEED below
-        MPC_LAND_ALT2, interpolated between (height above home)."""
-        h = self.frame.home_ned_m[2] - self._pos[2]
-        fast, slow = self._p("MPC_Z_V_AUTO_DN"), self._p("MPC_LAND_SPEED")
-        a1, a2 = self._p("MPC_LAND_ALT1"), self._p("MPC_LAND_ALT2")
-        if h >= a1:
-            return fast
-        if h <= a2 or a1 <= a2:
-            return slow
-        return slow + (fast - slow) * (h - a2) / (a1 - a2)
+        return land_speed_m_s(self._p, self.frame.home_ned_m[2] - self._pos[2])
+
+
+def land_speed_m_s(param: Callable[[str], float], height_m: float) -> float:
+    """PX4's landing speed at ``height_m`` above home (FlightTaskAuto, ``math::gradual``):
+    MPC_Z_V_AUTO_DN above MPC_LAND_ALT1, linear down to MPC_LAND_SPEED at MPC_LAND_ALT2,
+    MPC_LAND_CRWL below MPC_LAND_ALT3 (SIH's distance sensor sees the ground; so does the plant).
+    The one profile of Land, and of the landings of Mission and Return."""
+    alt1, alt2 = param("MPC_LAND_ALT1"), param("MPC_LAND_ALT2")
+    fast, slow = param("MPC_Z_V_AUTO_DN"), param("MPC_LAND_SPEED")
+    if height_m <= param("MPC_LAND_ALT3"):
+        return param("MPC_LAND_CRWL")
+    if height_m >= alt1:
+        return fast
+    if height_m <= alt2 or alt1 <= alt2:
+        return slow
+    return slow + (fast - slow) * (height_m - alt2) / (alt1 - alt2)
 
 
 def _wrap(a: float) -> float:

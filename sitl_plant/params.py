@@ -33,7 +33,9 @@ PHYSICAL = ("SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KF"
 #: PX4 v1.16 SITL's parameters that clients read, with PX4's types and values (the file says which).
 PX4_PARAMS_FILE = Path(__file__).with_name("px4_params.toml")
 
-#: COM_OBL_RC_ACT values the plant implements (PX4's numbering).
+#: COM_OBL_RC_ACT values (PX4's offboard_loss_failsafe_mode): 0 Position (PX4's default),
+#: 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm.
+OBL_ACT_POSITION = 0
 OBL_ACT_LAND = 4
 OBL_ACT_HOLD = 5
 
@@ -191,8 +193,14 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
         ParamSpec("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm, read_only=True, unit="N m", description="yaw torque at normalised 1"),
         # commander
         ParamSpec("COM_OF_LOSS_T", 1.0, min=0.0, max=60.0, unit="s", description="offboard-loss timeout"),
-        ParamSpec("COM_OBL_RC_ACT", OBL_ACT_LAND, INT, choices=(OBL_ACT_LAND, OBL_ACT_HOLD), description="offboard-loss action: 4 land (after COM_FAIL_ACT_T of hold), 5 hold"),
-        ParamSpec("COM_FAIL_ACT_T", 5.0, min=0.0, max=25.0, unit="s", description="hold before a failsafe action"),
+        ParamSpec("COM_OBL_RC_ACT", OBL_ACT_POSITION, INT, choices=tuple(range(8)),
+                  description="offboard-loss action: 0 Position, 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm"),
+        ParamSpec("COM_FAIL_ACT_T", 5.0, min=0.0, max=25.0, unit="s", description="hold before a deferred failsafe action (manual control loss)"),
+        ParamSpec("COM_RC_LOSS_T", 0.5, min=0.0, max=35.0, unit="s", description="manual control (MANUAL_CONTROL) loss timeout"),
+        ParamSpec("NAV_RCL_ACT", 2, INT, choices=(0, 1, 2, 3, 5, 6),
+                  description="manual control loss action after COM_FAIL_ACT_T of Hold: 0 none, 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Disarm"),
+        ParamSpec("COM_SPOOLUP_TIME", 1.0, min=0.0, max=5.0, unit="s", description="motor spool-up after arming, before a takeoff"),
+        ParamSpec("LNDMC_TRIG_TIME", 1.0, min=0.1, max=10.0, unit="s", description="land detector: ground contact this long is landed"),
         ParamSpec("COM_DISARM_LAND", 2.0, min=-1.0, max=20.0, unit="s", description="auto-disarm after landing (<= 0 off)"),
         ParamSpec("COM_DISARM_PRFLT", 10.0, min=-1.0, max=20.0, unit="s", description="auto-disarm if no takeoff (<= 0 off)"),
         # the paper's inner loop (--inner-loop paper)
@@ -235,20 +243,30 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
         ParamSpec("MPC_TILTMAX_AIR", 45.0, min=20.0, max=89.0, unit="deg"),
         ParamSpec("MPC_THR_HOVER", hover, min=0.05, max=0.9, description="normalised hover thrust"),
         ParamSpec("MPC_THR_MIN", 0.12, min=0.05, max=0.5, description="minimum collective thrust in flight, normalised (the offboard's thrust floor)"),
-        ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s"),
+        ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s", description="landing speed below MPC_LAND_ALT2"),
+        ParamSpec("MPC_Z_V_AUTO_DN", 1.5, min=0.5, max=4.0, unit="m/s", description="auto descent speed (Land above MPC_LAND_ALT1)"),
+        ParamSpec("MPC_LAND_ALT1", 10.0, min=0.0, max=122.0, unit="m", description="Land slows below this height"),
+        ParamSpec("MPC_LAND_ALT2", 5.0, min=0.0, max=122.0, unit="m", description="Land at MPC_LAND_SPEED below this height"),
+        ParamSpec("MPC_LAND_ALT3", 1.0, min=0.0, max=122.0, unit="m", description="Land at MPC_LAND_CRWL below this height"),
+        ParamSpec("MPC_LAND_CRWL", 0.3, min=0.1, max=10.0, unit="m/s", description="landing crawl speed near the ground"),
         ParamSpec("MPC_TKO_SPEED", 1.5, min=1.0, max=5.0, unit="m/s"),
+        ParamSpec("MPC_TKO_RAMP_T", 3.0, min=0.0, max=5.0, unit="s", description="takeoff ramp of the upward velocity limit"),
+        ParamSpec("MPC_VEL_MANUAL", 10.0, min=1.0, max=20.0, unit="m/s", description="Position mode: speed at full stick"),
+        ParamSpec("MPC_ACC_HOR", 3.0, min=2.0, max=15.0, unit="m/s^2", description="Position mode: horizontal acceleration"),
+        ParamSpec("MPC_MAN_Y_MAX", 150.0, min=0.0, max=400.0, unit="deg/s", description="manual modes: yaw rate at full stick"),
+        ParamSpec("MPC_MAN_TILT_MAX", 35.0, min=1.0, max=85.0, unit="deg", description="Altitude mode: tilt at full stick"),
+        ParamSpec("MPC_HOLD_DZ", 0.1, min=0.0, max=1.0, description="manual modes: stick dead zone"),
+        ParamSpec("MPC_XY_MAN_EXPO", 0.6, min=0.0, max=1.0, description="manual modes: roll/pitch stick expo"),
+        ParamSpec("MPC_Z_MAN_EXPO", 0.6, min=0.0, max=1.0, description="manual modes: throttle stick expo"),
+        ParamSpec("MPC_YAW_EXPO", 0.6, min=0.0, max=1.0, description="manual modes: yaw stick expo"),
         ParamSpec("MIS_TAKEOFF_ALT", 2.5, min=0.0, max=80.0, unit="m", description="default takeoff height"),
         ParamSpec("NAV_ACC_RAD", 2.0, min=0.05, max=200.0, unit="m", description="acceptance radius (mission waypoints without their own, Return at home)"),
         # the navigator (Mission, Return, Reposition, Orbit; sitl_plant/navigator.py): PX4 v1.16's defaults
-        ParamSpec("NAV_MC_ALT_RAD", 0.8, min=0.05, max=200.0, unit="m", description="vertical acceptance radius of mission items"),
+        ParamSpec("NAV_MC_ALT_RAD", 0.8, min=0.05, max=200.0, unit="m", description="vertical acceptance radius: of mission items, and a takeoff is complete this close to its height"),
         ParamSpec("MIS_YAW_ERR", 12.0, min=0.0, max=90.0, unit="deg", description="heading error accepted at a waypoint with a yaw"),
         ParamSpec("MPC_XY_CRUISE", 5.0, min=3.0, max=20.0, unit="m/s", description="horizontal speed of the auto modes (DO_CHANGE_SPEED changes it for a mission)"),
-        ParamSpec("MPC_ACC_HOR", 3.0, min=2.0, max=15.0, unit="m/s^2", description="acceleration along the auto modes' legs"),
         ParamSpec("MPC_JERK_AUTO", 4.0, min=1.0, max=80.0, unit="m/s^3", description="jerk limit of the auto modes' legs"),
         ParamSpec("MPC_Z_V_AUTO_UP", 3.0, min=0.5, max=8.0, unit="m/s", description="climb speed of the auto modes"),
-        ParamSpec("MPC_Z_V_AUTO_DN", 1.5, min=0.5, max=4.0, unit="m/s", description="descent speed of the auto modes (and of a landing above MPC_LAND_ALT1)"),
-        ParamSpec("MPC_LAND_ALT1", 10.0, min=0.0, max=122.0, unit="m", description="a mission or Return landing slows from MPC_Z_V_AUTO_DN below this height"),
-        ParamSpec("MPC_LAND_ALT2", 5.0, min=0.0, max=122.0, unit="m", description="... to MPC_LAND_SPEED below this height"),
         ParamSpec("RTL_TYPE", 0, kind=INT, choices=(0,), description="Return: 0 straight home (the only one simulated)"),
         ParamSpec("RTL_RETURN_ALT", 30.0, min=0.0, max=150.0, unit="m", description="Return: height above home to come back at (at least the current one)"),
         ParamSpec("RTL_DESCEND_ALT", 10.0, min=0.0, max=150.0, unit="m", description="Return: height over home to descend to before landing"),

@@ -29,6 +29,7 @@ from sitl_plant.autopilot import (
     AttitudeSetpoint,
     Autopilot,
     Command,
+    ManualInput,
     OffboardTask,
     PositionSetpoint,
     PositionTask,
@@ -432,6 +433,10 @@ class Plant:
                 self._apply_task()
         if reply is None:
             reply = Reply(mavlink.MAV_RESULT_UNSUPPORTED)
+        if cmd.command == mavlink.MAV_CMD_DO_SET_MODE:
+            # PX4 acknowledges a mode change twice: ACCEPTED from its MAVLink receiver at once, then
+            # the commander's result (clients must take the last one)
+            self.outbox[index].append(codec.command_ack(cmd.command, mavlink.MAV_RESULT_ACCEPTED, cmd.source_system, cmd.source_component))
         self.outbox[index].append(codec.command_ack(cmd.command, reply.result, cmd.source_system, cmd.source_component))
         for text in reply.texts:
             self._announce(text)
@@ -583,6 +588,15 @@ class Plant:
         if msg.target_system == 0 and msg.target_component == 0:
             reply = mavlink.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent())
             self.outbox[index].append(reply)
+
+    def _on_manual_control(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        # virtual sticks, as PX4's MAVLink receiver scales them (x, y, r -1000..1000, z 0..1000);
+        # NaN-free by the wire format (int16), out-of-range values are clipped by the autopilot
+        if int(msg.target) not in (0, self.config.sysid):
+            self.counters.foreign += 1
+            return
+        sticks = ManualInput(msg.x / 1000.0, msg.y / 1000.0, msg.z / 1000.0, msg.r / 1000.0)
+        self.autopilot.on_manual_input(sticks, self.time_s)
 
     def _on_heartbeat(self, index: int, msg: mavlink.MAVLink_message) -> None:
         pass  # a client's presence; nothing to do (the link already learnt its address)
@@ -826,6 +840,7 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "SERIAL_CONTROL": Plant._on_serial_control,
     "STATUSTEXT": Plant._on_statustext,
     **{kind: Plant._on_mission for kind in _MISSION_MESSAGES},
+    "MANUAL_CONTROL": Plant._on_manual_control,
 }
 
 

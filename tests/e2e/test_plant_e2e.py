@@ -80,7 +80,9 @@ class Client:
         return self.wait_type("COMMAND_ACK", where=lambda m: m.command == number).result
 
     def set_mode(self, main: int, sub: int = 0) -> int:
-        return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+        """DO_SET_MODE; as PX4 the plant answers twice (ACCEPTED, then the commander's result): the last counts."""
+        self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+        return self.wait_type("COMMAND_ACK", where=lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE).result
 
     def attitude(self, t_ms: int, roll=0.0, pitch=0.0, yaw=0.0, thrust=HOVER, mask=0b00000111) -> None:
         self.mav.set_attitude_target_send(t_ms, 1, 1, mask, quat_from_euler(roll, pitch, yaw), 0.0, 0.0, 0.0, thrust)
@@ -241,20 +243,29 @@ def test_commands_for_another_system_are_ignored(start):
 
 
 def test_offboard_entry_rule(start):
+    """PX4 v1.16: disarmed, Offboard is accepted without setpoints (and arming then refused);
+    armed, it needs them."""
     client, _ = start("--lockstep")
+    assert client.set_mode(6) == mavlink.MAV_RESULT_ACCEPTED
+    hb = client.wait_type("HEARTBEAT", where=lambda m: m.custom_mode == 6 << 16)
+    assert (hb.base_mode, hb.system_status) == (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mavlink.MAV_STATE_UNINIT)
+    assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    client.wait_type("STATUSTEXT", where=lambda m: "Arming denied" in m.text)
+    assert client.set_mode(4, 3) == mavlink.MAV_RESULT_ACCEPTED
+    assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
     assert client.set_mode(6) == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     client.wait_type("STATUSTEXT", where=lambda m: "Offboard" in m.text)
     client.fly(200, lambda t: client.attitude(t, thrust=0.0))
     assert client.set_mode(6) == mavlink.MAV_RESULT_ACCEPTED
-    hb = client.wait_type("HEARTBEAT")
-    assert hb.custom_mode == 6 << 16 and mavutil.mode_string_v10(hb) == "OFFBOARD"
+    hb = client.wait_type("HEARTBEAT", where=lambda m: m.custom_mode == 6 << 16)
+    assert mavutil.mode_string_v10(hb) == "OFFBOARD"
 
 
 def _take_off_then_offboard(client: Client, height_m: float = 2.0) -> None:
     assert client.set_param("MPC_TKO_SPEED", 3.0) == pytest.approx(3.0)
     assert client.command(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, 488.0 + height_m) == mavlink.MAV_RESULT_ACCEPTED
     assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
-    pos = client.fly(4000, lambda t: client.attitude(t))  # setpoints as proof of life, not flown yet
+    pos = client.fly(9000, lambda t: client.attitude(t))  # setpoints as proof of life, not flown yet (PX4's spool-up, ramp, climb)
     assert pos.z == pytest.approx(-height_m, abs=0.2)
     assert client.set_mode(6) == mavlink.MAV_RESULT_ACCEPTED
 
@@ -263,10 +274,10 @@ def _take_off_then_offboard(client: Client, height_m: float = 2.0) -> None:
 def test_attitude_setpoints_hover_and_pitch(start, model):
     client, _ = start("--lockstep", "--model", model)
     _take_off_then_offboard(client)
-    start_pos = client.fly(4050, client.attitude)
-    end = client.fly(7000, client.attitude)  # hover thrust, level: altitude holds
+    start_pos = client.fly(9050, client.attitude)
+    end = client.fly(12000, client.attitude)  # hover thrust, level: altitude holds
     assert abs(end.z - start_pos.z) < 0.3 and abs(end.vz) < 0.2
-    end = client.fly(9000, lambda t: client.attitude(t, pitch=0.1, thrust=HOVER / math.cos(0.1)))
+    end = client.fly(14000, lambda t: client.attitude(t, pitch=0.1, thrust=HOVER / math.cos(0.1)))
     assert end.x < start_pos.x - 0.3 and end.vx < -0.3  # nose up: towards -north
     assert abs(end.y - start_pos.y) < 0.2
     att = client.last["ATTITUDE"]
@@ -307,21 +318,21 @@ def test_actuator_setpoints_are_flown(start):
 
 
 def test_failsafe_after_offboard_loss(start):
+    """PX4's default COM_OBL_RC_ACT 0: Position at once; no sticks, so it descends at MPC_LAND_SPEED."""
     client, _ = start("--lockstep")
-    assert client.set_param("COM_FAIL_ACT_T", 1.0) == pytest.approx(1.0)
     _take_off_then_offboard(client)
-    client.fly(4500, client.attitude)
+    client.fly(9500, client.attitude)
     # the client keeps the clock going without setpoints (ticks): no proof of life
-    client.fly(5450, lambda t: client.attitude(t, mask=IGNORE_ALL))
+    client.fly(10450, lambda t: client.attitude(t, mask=IGNORE_ALL))
     assert client.last["HEARTBEAT"].custom_mode == 6 << 16
-    client.fly(5700, lambda t: client.attitude(t, mask=IGNORE_ALL))
+    client.fly(10700, lambda t: client.attitude(t, mask=IGNORE_ALL))
     assert any("Failsafe" in text for text in client.texts)
     hb = client.wait_type("HEARTBEAT")
-    assert hb.custom_mode == (4 << 16) | (3 << 24) and hb.system_status == mavlink.MAV_STATE_CRITICAL
-    client.fly(6700, lambda t: client.attitude(t, mask=IGNORE_ALL))
-    hb = client.wait_type("HEARTBEAT")
-    assert hb.custom_mode == (4 << 16) | (6 << 24)  # then Land
-    end = client.fly(11000, lambda t: client.attitude(t, mask=IGNORE_ALL))
+    assert (hb.custom_mode, hb.base_mode, hb.system_status) == (3 << 16, 209, mavlink.MAV_STATE_CRITICAL)  # Position
+    before = client.fly(11700, lambda t: client.attitude(t, mask=IGNORE_ALL))
+    after = client.fly(12700, lambda t: client.attitude(t, mask=IGNORE_ALL))
+    assert after.z - before.z == pytest.approx(0.7, abs=0.1)  # MPC_LAND_SPEED (Hold, before: 0)
+    end = client.fly(17600, lambda t: client.attitude(t, mask=IGNORE_ALL))  # a multiple of 200 ms: EXTENDED_SYS_STATE is in the last batch
     assert end.z == pytest.approx(0.0, abs=0.05)
     assert client.wait_type("EXTENDED_SYS_STATE").landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
 
@@ -337,7 +348,7 @@ def test_failsafe_in_real_time(start):
     assert client.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
     client.attitude(0, thrust=0.0)
     assert client.set_mode(6) == mavlink.MAV_RESULT_ACCEPTED
-    client.wait_type("STATUSTEXT", timeout=20, where=lambda m: "no offboard signal" in m.text)
+    client.wait_type("STATUSTEXT", timeout=20, where=lambda m: "Failsafe activated" in m.text)
     client.wait_type("HEARTBEAT", where=lambda m: m.custom_mode != 6 << 16)
 
 
@@ -385,8 +396,8 @@ def _scripted_flight(start, log: Path) -> int:
 
 def test_lockstep_runs_are_bit_identical(start, tmp_path):
     a, b = tmp_path / "a.tlog", tmp_path / "b.tlog"
-    assert _scripted_flight(start, a) == 2
-    assert _scripted_flight(start, b) == 2
+    assert _scripted_flight(start, a) == 3  # the arm's ACK and DO_SET_MODE's two (as PX4)
+    assert _scripted_flight(start, b) == 3
     data = a.read_bytes()
     assert len(data) > 10000
     assert data == b.read_bytes()
@@ -407,7 +418,7 @@ def test_tlog_reads_back_with_pymavlink(start, tmp_path):
         stamps.append(msg._timestamp)
         sent_by_client += msg.get_srcSystem() == 255
     assert kinds["LOCAL_POSITION_NED"] == 51 and kinds["SET_ATTITUDE_TARGET"] == 50
-    assert kinds["COMMAND_LONG"] == 2 and kinds["COMMAND_ACK"] == 2 and kinds["PARAM_VALUE"] == 1
+    assert kinds["COMMAND_LONG"] == 2 and kinds["COMMAND_ACK"] == 3 and kinds["PARAM_VALUE"] == 1
     assert sent_by_client == kinds["SET_ATTITUDE_TARGET"] + 3
     assert stamps == sorted(stamps)
     # lockstep logs are stamped with a fixed epoch (2020-01-01) plus simulation time

@@ -237,6 +237,61 @@ def test_unacknowledged_command_is_rejected_after_retries():
     assert not [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
 
 
+class LateSecondAckLink(PlantLink):
+    """PX4's timing: a DO_SET_MODE's second COMMAND_ACK (the commander's) comes ``delay_s`` after
+    the first (the MAVLink receiver's ACCEPTED)."""
+
+    delay_s = 0.012
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.held: list = []
+
+    def recv(self, timeout_s: float):
+        if self.held and self.clock.now >= self.held[0][0]:
+            self.received.append(self.held[0][1])
+            return self.held.pop(0)[1]
+        if self.queue and self.queue[0].get_type() == "COMMAND_ACK" and self.queue[0].command == mavlink.MAV_CMD_DO_SET_MODE:
+            first = self.queue.popleft()
+            second = next((m for m in self.queue if m.get_type() == "COMMAND_ACK" and m.command == first.command), None)
+            if second is not None:
+                self.queue.remove(second)
+                self.held.append((self.clock.now + self.delay_s, second))
+            self.received.append(first)
+            return first
+        if not self.queue and self.held:
+            self.clock.now += 0.001
+            return None
+        return super().recv(timeout_s)
+
+
+def test_the_mode_change_takes_the_commanders_ack_not_the_first(monkeypatch):
+    """PX4 sends ACCEPTED at once and the commander's refusal 5-12 ms later: the flight must wait
+    for it and stop (before arming) rather than take the first ACK as the answer."""
+    plant = make_plant()
+    from sitl_plant.autopilot import Reply, StatusText
+
+    monkeypatch.setattr(plant.autopilot, "set_mode", lambda mode, now_s: Reply(1, (StatusText(2, "Switching to Offboard is currently not available"),)))
+    link = LateSecondAckLink(plant, FakeClock())
+    flight, _ = make_flight(link)
+    result = flight.run()
+    acks = [m.result for m in link.received if m.get_type() == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+    assert acks == [mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED]
+    assert result.status is FlightStatus.REJECTED
+    assert "MAV_CMD_DO_SET_MODE refused by the vehicle: TEMPORARILY_REJECTED (1)" in result.detail
+    assert "currently not available" in result.detail
+    assert not [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
+
+
+def test_a_late_accepted_second_ack_lets_the_flight_go_on():
+    link = LateSecondAckLink(make_plant(), FakeClock())
+    flight, _ = make_flight(link)
+    result = flight.run()
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    acks = [m.result for m in link.received if m.get_type() == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+    assert acks == [mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_ACCEPTED]
+
+
 def test_refused_arm_names_the_result_and_the_reason():
     link = PlantLink(make_plant(failures=frozenset({"gps"})), FakeClock())
     flight, _ = make_flight(link)
@@ -256,8 +311,9 @@ def test_leaving_offboard_stops_commanding(critical, status):
     def hook(lk: PlantLink) -> None:
         ap = lk.plant.autopilot
         if state["switched_at"] is None and ap.mode is Mode.OFFBOARD and ap.armed and lk.plant.time_s > 2.0:
-            if critical:  # the offboard-loss failsafe, as the autopilot declares it
+            if critical:  # the offboard-loss failsafe, as the autopilot declares it (PX4's default: Position)
                 ap.update(lk.plant.time_s + 10.0)
+                ap._m.fallback_of_offboard = False  # held, though our setpoints still flow (they would clear it)
             else:  # a ground station's choice
                 ap.set_mode(Mode.AUTO_LOITER, lk.plant.time_s)
             state["switched_at"] = len(lk.sent)
@@ -265,7 +321,7 @@ def test_leaving_offboard_stops_commanding(critical, status):
     link.hook = hook
     result = flight.run()
     assert result.status is status, result.detail
-    assert "left Offboard for Hold" in result.detail
+    assert f"left Offboard for {'Position' if critical else 'Hold'}" in result.detail
     after = link.sent[state["switched_at"]:]
     # at most the setpoints of the samples before the next heartbeat, then nothing at all
     assert not [m for m in after if m.get_type() == "COMMAND_LONG"]

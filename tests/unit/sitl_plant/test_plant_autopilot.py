@@ -9,6 +9,7 @@ import pytest
 
 from sitl_plant.autopilot import (
     FORCE_MAGIC,
+    LAND_DETECT_WINDDOWN_S,
     MAV_CMD_COMPONENT_ARM_DISARM,
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_INJECT_FAILURE,
@@ -20,16 +21,18 @@ from sitl_plant.autopilot import (
     MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL,
     MAV_STATE_STANDBY,
+    MAV_STATE_UNINIT,
     ActuatorSetpoint,
     AttitudeSetpoint,
     Autopilot,
     Command,
     IdleTask,
+    ManualInput,
     Mode,
     OffboardTask,
     PositionTask,
 )
-from sitl_plant.params import OBL_ACT_HOLD, plant_params
+from sitl_plant.params import plant_params
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 
@@ -117,15 +120,25 @@ def test_no_disarm_in_the_air_unless_forced(ap):
     assert not ap.armed
 
 
-def test_offboard_needs_recent_setpoints(ap):
-    assert ap.on_command(offboard_mode(), 0.0).result == MAV_RESULT_TEMPORARILY_REJECTED
-    assert ap.mode is Mode.AUTO_LOITER
+def test_offboard_needs_recent_setpoints_only_when_armed(ap):
+    # PX4 v1.16: disarmed, every mode change is accepted; arming is what is refused
+    assert ap.on_command(offboard_mode(), 0.0).result == MAV_RESULT_ACCEPTED
+    assert ap.mode is Mode.OFFBOARD and ap.status().system_status == MAV_STATE_UNINIT
+    assert ap.status().base_mode == 1  # no setpoints: CUSTOM_MODE_ENABLED only
+    reply = ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    assert reply.result == MAV_RESULT_TEMPORARILY_REJECTED
+    assert reply.texts[0].text == "Arming denied: Resolve system health failures first"
+    ap.update(1.5)
+    assert ap.mode is Mode.OFFBOARD  # disarmed, no fallback
+    ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 4, 3), 1.5)
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 1.5)
     ap.on_setpoint(SETPOINT, 1.0)
-    # too old: more than COM_OF_LOSS_T (1 s) ago
-    assert ap.on_command(offboard_mode(), 2.5).result == MAV_RESULT_TEMPORARILY_REJECTED
+    # armed, setpoints too old (more than COM_OF_LOSS_T): refused as PX4 refuses it
+    reply = ap.on_command(offboard_mode(), 2.5)
+    assert reply.result == MAV_RESULT_TEMPORARILY_REJECTED and "Switching to Offboard is currently not available" in reply.texts[0].text
     ap.on_setpoint(SETPOINT, 3.0)
     assert ap.on_command(offboard_mode(), 3.5).result == MAV_RESULT_ACCEPTED
-    assert ap.mode is Mode.OFFBOARD
+    assert ap.mode is Mode.OFFBOARD and ap.status().base_mode == 145
 
 
 def test_setpoints_outside_offboard_are_remembered_not_flown(ap):
@@ -145,16 +158,83 @@ def test_setpoints_outside_offboard_are_remembered_not_flown(ap):
 def test_an_all_ignored_attitude_target_is_no_proof_of_life(ap):
     tick = AttitudeSetpoint(0, None, (None, None, None), None)
     assert not tick.is_setpoint
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
     ap.on_setpoint(tick, 0.0)
     assert ap.on_command(offboard_mode(), 0.1).result == MAV_RESULT_TEMPORARILY_REJECTED
 
 
-def test_manual_modes_refused_without_rc(ap):
+STICKS_CENTRED = ManualInput(0.0, 0.0, 0.5, 0.0)
+
+
+def test_manual_modes_accepted_disarmed_and_need_sticks_to_arm(ap):
     for main in (1, 2, 3, 5, 7):
         reply = ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, main, 0), 0.0)
-        assert reply.result == MAV_RESULT_TEMPORARILY_REJECTED
-    assert ap.mode is Mode.AUTO_LOITER
+        assert reply.result == MAV_RESULT_ACCEPTED
+        assert ap.status().system_status == MAV_STATE_UNINIT  # no manual control input: cannot arm
+    ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.0)
+    assert ap.status().base_mode == 81  # MANUAL_INPUT | STABILIZE | CUSTOM, as PX4's Position
+    assert ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0).result == MAV_RESULT_TEMPORARILY_REJECTED
+    ap.on_manual_input(STICKS_CENTRED, 0.1)
+    assert ap.status().system_status == MAV_STATE_STANDBY
+    assert ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.1).result == MAV_RESULT_ACCEPTED
+    assert ap.status().base_mode == 209
     assert ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 42, 0), 0.0).result == MAV_RESULT_DENIED
+
+
+def test_position_refused_in_the_air_without_sticks(ap):
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    ap.observe(state(-5.0))
+    ap.update(0.5)
+    reply = ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.6)
+    assert reply.result == MAV_RESULT_TEMPORARILY_REJECTED and reply.texts[0].text == "Switching to Position is currently not available"
+    ap.on_manual_input(STICKS_CENTRED, 0.7)
+    assert ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.7).result == MAV_RESULT_ACCEPTED
+
+
+def _in_position_at_5_m(ap: Autopilot) -> None:
+    """Armed with the sticks centred, in the air at 5 m, in Position."""
+    ap.on_manual_input(STICKS_CENTRED, 0.0)
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    ap.observe(state(-5.0))
+    ap.update(0.0)
+    ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.0)
+
+
+def test_position_mode_sticks(ap):
+    _in_position_at_5_m(ap)
+    task = ap.task()
+    assert isinstance(task, PositionTask) and task.pos_ned_m == (1.0, 2.0, -5.0)  # centred: hold
+    t = 0.0
+    for _ in range(200):  # full forward stick for 2 s, heading north: the velocity grows at MPC_ACC_HOR less drag
+        t += 0.01
+        ap.on_manual_input(ManualInput(1.0, 0.0, 1.0, 0.0), t)
+        ap.update(t)
+    task = ap.task()
+    v_max, acc = ap.params["MPC_VEL_MANUAL"], ap.params["MPC_ACC_HOR"]
+    expected = v_max * (1.0 - math.exp(-acc / v_max * 2.0))
+    assert task.pos_ned_m[:2] == (None, None) and task.vel_ned_m_s[0] == pytest.approx(expected, rel=0.02)
+    assert task.vel_ned_m_s[2] == pytest.approx(-ap.params["MPC_Z_VEL_MAX_UP"])  # full throttle: climb
+    ap.on_manual_input(ManualInput(0.0, 0.0, 0.5, 1.0), t)  # release, full yaw
+    ap.update(t + 0.5)
+    assert ap.task().yaw_rad == pytest.approx(math.radians(ap.params["MPC_MAN_Y_MAX"]) * 0.5)
+
+
+def test_position_without_sticks_descends_at_land_speed(ap):
+    _flying_offboard(ap)
+    ap.update(1.5)  # offboard loss, COM_OBL_RC_ACT 0: Position, no sticks
+    task = ap.task()
+    assert ap.mode is Mode.POSCTL and isinstance(task, PositionTask)
+    assert task.pos_ned_m == (1.0, 2.0, None) and task.descend_m_s == ap.params["MPC_LAND_SPEED"]
+
+
+def test_manual_control_loss_holds_then_returns(ap):
+    _in_position_at_5_m(ap)
+    ap.update(0.5)
+    assert ap.mode is Mode.POSCTL
+    texts = ap.update(0.51)  # COM_RC_LOSS_T 0.5 s without MANUAL_CONTROL
+    assert ap.mode is Mode.AUTO_LOITER and ap.failsafe and "Hold for 5 seconds" in texts[0].text
+    ap.update(0.51 + ap.params["COM_FAIL_ACT_T"])
+    assert ap.mode is Mode.AUTO_RTL  # NAV_RCL_ACT 2
 
 
 def _flying_offboard(ap: Autopilot) -> None:
@@ -166,34 +246,47 @@ def _flying_offboard(ap: Autopilot) -> None:
     assert ap.mode is Mode.OFFBOARD
 
 
-def test_failsafe_hold_then_land(ap):
+@pytest.mark.parametrize(
+    "action, mode",
+    [(0, Mode.POSCTL), (1, Mode.ALTCTL), (2, Mode.STABILIZED), (3, Mode.AUTO_RTL), (4, Mode.AUTO_LAND), (5, Mode.AUTO_LOITER)],
+)
+def test_offboard_loss_failsafe_table(ap, action, mode):
+    """PX4's failsafe.cpp fromOffboardLossActParam: a mode fallback, at once (not deferred)."""
+    ap.params.set("COM_OBL_RC_ACT", action)
     _flying_offboard(ap)
     assert ap.update(1.0) == []  # last setpoint exactly COM_OF_LOSS_T old: still fine
     texts = ap.update(1.01)
-    assert ap.mode is Mode.AUTO_LOITER and ap.failsafe
+    assert ap.mode is mode and ap.failsafe and ap.armed
+    assert texts[0].text == "Failsafe activated"
     assert ap.status().system_status == MAV_STATE_CRITICAL
-    assert "Failsafe" in texts[0].text
-    task = ap.task()
-    assert isinstance(task, PositionTask) and task.pos_ned_m == (1.0, 2.0, -5.0) and task.descend_m_s is None
-    ap.update(1.01 + ap.params["COM_FAIL_ACT_T"] - 0.05)
-    assert ap.mode is Mode.AUTO_LOITER
-    texts = ap.update(1.01 + ap.params["COM_FAIL_ACT_T"])
-    assert ap.mode is Mode.AUTO_LAND and "landing" in texts[0].text
-    assert isinstance(ap.task(), PositionTask) and ap.task().descend_m_s > 0  # type: ignore[union-attr]
-    # touchdown, then auto-disarm after COM_DISARM_LAND
-    ap.observe(state(0.0))
-    ap.update(10.0)
-    assert ap.armed
-    ap.update(10.0 + ap.params["COM_DISARM_LAND"])
-    assert not ap.armed and not ap.failsafe
+    ap.update(100.0)
+    assert ap.mode is mode  # no COM_FAIL_ACT_T stage
+    # the setpoints come back: the fallback clears, back to Offboard
+    ap.on_setpoint(SETPOINT, 100.5)
+    ap.update(100.5)
+    assert ap.mode is Mode.OFFBOARD and not ap.failsafe
 
 
-def test_failsafe_hold_only(ap):
-    ap.params.set("COM_OBL_RC_ACT", OBL_ACT_HOLD)
+def test_offboard_loss_terminate_and_disarm(ap):
+    ap.params.set("COM_OBL_RC_ACT", 6)
     _flying_offboard(ap)
     ap.update(1.5)
-    ap.update(100.0)
-    assert ap.mode is Mode.AUTO_LOITER and ap.failsafe and ap.armed
+    assert isinstance(ap.task(), IdleTask) and ap.armed and ap.failsafe  # motors stopped: it falls
+    ap.observe(state(0.0))
+    ap.update(1.6)
+    ap.update(1.6 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S)
+    assert not ap.armed
+    ap.params.set("COM_OBL_RC_ACT", 7)
+    _flying_offboard(ap)
+    ap.update(6.0)
+    assert not ap.armed
+
+
+def test_offboard_loss_default_is_position(ap):
+    assert ap.params["COM_OBL_RC_ACT"] == 0
+    _flying_offboard(ap)
+    ap.update(1.5)
+    assert ap.mode is Mode.POSCTL and ap.status().base_mode == 209
 
 
 def test_client_mode_change_ends_failsafe(ap):
@@ -213,13 +306,22 @@ def test_takeoff_then_hold(ap):
     reply = ap.on_command(cmd(MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, 488.0 + 4.0), 0.0)
     assert reply.result == MAV_RESULT_ACCEPTED and ap.mode is Mode.AUTO_TAKEOFF
     ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
-    task = ap.task()
-    assert isinstance(task, PositionTask) and task.pos_ned_m[2] == pytest.approx(-4.0) and task.max_climb_m_s > 0
-    ap.observe(state(-2.0))
+    ap.update(0.5)
+    assert isinstance(ap.task(), IdleTask)  # spooling up for COM_SPOOLUP_TIME
     ap.update(1.0)
-    assert ap.mode is Mode.AUTO_TAKEOFF
-    ap.observe(state(-3.95))
-    texts = ap.update(2.0)
+    task = ap.task()
+    assert isinstance(task, PositionTask) and task.pos_ned_m[2] == pytest.approx(-4.0)
+    # PX4's ramp starts at the upward limit that gives no thrust, -g / MPC_Z_VEL_P_ACC
+    assert task.max_climb_m_s == pytest.approx(-9.80665 / ap.params["MPC_Z_VEL_P_ACC"])
+    ap.update(1.0 + ap.params["MPC_TKO_RAMP_T"] / 2)
+    # ... to the climb the takeoff asks for, min(MPC_TKO_SPEED, 0.6 sqrt(4 m to go))
+    assert ap.task().max_climb_m_s == pytest.approx((-9.80665 / 4.0 + 1.2) / 2)  # type: ignore[union-attr]
+    ap.observe(state(-2.0))
+    ap.update(5.0)
+    assert ap.mode is Mode.AUTO_TAKEOFF  # 2 m to go: more than NAV_MC_ALT_RAD
+    assert ap.task().max_climb_m_s == pytest.approx(min(1.5, 0.6 * math.sqrt(2.0)))  # type: ignore[union-attr]
+    ap.observe(state(-3.25))  # within NAV_MC_ALT_RAD (0.8 m): done, Hold at the takeoff height
+    texts = ap.update(6.0)
     assert ap.mode is Mode.AUTO_LOITER and texts
     assert ap.task().pos_ned_m[2] == pytest.approx(-4.0)  # type: ignore[union-attr]
 
@@ -227,7 +329,16 @@ def test_takeoff_then_hold(ap):
 def test_takeoff_height_defaults_to_mis_takeoff_alt(ap):
     ap.on_command(cmd(MAV_CMD_NAV_TAKEOFF), 0.0)
     ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    ap.update(1.5)
     assert ap.task().pos_ned_m[2] == pytest.approx(-ap.params["MIS_TAKEOFF_ALT"])  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("height, speed", [(30.0, 1.5), (10.0, 1.5), (7.5, 1.1), (5.0, 0.7), (2.0, 0.7), (0.5, 0.3)])
+def test_land_speed_profile(ap, height, speed):
+    """FlightTaskAuto: MPC_Z_V_AUTO_DN above ALT1 (10 m), linear to MPC_LAND_SPEED at ALT2 (5 m),
+    MPC_LAND_CRWL below ALT3 (1 m)."""
+    ap.observe(state(-height))
+    assert ap.land_speed_m_s() == pytest.approx(speed)
 
 
 def test_land_command_and_idle_on_the_ground(ap):
@@ -238,8 +349,28 @@ def test_land_command_and_idle_on_the_ground(ap):
     assert ap.status().landed_state == 4  # MAV_LANDED_STATE_LANDING
     ap.observe(state(0.0))
     ap.update(0.3)
-    assert isinstance(ap.task(), IdleTask)
+    detected = 0.3 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S
+    ap.update(detected - 0.01)
+    assert ap.status().landed_state == 4  # the land detector waits
+    texts = ap.update(detected)
+    assert isinstance(ap.task(), IdleTask) and [t.text for t in texts] == ["Landing detected"]
     assert ap.status().landed_state == 1  # ON_GROUND
+    ap.update(detected + ap.params["COM_DISARM_LAND"])
+    assert not ap.armed and ap.mode is Mode.AUTO_LOITER  # back to the last mode that allows arming
+
+
+def test_after_landing_back_to_the_last_armable_mode(ap):
+    ap.on_manual_input(STICKS_CENTRED, 0.0)
+    ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 3, 0), 0.0)
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    ap.observe(state(-3.0))
+    ap.update(0.1)
+    ap.on_command(cmd(MAV_CMD_NAV_LAND), 0.2)
+    ap.observe(state(0.0))
+    for t in (0.3, 3.3, 5.3):
+        ap.on_manual_input(STICKS_CENTRED, t)
+        ap.update(t)
+    assert not ap.armed and ap.mode is Mode.POSCTL  # PX4 measured: Position -> Land -> Position
 
 
 def test_preflight_auto_disarm(ap):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_plant.autopilot import Autopilot, Mode
+from sitl_plant.autopilot import LAND_DETECT_WINDDOWN_S, Autopilot, Mode
 from offboard.model.rotations import quat_from_euler
 from sitl_plant.params import plant_params
 from sitl_plant.server import API, Plant, PlantConfig
@@ -59,10 +59,18 @@ def run(plant: Plant, seconds: float, each=None) -> None:
 
 
 def take_off_and_switch_to_offboard(plant: Plant, height_m: float = 3.0) -> None:
-    """Take off in AUTO_TAKEOFF, settle in Hold, then enter Offboard at rest."""
+    """Take off in AUTO_TAKEOFF (no spool-up, no ramp: these tests are about the loops), settle in
+    Hold, then enter Offboard at rest."""
+    plant.params.set("COM_SPOOLUP_TIME", 0.0)
+    plant.params.set("MPC_TKO_RAMP_T", 0.0)
+    plant.params.set("NAV_MC_ALT_RAD", 0.1)
     assert command(plant, mavlink.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, plant.config.home.alt_m + height_m) == 0
     assert command(plant, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == 0
-    run(plant, 4.0)
+    for _ in range(12):
+        run(plant, 0.5)
+        if plant.autopilot.mode is Mode.AUTO_LOITER:
+            break
+    run(plant, 0.5)
     assert plant.autopilot.mode is Mode.AUTO_LOITER
     assert plant.sim.truth().pos_ned_m[2] == pytest.approx(-height_m, abs=0.15)
     attitude_target(plant, thrust=hover_thrust(plant))
@@ -171,7 +179,8 @@ def test_land_then_auto_disarm():
     plant = make_plant()
     take_off_and_switch_to_offboard(plant, 2.0)
     assert command(plant, mavlink.MAV_CMD_NAV_LAND) == 0
-    run(plant, 2.0 / plant.params["MPC_LAND_SPEED"] + 2.0 + plant.params["COM_DISARM_LAND"])
+    run(plant, 1.0 / plant.params["MPC_LAND_SPEED"] + 1.0 / plant.params["MPC_LAND_CRWL"] + 1.0
+        + plant.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S + plant.params["COM_DISARM_LAND"])
     assert plant.sim.on_ground and not plant.autopilot.armed
 
 

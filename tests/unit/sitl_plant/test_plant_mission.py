@@ -428,7 +428,8 @@ def test_a_return_item_hands_the_mission_over_to_return_mode():
     for k in range(200):  # a vehicle at its setpoint: up to the take-off height, then the RTL item
         sp = nav.setpoint()
         down = max(sp.pos_ned_m[2], -0.1 * k) if sp is not None else 0.0
-        ap.observe(type("S", (), {"pos_ned_m": np.array([0.0, 0.0, down]), "euler_rad": np.zeros(3), "on_ground": down >= 0})())
+        ap.observe(type("S", (), {"pos_ned_m": np.array([0.0, 0.0, down]), "vel_ned_m_s": np.zeros(3), "euler_rad": np.zeros(3),
+                                  "on_ground": down >= 0})())  # fmt: skip
         ap.update(k * 0.1)
         if ap.mode is Mode.AUTO_RTL:
             break

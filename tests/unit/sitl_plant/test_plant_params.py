@@ -63,7 +63,7 @@ def test_defaults_come_from_the_vehicle(table, vehicle):
         ("COM_OF_LOSS_T", math.inf, "non-finite"),
         ("COM_OF_LOSS_T", -1.0, "outside"),
         ("MC_ROLL_P", 100.0, "outside"),
-        ("COM_OBL_RC_ACT", 2.0, "not one of"),
+        ("COM_OBL_RC_ACT", 8.0, "not one of"),  # PX4: 0..7
         ("COM_OBL_RC_ACT", 4.5, "integer"),
         ("SIM_THR_MAX", 30.0, "read-only"),
         ("NO_SUCH_PARAM", 1.0, "unknown"),

@@ -1,0 +1,237 @@
+"""A small pymavlink client for the commander comparison (tests/e2e/test_px4_parity_commander.py).
+
+The same code talks to the real PX4 SITL and to ``sitl-plant``: it listens on a UDP port
+(``udpin``), waits for the autopilot's heartbeat, sends commands and collects every COMMAND_ACK
+(PX4 sends two for DO_SET_MODE), the heartbeats, STATUSTEXTs and the local position with the
+vehicle's own ``time_boot_ms`` (so durations are simulation time, whatever ``--speed``). While it
+waits it keeps sending what it was told to: a GCS heartbeat every wall second, position setpoints
+(proof of offboard life) and MANUAL_CONTROL (virtual sticks), each at 50 Hz of wall time.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink import mavutil
+
+from offboard.demo import free_udp_ports, stop_process
+
+REPO = Path(__file__).resolve().parents[2]
+mavlink = mavutil.mavlink
+
+POSITION_ONLY = 0b0000_1111_1111_1000  # SET_POSITION_TARGET_LOCAL_NED: x, y, z (and yaw) used
+AUTO_LOITER, AUTO_TAKEOFF, AUTO_LAND, AUTO_RTL = (4, 3), (4, 2), (4, 6), (4, 5)
+POSCTL, ALTCTL, OFFBOARD, MANUAL = (3, 0), (2, 0), (6, 0), (1, 0)
+
+
+def mode_of(custom_mode: int) -> tuple[int, int]:
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    return (main, sub if main == 4 else 0)
+
+
+@dataclass
+class Ack:
+    command: int
+    result: int
+    wall_s: float
+
+
+@dataclass
+class Sample:
+    t_s: float  # vehicle time
+    pos_ned_m: tuple[float, float, float]
+    vel_ned_m_s: tuple[float, float, float]
+
+
+@dataclass
+class Client:
+    port: int
+    conn: object = None
+    heartbeat: object = None
+    boot_s: float = 0.0
+    acks: list[Ack] = field(default_factory=list)
+    texts: list[tuple[float, str]] = field(default_factory=list)
+    samples: list[Sample] = field(default_factory=list)
+    gps_alt: list[tuple[float, float]] = field(default_factory=list)  # vehicle time, GPS altitude AMSL (m)
+    heartbeats: list[tuple[float, int, int, int]] = field(default_factory=list)  # t, base_mode, custom_mode, status
+    setpoint: tuple[float, float, float] | None = None
+    sticks: tuple[int, int, int, int] | None = None
+    attitude_yaw: float = 0.0
+    yaw_samples: list[tuple[float, float]] = field(default_factory=list)
+    of_loss_t: float = 1.0  # the vehicle's COM_OF_LOSS_T, for the test's arithmetic
+    _next_hb: float = 0.0
+    _next_send: float = 0.0
+
+    def connect(self, timeout_s: float = 60.0) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=245, source_component=190)
+        deadline = time.monotonic() + timeout_s
+        while self.heartbeat is None:
+            assert time.monotonic() < deadline, "no autopilot heartbeat"
+            self.pump(0.2)
+
+    # -- the loop --------------------------------------------------------------------------------
+
+    def pump(self, wall_s: float, until: Callable[[], bool] | None = None) -> bool:
+        end = time.monotonic() + wall_s
+        while True:
+            now = time.monotonic()
+            if until is not None and until():
+                return True
+            if now >= end:
+                return False
+            self._send_due(now)
+            msg = self.conn.recv_match(blocking=True, timeout=0.005)
+            while msg is not None:
+                self._take(msg)
+                msg = self.conn.recv_match(blocking=False)
+
+    def _send_due(self, now: float) -> None:
+        c = self.conn
+        if self.heartbeat is None:
+            return
+        if now >= self._next_hb:
+            c.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            self._next_hb = now + 0.2
+        if now >= self._next_send:
+            self._next_send = now + 0.02
+            if self.setpoint is not None:
+                n, e, d = self.setpoint
+                c.mav.set_position_target_local_ned_send(int(self.t_s * 1000), c.target_system, c.target_component,
+                                                         mavlink.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
+                                                         n, e, d, 0, 0, 0, 0, 0, 0, 0, 0)
+            if self.sticks is not None:
+                x, y, z, r = self.sticks
+                c.mav.manual_control_send(c.target_system, x, y, z, r, 0)
+
+    def _take(self, msg) -> None:
+        kind = msg.get_type()
+        if msg.get_srcComponent() != 1 and kind != "COMMAND_ACK":
+            return
+        if kind == "HEARTBEAT" and msg.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            self.heartbeat = msg
+            self.heartbeats.append((self.t_s, msg.base_mode, msg.custom_mode, msg.system_status))
+        elif kind == "COMMAND_ACK":
+            self.acks.append(Ack(int(msg.command), int(msg.result), time.monotonic()))
+        elif kind == "STATUSTEXT":
+            self.texts.append((self.t_s, msg.text))
+        elif kind == "LOCAL_POSITION_NED":
+            self.boot_s = msg.time_boot_ms / 1000.0
+            self.samples.append(Sample(self.boot_s, (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)))
+        elif kind == "GPS_RAW_INT":
+            self.gps_alt.append((self.t_s, msg.alt / 1000.0))
+        elif kind == "ATTITUDE":
+            self.boot_s = max(self.boot_s, msg.time_boot_ms / 1000.0)
+            self.attitude_yaw = msg.yaw
+            self.yaw_samples.append((msg.time_boot_ms / 1000.0, msg.yaw))
+
+    # -- what it reads ---------------------------------------------------------------------------
+
+    @property
+    def t_s(self) -> float:
+        return self.boot_s
+
+    @property
+    def mode(self) -> tuple[int, int]:
+        return mode_of(self.heartbeat.custom_mode)
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.heartbeat.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def down_m(self) -> float:
+        return self.samples[-1].pos_ned_m[2] if self.samples else 0.0
+
+    def wait(self, cond: Callable[[], bool], sim_s: float, speed: float) -> bool:
+        """Until ``cond()``, at most ``sim_s`` of vehicle time (a loaded machine may run the
+        vehicle slower than ``speed``: the wall-clock cap is generous)."""
+        t0 = self.t_s
+        self.pump(sim_s / speed * 4.0 + 10.0, lambda: cond() or self.t_s >= t0 + sim_s)
+        return cond()
+
+    def wait_sim(self, sim_s: float) -> None:
+        t0 = self.t_s
+        self.pump(600.0, lambda: self.t_s >= t0 + sim_s)
+
+    # -- commands --------------------------------------------------------------------------------
+
+    def command(self, command: int, *params: float, settle_s: float = 0.3) -> list[int]:
+        """Send a COMMAND_LONG; the results of every ACK for it within ``settle_s`` of wall time
+        after the first one (at most 2 s for the first)."""
+        p = list(params) + [0.0] * (7 - len(params))
+        first = len(self.acks)
+        c = self.conn
+        c.mav.command_long_send(c.target_system, c.target_component, command, 0, *p)
+        self.pump(2.0, lambda: any(a.command == command for a in self.acks[first:]))
+        self.pump(settle_s)
+        return [a.result for a in self.acks[first:] if a.command == command]
+
+    def set_mode(self, mode: tuple[int, int]) -> list[int]:
+        """DO_SET_MODE; every ACK (PX4 sends its second 5-12 ms after the first in real time)."""
+        return self.command(mavlink.MAV_CMD_DO_SET_MODE, 1, mode[0], mode[1], settle_s=0.15)
+
+    def arm(self, arm: bool = True) -> list[int]:
+        return self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1 if arm else 0, settle_s=0.1)
+
+    def set_param(self, name: str, value: float, integer: bool) -> None:
+        c = self.conn
+        if integer:
+            raw = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+            kind = mavlink.MAV_PARAM_TYPE_INT32
+        else:
+            raw, kind = float(value), mavlink.MAV_PARAM_TYPE_REAL32
+        c.mav.param_set_send(c.target_system, c.target_component, name.encode(), raw, kind)
+        self.pump(0.3)
+
+    def get_param(self, name: str) -> float | None:
+        """PARAM_REQUEST_READ by name; the value (INT32 decoded from its bytes) or None."""
+        c = self.conn
+        got: list = []
+
+        def seen() -> bool:
+            msg = c.messages.get("PARAM_VALUE")
+            if msg is not None and msg.param_id == name:
+                got.append(msg)
+            return bool(got)
+
+        for _ in range(3):
+            c.mav.param_request_read_send(c.target_system, c.target_component, name.encode(), -1)
+            if self.pump(1.0, seen):
+                msg = got[0]
+                if msg.param_type == mavlink.MAV_PARAM_TYPE_INT32:
+                    return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+                return float(msg.param_value)
+        return None
+
+    def texts_since(self, t_s: float) -> list[str]:
+        return [text for t, text in self.texts if t >= t_s]
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+# --- the plant as a process ------------------------------------------------------------------------
+
+
+class PlantProcess:
+    """``python -m sitl_plant.cli --speed S`` sending its API link to ``port``; stopped by ``stop()``."""
+
+    def __init__(self, port: int, speed: float, *extra: str) -> None:
+        cmd = [sys.executable, "-m", "sitl_plant.cli", "--api-bind", "127.0.0.1:0", "--api-remote", f"127.0.0.1:{port}",
+               "--gcs-bind", "none", "--speed", f"{speed:g}", "--quiet", *extra]
+        self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                     env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+    def stop(self) -> None:
+        stop_process(self.proc)
+
+
+def free_port() -> int:
+    return free_udp_ports(1)[0]
