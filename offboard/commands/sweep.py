@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--engine", choices=("batch", "one"), default="batch",
                         help="batch: N flights stepped together; one: offboard simulate's loop per flight (the reference)")
     parser.add_argument("--flights-per-task", type=int, default=None, metavar="N",
-                        help="flights a Dask task flies (default: about 0.5 s of work, timed on a few flights)")
+                        help="flights a Dask task flies (default: about 0.8 s of work, timed on a few flights)")
     parser.add_argument("--limit", type=int, default=None, metavar="N", help="fly only the first N flights")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")

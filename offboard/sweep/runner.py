@@ -1,7 +1,7 @@
 """Running a sweep's flights on Dask, rows streamed to Parquet.
 
 Flights are cut into chunks of consecutive indices (``flights_per_task``, by default sized to
-about half a second of work: Dask's own guidance is ~1 ms of overhead a task, so tasks of 0.1-1 s
+about 0.8 s of work: Dask's own guidance is ~1 ms of overhead a task, so tasks of 0.1-1 s
 keep it under 1 %); each chunk is one task, flown by ``fly_chunk`` on a worker, which returns its
 rows. The client writes each chunk's rows as a row group of ``flights.parquet`` as it arrives,
 and keeps no more than a few tasks per worker in flight, so the memory stays flat in the number
@@ -29,7 +29,7 @@ from offboard.sweep.spec import PARAMETERS, SweepSpec, flights
 
 ENGINES = ("batch", "one")
 #: The work a task aims at (s): inside Dask's 0.1-1 s guidance.
-TASK_TARGET_S = 0.5
+TASK_TARGET_S = 0.8
 #: Tasks kept in flight per worker (the rest wait in the client, not in memory on the cluster).
 TASKS_PER_WORKER = 3
 METRIC_COLUMNS_TAIL = ("final_error_m", "peak_tilt_deg", "peak_thrust_n", "flown_s", "status", "detail", "converge_s")
@@ -47,6 +47,7 @@ def columns(spec: SweepSpec) -> list[tuple[str, str]]:
 def fly_chunk(spec: SweepSpec, start: int, stop: int, engine: str = "batch") -> list[dict]:
     """Flights ``start`` to ``stop`` of ``spec``: one row each (what a Dask task runs)."""
     fls = flights(spec, start, stop)
+    _one_thread_per_worker()
     if engine == "batch":
         from offboard.sweep.batch import fly_batch
 
@@ -60,27 +61,55 @@ def fly_chunk(spec: SweepSpec, start: int, stop: int, engine: str = "batch") -> 
     return rows
 
 
+def _one_thread_per_worker() -> None:
+    """In a Dask worker, numba's kernels use the worker's threads only: the cluster already runs
+    a worker per core, and numba's own pool on top would oversubscribe them."""
+    try:
+        from distributed import get_worker
+
+        threads = get_worker().state.nthreads
+    except (ImportError, ValueError, AttributeError):
+        return
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if NUMBA:
+        import numba
+
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+
+
 def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
     for start in range(0, total, size):
         yield start, min(start + size, total)
 
 
 def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
-    """Flights a task of ``TASK_TARGET_S`` holds, from timing a few flights here (which also loads
-    the compiled kernels before the workers need them)."""
+    """Flights a task of ``TASK_TARGET_S`` holds, from timing a few short flights here (which also
+    loads the compiled kernels before the workers need them).
+
+    A batch costs a fixed part per sample (the law's numpy calls) and a part per flight (the
+    physics): both are measured, on 4 and on 32 flights of half a second, and scaled to the
+    flight's duration."""
     if engine == "one":
         return 1  # a one-vehicle flight is seconds of work already
     from dataclasses import replace
 
     duration = spec.base.flight_duration_s
-    probe_s = min(1.0, duration)  # a second of each probe flight, scaled to the whole
+    probe_s = min(0.5, duration)
     probe = replace(spec, base=replace(spec.base, duration_s=probe_s))
-    n = min(spec.flights, 4)
+    small, large = min(spec.flights, 4), min(spec.flights, 32)
     fly_chunk(probe, 0, 1, engine)  # warm-up: imports, kernels
-    started = time.perf_counter()
-    fly_chunk(probe, 0, n, engine)
-    per_flight = (time.perf_counter() - started) / n * duration / probe_s
-    return max(1, min(spec.flights, int(TASK_TARGET_S / max(per_flight, 1e-6))))
+    timings = []
+    for n in (small, large):
+        started = time.perf_counter()
+        fly_chunk(probe, 0, n, engine)
+        timings.append((time.perf_counter() - started) * duration / probe_s)
+    per_flight = (timings[1] - timings[0]) / (large - small) if large > small else timings[0] / small
+    fixed = max(0.0, timings[0] - small * per_flight)
+    room = TASK_TARGET_S - fixed
+    if per_flight <= 0:
+        return spec.flights
+    return max(1, min(spec.flights, int(room / per_flight) if room > 0 else small))
 
 
 @dataclass
@@ -147,7 +176,7 @@ def run_sweep(
         ``batch`` (N flights stepped together, ``offboard.sweep.batch``) or ``one``
         (``simulate`` per flight, the reference).
     flights_per_task : int, optional
-        Chunk size; by default about ``TASK_TARGET_S`` of work.
+        Chunk size; by default about ``TASK_TARGET_S`` of work (``estimate_flights_per_task``).
     limit : int, optional
         Fly only the first ``limit`` flights.
     progress : callable, optional
