@@ -108,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         "tasks": result.tasks,
         "flights_per_task": result.flights_per_task,
         "wall_time_s": result.wall_s,
+        "compute_s": result.compute_s,
+        "overhead_per_flight_s": result.overhead_per_flight_s,
         "flights_per_s": result.flights / result.wall_s if result.wall_s > 0 else None,
         "parquet": str(result.parquet),
     }

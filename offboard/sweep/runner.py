@@ -78,6 +78,13 @@ def _one_thread_per_worker() -> None:
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
 
 
+def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[list[dict], float]:
+    """A Dask task: ``fly_chunk`` and the seconds it took on the worker."""
+    started = time.perf_counter()
+    rows = fly_chunk(spec, start, stop, engine)
+    return rows, time.perf_counter() - started
+
+
 def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
     for start in range(0, total, size):
         yield start, min(start + size, total)
@@ -123,6 +130,12 @@ class SweepRun:
     workers: int
     wall_s: float
     scheduler: str
+    compute_s: float = 0.0  # the tasks' own time on the workers, summed
+
+    @property
+    def overhead_per_flight_s(self) -> float:
+        """Worker time not spent flying, per flight: cluster start, scheduling, transfers, Parquet."""
+        return max(0.0, self.wall_s * self.workers - self.compute_s) / self.flights if self.flights else math.nan
 
 
 class ParquetRows:
@@ -202,13 +215,15 @@ def run_sweep(
             pending = chunks(total, size)
             window = as_completed()
             for start, stop in pending:
-                window.add(client.submit(fly_chunk, spec_future, start, stop, engine, pure=False))
+                window.add(client.submit(_task, spec_future, start, stop, engine, pure=False))
                 tasks += 1
                 if window.count() >= TASKS_PER_WORKER * n_workers:
                     break
             done = 0
+            compute_s = 0.0
             for future in window:
-                rows = future.result()
+                rows, seconds = future.result()
+                compute_s += seconds
                 future.release()
                 out.write(rows)
                 done += len(rows)
@@ -216,7 +231,7 @@ def run_sweep(
                     progress(done, total, time.perf_counter() - started)
                 nxt = next(pending, None)
                 if nxt is not None:
-                    window.add(client.submit(fly_chunk, spec_future, nxt[0], nxt[1], engine, pure=False))
+                    window.add(client.submit(_task, spec_future, nxt[0], nxt[1], engine, pure=False))
                     tasks += 1
             address = client.scheduler.address
     finally:
@@ -224,4 +239,4 @@ def run_sweep(
         if cluster is not None:
             cluster.close()
     return SweepRun(run_dir / "flights.parquet", out.rows, tasks, size, n_workers, time.perf_counter() - started,
-                    "local" if cluster is not None else str(address))  # fmt: skip
+                    "local" if cluster is not None else str(address), compute_s)  # fmt: skip
