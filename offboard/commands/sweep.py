@@ -91,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
     from offboard.sweep.report import format_report, read_rows, summary, write_plots
     from offboard.sweep.runner import run_sweep
 
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if args.engine == "batch" and not NUMBA and not args.quiet:
+        print("offboard sweep: numba is not installed here: the batched engine runs interpreted (the same flights, "
+              "tens of times slower; pip install 'rosales-offboard[sweep]')", file=sys.stderr)  # fmt: skip
     run_dir = output_folder(args.run_dir or Path("runs") / f"sweep-{spec.name}-{time.strftime('%Y%m%d-%H%M%S')}", "--run-dir")
     progress = None if args.quiet else _progress(spec.name, 2.0)
     try:

@@ -60,10 +60,6 @@ class Parameter:
     truth: str | None = None  # the true vehicle's parameter this belief may be relative to
 
 
-def _vehicle(help_: str, **kw: Any) -> Parameter:
-    return Parameter(help_, **kw)
-
-
 _AXES = ("xx", "yy", "zz")
 PARAMETERS: dict[str, Parameter] = {
     "vehicle.mass_kg": Parameter("true mass (kg)", gt=0),

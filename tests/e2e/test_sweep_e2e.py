@@ -11,7 +11,6 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -65,11 +64,6 @@ def scheduler(tmp_path_factory):
                 p.wait()
 
 
-def _offboard(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "offboard.cli", "sweep", *args], capture_output=True, text=True,
-                          timeout=timeout, env={**os.environ, "MPLBACKEND": "Agg"})  # fmt: skip
-
-
 def _table(path: Path) -> list[dict]:
     """The rows by flight, NaN as None (so that equal rows compare equal)."""
     import pyarrow.parquet as pq
@@ -79,21 +73,24 @@ def _table(path: Path) -> list[dict]:
     return strict(sorted(pq.read_table(path).to_pylist(), key=lambda r: r["flight"]))  # type: ignore[return-value]
 
 
-def test_sweep_on_a_two_worker_cluster_gives_the_flights_of_any_chunking(tmp_path, scheduler):
+def test_sweep_on_a_two_worker_cluster_gives_the_flights_of_any_chunking(tmp_path, scheduler, capsys):
     from offboard.jsonout import strict
     from offboard.sweep.runner import fly_chunk, run_sweep
     from offboard.sweep.spec import load_sweep
 
+    from offboard.cli import main
+
     spec_path = write_sweep(tmp_path, MIXED, flights=FLIGHTS, duration_s=0.3)
-    run = _offboard(str(spec_path), "--scheduler", scheduler, "--flights-per-task", "2", "--json",
-                    "--run-dir", str(tmp_path / "run"))  # fmt: skip
-    assert run.returncode == 0, run.stderr
-    summary = json.loads(run.stdout)
+    code = main(["sweep", str(spec_path), "--scheduler", scheduler, "--flights-per-task", "2", "--json",
+                 "--run-dir", str(tmp_path / "run")])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    summary = json.loads(out)
     assert summary["workers"] == 2 and summary["scheduler"] == scheduler
     assert summary["tasks"] == FLIGHTS // 2 and summary["flights"] == FLIGHTS
     assert 0.0 <= summary["success_rate"] <= 1.0 and sum(summary["statuses"].values()) == FLIGHTS
     assert {s["parameter"] for s in summary["sensitivity"]} >= {"controller.mass_kg", "vehicle.motor_time_constant_s"}
-    assert f"sweep mini: {FLIGHTS}/{FLIGHTS} flights" in run.stderr  # the progress line
+    assert f"sweep mini: {FLIGHTS}/{FLIGHTS} flights" in err  # the progress line
     for name in ("flights.parquet", "report.md", "summary.json", "rms-histogram.png", "rms-vs-parameters.png", "failure-map.png"):
         assert (tmp_path / "run" / name).stat().st_size > 0, name
     rows = _table(tmp_path / "run" / "flights.parquet")
