@@ -10,12 +10,15 @@ Per control sample, for every flight still flying at once:
 - the vehicle: the paper's inner loop (tau~ held, eq. 16 at the physics rate with the believed
   inertia), the mixer, RK4 at the physics step and the ground, by
   ``sitl_plant.dynamics.batch.advance_many`` (compiled and spread over the cores with numba),
-  each flight with its own vehicle, wind and latency.
+  each flight with its own vehicle, wind and latency;
+- the paper's accelerometer noise (``PaperAccelNoise``: 5 % on the accelerations, integrated
+  into speed and position), each flight drawing from its own seeded stream as the one-vehicle
+  path does.
 
 The one-vehicle path (``offboard.inprocess.simulate``, ``flight.fly_one``) stays the reference:
 the batch gives the same flight to rounding (tests/unit/offboard/test_sweep_batch.py asserts
 1e-9 m on a sample of flights). Flights the batch does not fly (the paper's model, the ``px4``
-and ``held-torque`` drives, noisy sensors: ``unsupported``) are flown by ``fly_one``, so a
+and ``held-torque`` drives, the ``imu`` sensor model: ``unsupported``) are flown by ``fly_one``, so a
 sweep's rows never depend on the engine.
 
 Flights are batched in groups that share what the law branches on (sample time, limits,
@@ -39,6 +42,7 @@ from offboard.sweep.flight import Series, fly_one, row_of
 from offboard.sweep.spec import FlightSetup, FlightSpec, SweepSpec, scenario_of
 from sitl_plant.dynamics.batch import _EULER_FORMS, advance_many, param_vector
 from sitl_plant.dynamics.rigid_body import STATE_SIZE, RigidBodyModel
+from sitl_plant.dynamics.sensors import CleanSensors, PaperAccelNoise, sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
 
 _BELIEF_FIELDS = ("mass_kg", "gravity_m_s2", "inertia_kg_m2", "arm_length_m", "drag_to_thrust_m")
@@ -51,7 +55,7 @@ def unsupported(setup: FlightSetup) -> str:
         return f"model {sc.model}"
     if sc.drive != "inner-loop":
         return f"drive {sc.drive}"
-    if sc.sensors.strip().lower() != "clean":
+    if not isinstance(sensors_from_spec(sc.sensors, sc.seed), (CleanSensors, PaperAccelNoise)):
         return f"sensors {sc.sensors}"
     return ""
 
@@ -149,6 +153,19 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
         on_ground[i] = ground and bool(pos0[2] >= 0.0)
         winds.append(None if sc.wind == "none" else wind_from_spec(sc.wind, sc.seed))
     xdot = np.zeros((n, STATE_SIZE))
+    for i, s_ in enumerate(setups):  # VehicleSim's mean derivative before the first step
+        if not on_ground[i]:
+            xdot[i] = RigidBodyModel(s_.scenario.vehicle).derivative(x[i], 0.0, np.zeros(3), np.zeros(3))
+    meters = [sensors_from_spec(s_.scenario.sensors, s_.scenario.seed) for s_ in setups]
+    noisy = np.array([isinstance(m, PaperAccelNoise) for m in meters])
+    fraction = np.array([m.fraction if isinstance(m, PaperAccelNoise) else 0.0 for m in meters])
+    # each flight's normals, drawn as PaperAccelNoise.measure draws them: 3 a sample, in order
+    normals = np.zeros((n, samples + 1, 3))
+    for i in np.nonzero(noisy)[0]:
+        meters[i].reset()
+        normals[i] = meters[i]._rng.standard_normal((samples + 1, 3))
+    vel_error, pos_error = np.zeros((n, 3)), np.zeros((n, 3))
+    previous_vel, previous_time = x[:, 3:6].copy(), 0.0
     cmd = np.zeros((n, 4))
     wind_buf = np.zeros((n, n_physics, 3))
     windy = [i for i, w in enumerate(winds) if w is not None]
@@ -182,8 +199,23 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
             rec_ref[k] = ref_n.pos_ned_m
             euler = _truth(x)
             rates = _euler_rates(euler, x[:, 10:13], form)
-            state = (x[:, 0], x[:, 3], x[:, 1], x[:, 4], -x[:, 2], -x[:, 5], euler[0], rates[0], euler[1], rates[1],
-                     euler[2], rates[2])  # fmt: skip
+            pos, vel = x[:, 0:3], x[:, 3:6]
+            if noisy.any():  # PaperAccelNoise.measure over the batch
+                time_s = (k * n_physics) * dt  # VehicleSim's time: steps * dt
+                if k == 0:
+                    noise = fraction[:, None] * np.abs(xdot[:, 3:6]) * normals[:, 0]
+                else:
+                    step = time_s - previous_time
+                    mean_acc = (vel - previous_vel) / step
+                    noise = fraction[:, None] * np.abs(mean_acc) * normals[:, k]
+                    new_vel_error = vel_error + noise * step
+                    pos_error = pos_error + 0.5 * step * (vel_error + new_vel_error)
+                    vel_error = new_vel_error
+                previous_vel, previous_time = vel.copy(), time_s
+                pos = np.where(noisy[:, None], pos + pos_error, pos)
+                vel = np.where(noisy[:, None], vel + vel_error, vel)
+            state = (pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1], -pos[:, 2], -vel[:, 2], euler[0], rates[0], euler[1],
+                     rates[1], euler[2], rates[2])  # fmt: skip
             if memory is None:
                 memory = LawMemory.from_state(state)
             out, new_memory = law_step(params, memory, state, tracking_reference(ref_n, lead),  # type: ignore[arg-type]

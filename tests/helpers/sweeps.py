@@ -17,7 +17,8 @@ def write_sweep(folder: Path, body: str = "", *, flights: int = 6, seed: int = 3
     return path
 
 
-#: Table II-style beliefs, a gridded motor lag, wind and latency: every kind of parameter the batch flies.
+#: Table II-style beliefs, a gridded motor lag, wind, latency, start offsets and the paper's noise: every kind of
+#: parameter the batch flies.
 MIXED = """
 [parameters.controller]
 mass_kg = { uniform = [0.8, 1.2], relative = "truth" }
@@ -30,4 +31,5 @@ dryden_m_s = { uniform = [0, 5] }
 [parameters]
 latency_s = { choice = [0.0, 0.01] }
 "initial.down_m" = { uniform = [-0.5, 0.0] }
+"sensors.paper_fraction" = { choice = [0.0, 0.05] }
 """

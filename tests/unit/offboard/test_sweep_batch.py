@@ -32,6 +32,7 @@ def test_batched_flights_equal_simulate_per_flight(tmp_path):
     setups = [scenario_of(spec, f) for f in fls]
     assert not any(unsupported(s) for s in setups)
     assert {s.latency_s for s in setups} == {0.0, 0.01} and len({s.scenario.wind for s in setups}) == 6
+    assert {s.scenario.sensors for s in setups[:4]} == {"paper:0.0", "paper:0.05"}  # noisy and clean in the sample
     # latency is part of a group's key: fly the two groups as fly_batch would
     batched = {}
     for late in (0.0, 0.01):
@@ -65,10 +66,10 @@ def test_a_diverging_flight_ends_where_simulate_ends_it(tmp_path):
 
 
 def test_what_the_batch_does_not_fly_goes_by_simulate(tmp_path):
-    spec = load_sweep(write_sweep(tmp_path, "[parameters]\nsensors = { grid = [\"clean\", \"paper:0.02\"] }\n",
+    spec = load_sweep(write_sweep(tmp_path, "[parameters]\nsensors = { grid = [\"paper:0.02\", \"imu\"] }\n",
                                   flights=2, duration_s=0.3))  # fmt: skip
     setups = [scenario_of(spec, f) for f in flights(spec)]
-    assert [unsupported(s) for s in setups] == ["", "sensors paper:0.02"]
+    assert [unsupported(s) for s in setups] == ["", "sensors imu"]
     for row, fl in zip(fly_batch(spec, flights(spec)), flights(spec)):
         _close_rows(row, fly_one(spec, fl)[0])
 

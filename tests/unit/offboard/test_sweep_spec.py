@@ -117,14 +117,14 @@ def test_grid_is_crossed_and_truth_relative_beliefs_follow_the_flights_truth(tmp
 
 
 def test_flight_values_reach_the_scenario(tmp_path):
-    spec = load_sweep(write_sweep(tmp_path, MIXED + "\"sensors.paper_fraction\" = 0.02\n\"initial.yaw_deg\" = 90\n"))
+    spec = load_sweep(write_sweep(tmp_path, MIXED + "\"initial.yaw_deg\" = 90\n"))
     f = flight(spec, 1)
     setup = scenario_of(spec, f)
     sc = setup.scenario
     assert setup.latency_s == f.values["latency_s"]
     assert sc.vehicle.motor_time_constant_s == f.values["vehicle.motor_time_constant_s"]
     assert sc.controller.inertia_kg_m2[0] == pytest.approx(f.values["controller.inertia_xx_kg_m2"] * sc.vehicle.inertia_kg_m2[0])
-    assert sc.wind.startswith("dryden:") and sc.sensors == "paper:0.02"
+    assert sc.wind.startswith("dryden:") and sc.sensors == f"paper:{f.values['sensors.paper_fraction']!r}"
     assert sc.initial_pos_ned_m[2] == f.values["initial.down_m"]
     assert sc.initial_yaw_rad == pytest.approx(math.pi / 2)
     assert replace(spec.base, name=sc.name, vehicle=sc.vehicle, controller=sc.controller, sensors=sc.sensors, wind=sc.wind,
