@@ -30,6 +30,8 @@ from offboard.sweep.spec import PARAMETERS, SweepSpec, flights
 ENGINES = ("batch", "one")
 #: The work a task aims at (s): inside Dask's 0.1-1 s guidance.
 TASK_TARGET_S = 0.8
+#: At most this share of a batched task goes to its fixed part (the law's numpy calls per sample).
+FIXED_SHARE = 0.25
 #: Tasks kept in flight per worker (the rest wait in the client, not in memory on the cluster).
 TASKS_PER_WORKER = 3
 METRIC_COLUMNS_TAIL = ("final_error_m", "peak_tilt_deg", "peak_thrust_n", "flown_s", "status", "detail", "converge_s")
@@ -96,7 +98,8 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
 
     A batch costs a fixed part per sample (the law's numpy calls) and a part per flight (the
     physics): both are measured, on 4 and on 32 flights of half a second, and scaled to the
-    flight's duration."""
+    flight's duration. Where the fixed part alone nears the target (long flights), the task
+    holds enough flights for the fixed part to stay within ``FIXED_SHARE`` of it."""
     if engine == "one":
         return 1  # a one-vehicle flight is seconds of work already
     from dataclasses import replace
@@ -113,10 +116,12 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
         timings.append((time.perf_counter() - started) * duration / probe_s)
     per_flight = (timings[1] - timings[0]) / (large - small) if large > small else timings[0] / small
     fixed = max(0.0, timings[0] - small * per_flight)
-    room = TASK_TARGET_S - fixed
     if per_flight <= 0:
         return spec.flights
-    return max(1, min(spec.flights, int(room / per_flight) if room > 0 else small))
+    # fill the task to TASK_TARGET_S, but give the flights at least FIXED_SHARE of it beside the
+    # fixed part (a long flight's fixed part alone can be near the target: then the task is longer)
+    n = max((TASK_TARGET_S - fixed) / per_flight, fixed * (1 - FIXED_SHARE) / FIXED_SHARE / per_flight)
+    return max(1, min(spec.flights, int(n)))
 
 
 @dataclass
