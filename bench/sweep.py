@@ -7,7 +7,7 @@
   flights of 12 s (rigid body, 1 kHz RK4, 20 Hz law): wall time, flights per second, the ratio to
   one at a time, the workers' time not spent flying per flight (scheduler overhead), the client's
   peak memory;
-- **scaling**: the same spec (2 000 flights) on 1 worker and on 2.
+- **scaling**: the same spec (2 000 flights, in the sweep's tasks) on 1 worker and on 2.
 
     python bench/sweep.py [--flights 10000] [--quick]
 """
@@ -55,9 +55,9 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
     one_s = (time.perf_counter() - started) / k
     out["one_at_a_time"] = {"flights": k, "s_per_flight": one_s, "flights_per_s": 1.0 / one_s}
 
-    def sweep(count: int, workers: int) -> dict:
+    def sweep(count: int, workers: int, size: int | None = None) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
-            run = run_sweep(spec, Path(tmp), workers=workers, limit=count, flights_per_task=_size("flights_per_task", quick))
+            run = run_sweep(spec, Path(tmp), workers=workers, limit=count, flights_per_task=size or _size("flights_per_task", quick))
         return {"flights": run.flights, "workers": run.workers, "tasks": run.tasks, "flights_per_task": run.flights_per_task,
                 "wall_s": run.wall_s, "flights_per_s": run.flights / run.wall_s, "compute_s": run.compute_s,
                 "overhead_per_flight_s": run.overhead_per_flight_s}  # fmt: skip
@@ -69,8 +69,9 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
     out["client_peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     m = _size("scaling_flights", quick)
     if m:
-        say(f"sweep: {m} flights on 1 worker and on 2")
-        one, two = sweep(m, 1), sweep(m, 2)
+        size = out["sweep"]["flights_per_task"]  # the same tasks on both, so that only the workers differ
+        say(f"sweep: {m} flights on 1 worker and on 2, in tasks of {size}")
+        one, two = sweep(m, 1, size), sweep(m, 2, size)
         out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"]}
     return out
 

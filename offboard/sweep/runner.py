@@ -97,7 +97,7 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
     loads the compiled kernels before the workers need them).
 
     A batch costs a fixed part per sample (the law's numpy calls) and a part per flight (the
-    physics): both are measured, on 4 and on 32 flights of half a second, and scaled to the
+    physics): both are measured, on 8 and on 128 flights of half a second, and scaled to the
     flight's duration. Where the fixed part alone nears the target (long flights), the task
     holds enough flights for the fixed part to stay within ``FIXED_SHARE`` of it."""
     if engine == "one":
@@ -107,7 +107,7 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
     duration = spec.base.flight_duration_s
     probe_s = min(0.5, duration)
     probe = replace(spec, base=replace(spec.base, duration_s=probe_s))
-    small, large = min(spec.flights, 4), min(spec.flights, 32)
+    small, large = min(spec.flights, 8), min(spec.flights, 128)
     fly_chunk(probe, 0, 1, engine)  # warm-up: imports, kernels
     timings = []
     for n in (small, large):
