@@ -1,7 +1,7 @@
 # Two commands do all the set-up from a fresh clone: `make demo` and `make test`.
 # Both create .venv when it is missing and install the project into it: `make demo` only what
 # the demo needs (pymavlink, numpy, matplotlib), `make test` also the [test] extra (pytest,
-# MAVProxy, RotorPy: a few hundred MB). Each install leaves a stamp, so it runs once, and again
+# MAVProxy, RotorPy, Dask and pyarrow for offboard sweep: a few hundred MB). Each install leaves a stamp, so it runs once, and again
 # only when pyproject.toml changes; demo then test, or test then demo, both work.
 PYTHON ?= python3
 VENV   ?= .venv
@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
-	@echo "make: installing the test tools (pytest; MAVProxy, a real ground station; RotorPy, the SE(3) reference) into $(VENV)"
+	@echo "make: installing the test tools (pytest; MAVProxy, a real ground station; RotorPy, the SE(3) reference; Dask and pyarrow, for offboard sweep) into $(VENV)"
 	$(PIP) -e '.[test]'
 	@touch $(TEST_STAMP)
 
@@ -42,7 +42,7 @@ test-fast: $(TEST_STAMP)
 
 # the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
 bench: $(STAMP)
-	@echo "make: installing the benchmark tools (numba, RotorPy, py-spy) into $(VENV)"
+	@echo "make: installing the benchmark tools (numba, RotorPy, py-spy, Dask, pyarrow) into $(VENV)"
 	$(PIP) --quiet -e '.[bench]'
 	$(PY) -m sitl_plant.px4_kernel
 	$(PY) bench/run.py --output bench/RESULTS.md

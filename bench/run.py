@@ -5,7 +5,7 @@ law, RotorPy's ``Multirotor``, the numpy batch, a bare pymavlink ping-pong); tra
 the paper's law, SE(3) and the PX4 cascade through the same missions and conditions. Raw
 numbers go to ``results.json`` beside the output, the tracking plots to ``img/``.
 
-    python bench/run.py [--output bench/RESULTS.md] [--quick] [--workers 2] [--only speed,loop,tracking]
+    python bench/run.py [--output bench/RESULTS.md] [--quick] [--workers 2] [--only speed,loop,tracking,design,sweep]
 
 ``--quick`` shrinks every measurement (about a minute in all: 54 s wall on a shared 2-core machine):
 for the smoke test, not for figures.
@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python bench/run.py` from anywhere
     sys.path.insert(0, str(ROOT))
 
-PARTS = ("speed", "loop", "tracking", "design")
+PARTS = ("speed", "loop", "tracking", "design", "sweep")
 
 # sizes of every measurement: (full, quick)
 SIZES = {
@@ -140,6 +140,12 @@ def measure_design(quick: bool) -> dict:
 
     _say("design: the law over MAVLink through the attitude loop, Table I against the designed gains")
     return design.run(quick=quick, say=_say)
+
+
+def measure_sweep(quick: bool) -> dict:
+    from bench import sweep
+
+    return sweep.measure(quick=quick, say=_say)
 
 
 # --- writing ---------------------------------------------------------------------------------------
@@ -264,6 +270,10 @@ def write(results: dict, output: Path, command: str) -> None:
         from bench import design
 
         body += [design.markdown(results["design"]), ""]
+    if "sweep" in results:
+        from bench import sweep
+
+        body += [sweep.markdown(results["sweep"]), ""]
     output.write_text("\n".join(head + body).rstrip() + "\n")
 
 
@@ -293,6 +303,8 @@ def main(argv: list[str] | None = None) -> int:
         results["tracking"] = measure_tracking(args.quick, args.workers, output.parent / "img")
     if "design" in parts:
         results["design"] = measure_design(args.quick)
+    if "sweep" in parts:
+        results["sweep"] = measure_sweep(args.quick)
     results["wall_s"] = time.perf_counter() - start
     command = "make bench" if output == (ROOT / "bench" / "RESULTS.md") and not args.quick and len(parts) == len(PARTS) \
         else "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:])  # fmt: skip

@@ -19,6 +19,7 @@ from offboard.model.clihelp import HelpFormatter, add_version
 # Modules that register sub-commands, in the order --help lists them.
 COMMAND_MODULES = (
     "offboard.commands.simulate",
+    "offboard.commands.sweep",
     "offboard.commands.fly",
     "offboard.commands.tune",
     "offboard.commands.mission",

@@ -217,6 +217,7 @@ def simulate(
     fast: bool = False,
     progress: Callable[[float], None] | None = None,
     meta: dict[str, object] | None = None,
+    latency_s: float = 0.0,
 ) -> FlightResult:
     """Fly ``trajectory`` with ``controller`` on a simulated ``vehicle`` (module docstring).
 
@@ -253,9 +254,16 @@ def simulate(
         Called with the fraction flown after each sample.
     meta : dict, optional
         The record's metadata.
+    latency_s : float
+        Link latency: each command reaches the vehicle this long after its sample (rounded to
+        physics steps, below To); until then the vehicle flies the previous command (none before
+        the first), as a MAVLink setpoint arrives late. 0: at once.
     """
     to = controller.sample_time_s
     n_physics = steps_per_period(to, physics_dt_s)
+    n_late = int(round(latency_s / physics_dt_s))
+    if not 0 <= n_late < n_physics:
+        raise ValueError(f"latency_s must lie in [0, To = {to:g} s), got {latency_s:g}")
     sim_model = make_model(str(VehicleModel(model)), vehicle)
     cls: type[VehicleSim] = VehicleSim
     if fast:
@@ -303,14 +311,20 @@ def simulate(
             break
         if n == samples:
             break
-        sim.actuation = loop.actuation(command, sim)
-        try:
-            with np.errstate(divide="raise", over="raise", invalid="raise"):
-                start = time.perf_counter()
-                sim.step(n_physics)
-                physics_wall_s += time.perf_counter() - start
-        except (ArithmeticError, np.linalg.LinAlgError, FloatingPointError) as exc:
-            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s the dynamics broke down ({type(exc).__name__})"
+        broke = ""
+        for part in ("late", "now") if n_late else ("now",):
+            if part == "now":  # the command reaches the vehicle (after the previous one's n_late steps)
+                sim.actuation = loop.actuation(command, sim)
+            try:
+                with np.errstate(divide="raise", over="raise", invalid="raise"):
+                    start = time.perf_counter()
+                    sim.step(n_late if part == "late" else n_physics - n_late)
+                    physics_wall_s += time.perf_counter() - start
+            except (ArithmeticError, np.linalg.LinAlgError, FloatingPointError) as exc:
+                broke = type(exc).__name__
+                break
+        if broke:
+            status, detail = FlightStatus.DIVERGED, f"at t = {t:.2f} s the dynamics broke down ({broke})"
             break
         if progress is not None:
             progress(t / duration)

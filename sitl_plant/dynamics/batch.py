@@ -47,6 +47,7 @@ __all__ = [
     "step_many",
     "step_many_numpy",
     "FastRigidBodySim",
+    "advance_many",
 ]
 
 
@@ -531,6 +532,59 @@ def physics_step(x, cmd, wind, p, dt, ground, xdot, nxt, k1, k2, k3, k4, tmp):  
     for i in range(STATE_SIZE):
         x[i] = nxt[i]
     return resting
+
+
+@_pjit
+def _advance_many_kernel(x, active, n_steps, dt, mode, thrust, torque, believed, index, sign, p, winds, ground, xdot, cmd, resting):  # noqa: ANN001, ANN202
+    for i in _prange(x.shape[0]):
+        if active[i]:
+            resting[i] = _advance(x[i], n_steps, dt, mode, thrust[i], torque[i], believed[i], index, sign, p[i], winds[i],
+                                  ground, xdot[i], cmd[i])  # fmt: skip
+
+
+def advance_many(
+    x: np.ndarray,
+    active: np.ndarray,
+    n_steps: int,
+    dt_s: float,
+    thrust_n: np.ndarray,
+    tau_tilde_rad_s2: np.ndarray,
+    believed_inertia_kg_m2: np.ndarray,
+    euler_rate_form: str,
+    params: np.ndarray,
+    winds: np.ndarray,
+    ground: bool,
+    xdot: np.ndarray,
+    cmd: np.ndarray,
+    resting: np.ndarray,
+    mode: int = 1,
+) -> None:
+    """``FastRigidBodySim.step(n_steps)`` with an ``EulerAccelActuation`` for each of N vehicles
+    at once, in place: the paper's tau~ with eq. 16 at every physics step (believed inertia and
+    W_eta form), mixer, RK4, renormalisation, ground contact. Each vehicle has its own parameters.
+
+    Parameters
+    ----------
+    x, xdot : ndarray (N, 17)
+        States and their mean derivatives over the last step (updated).
+    active : ndarray (N,) of bool
+        Only these are stepped.
+    thrust_n : ndarray (N,); tau_tilde_rad_s2, believed_inertia_kg_m2 : ndarray (N, 3)
+    params : ndarray (N, 14)
+        ``param_vector`` of each vehicle.
+    winds : ndarray (N, n_steps, 3)
+        The wind of each physics step.
+    cmd : ndarray (N, 4)
+        The rotor-speed commands (updated; what an instant motor reports).
+    resting : ndarray (N,) of bool
+        Whether each rests on the ground afterwards (updated).
+    mode : int
+        1: tau~ as above; 0: ``thrust_n`` and ``tau_tilde_rad_s2`` are a held thrust and body
+        torque (``HeldActuation``, as ``VehicleSim``'s idle actuation before the first command).
+    """
+    index, sign = _EULER_FORMS[euler_rate_form]
+    _advance_many_kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2, believed_inertia_kg_m2,
+                         index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
 
 
 def is_cached(*kernels: object) -> bool:

@@ -38,7 +38,7 @@ def test_report_has_every_section(quick_run):
     text = out.read_text()
     for heading in ("# Benchmarks", "## Speed", "### Controller step", "### Physics: one vehicle",
                     "### Physics: many vehicles", "### MAVLink lockstep loop", "### Real-time loop",
-                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop"):  # fmt: skip
+                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop", "## Sweep (issue 15)"):  # fmt: skip
         assert heading in text, heading
     assert "Machine:" in text and "python bench/run.py --quick" in text
     assert (out.parent / "img" / "tracking-helix.png").stat().st_size > 1000
@@ -55,6 +55,13 @@ def test_speed_figures_and_agreements(quick_run):
     assert p["max_position_difference_m"] < 1e-9  # the fast simulator flies as the reference
     assert [row["vehicles"] for row in results["speed"]["batch"]] == [1, 10]
     assert all(_finite_positive(row["compiled_per_s"]) for row in results["speed"]["batch"])
+
+
+def test_sweep_part_flies_its_flights(quick_run):
+    _, results = quick_run
+    s = results["sweep"]
+    assert s["sweep"]["flights"] == 8 and s["sweep"]["tasks"] == 2
+    assert _finite_positive(s["sweep"]["flights_per_s"]) and _finite_positive(s["one_at_a_time"]["flights_per_s"])
 
 
 def test_tracking_flies_every_controller_in_every_condition(quick_run):

@@ -16,7 +16,7 @@ from offboard.trajectory import Helix, Hold, Polygon, Sequence, VerticalMove, Wa
 from offboard.trajectory.sampling import sample, summarize
 
 BUNDLED = sorted(
-    p for p in MISSIONS_DIR.iterdir() if p.is_file() and not p.name.startswith("paper-sim") and p.suffix in (".toml", ".plan", ".waypoints")
+    p for p in MISSIONS_DIR.iterdir() if p.is_file() and not p.name.startswith(("paper-sim", "sweep-")) and p.suffix in (".toml", ".plan", ".waypoints")
 )
 HOME = (47.397742, 8.545594, 488.0)
 

@@ -1,0 +1,116 @@
+"""The sweep benchmark (issue 15): Table II flights of the paper helix, batched on Dask, against
+``offboard simulate``'s loop in the same run.
+
+- **one at a time**: ``simulate()`` per flight (what ``offboard simulate`` runs; ``fly_one``),
+  a few flights of the same sweep, as flights per second;
+- **the sweep**: ``run_sweep`` with the batched engine on a local cluster of 2 workers, 10 000
+  flights of 12 s (rigid body, 1 kHz RK4, 20 Hz law): wall time, flights per second, the ratio to
+  one at a time, the workers' time not spent flying per flight (scheduler overhead), the client's
+  peak memory;
+- **scaling**: the same spec (2 000 flights, in the sweep's tasks) on 1 worker and on 2.
+
+    python bench/sweep.py [--flights 10000] [--quick]
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+SPEC = ROOT / "missions" / "sweep-table2.toml"
+# (full, quick)
+SIZES = {"flights": (10_000, 8), "scaling_flights": (2_000, 0), "one_at_a_time": (3, 1), "duration_s": (12.0, 0.3),
+         "workers": (2, 1), "flights_per_task": (None, 4)}
+
+
+def _size(key: str, quick: bool):  # noqa: ANN202
+    return SIZES[key][1 if quick else 0]
+
+
+def measure(quick: bool = False, flights: int | None = None, say=lambda text: None) -> dict:  # noqa: ANN001
+    from offboard.sweep.flight import fly_one
+    from offboard.sweep.runner import run_sweep
+    from offboard.sweep.spec import flight, load_sweep
+    from sitl_plant.dynamics.batch import NUMBA
+
+    spec = load_sweep(SPEC)
+    duration = _size("duration_s", quick)
+    n = flights or _size("flights", quick)
+    spec = replace(spec, base=replace(spec.base, duration_s=duration), flights=max(n, spec.flights))
+    out: dict = {"spec": SPEC.name, "flight_s": duration, "numba": NUMBA}
+
+    k = _size("one_at_a_time", quick)
+    say(f"sweep: {k} flights one at a time (simulate)")
+    started = time.perf_counter()
+    for i in range(k):
+        fly_one(spec, flight(spec, i))
+    one_s = (time.perf_counter() - started) / k
+    out["one_at_a_time"] = {"flights": k, "s_per_flight": one_s, "flights_per_s": 1.0 / one_s}
+
+    def sweep(count: int, workers: int, size: int | None = None) -> dict:
+        with tempfile.TemporaryDirectory() as tmp:
+            run = run_sweep(spec, Path(tmp), workers=workers, limit=count, flights_per_task=size or _size("flights_per_task", quick))
+        return {"flights": run.flights, "workers": run.workers, "tasks": run.tasks, "flights_per_task": run.flights_per_task,
+                "wall_s": run.wall_s, "flights_per_s": run.flights / run.wall_s, "compute_s": run.compute_s,
+                "overhead_per_flight_s": run.overhead_per_flight_s}  # fmt: skip
+
+    workers = _size("workers", quick)
+    say(f"sweep: {n} flights of {duration:g} s, batched, on a local cluster of {workers} workers")
+    out["sweep"] = sweep(n, workers)
+    out["sweep"]["speedup_vs_one_at_a_time"] = out["sweep"]["flights_per_s"] / out["one_at_a_time"]["flights_per_s"]
+    out["client_peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    m = _size("scaling_flights", quick)
+    if m:
+        size = out["sweep"]["flights_per_task"]  # the same tasks on both, so that only the workers differ
+        say(f"sweep: {m} flights on 1 worker and on 2, in tasks of {size}")
+        one, two = sweep(m, 1, size), sweep(m, 2, size)
+        out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"]}
+    return out
+
+
+def markdown(r: dict) -> str:
+    one, s = r["one_at_a_time"], r["sweep"]
+    lines = [
+        "## Sweep (issue 15)",
+        "",
+        f"`{r['spec']}`: Table II-style beliefs, flights of {r['flight_s']:g} s of the paper helix (rigid body, 1 kHz RK4, "
+        f"20 Hz law); batched engine {'compiled (numba)' if r['numba'] else 'interpreted (no numba)'}.",
+        "",
+        "| run | flights | workers | tasks x flights | wall s | flights/s | vs one at a time | overhead ms/flight |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        f"| `simulate()` one at a time | {one['flights']} | 1 | - | {one['s_per_flight'] * one['flights']:.1f} | "
+        f"{one['flights_per_s']:.3g} | 1× | - |",
+        f"| sweep, batched, local cluster | {s['flights']} | {s['workers']} | {s['tasks']} x {s['flights_per_task']} | "
+        f"{s['wall_s']:.1f} | {s['flights_per_s']:.3g} | {s['speedup_vs_one_at_a_time']:.3g}× | "
+        f"{1e3 * s['overhead_per_flight_s']:.2f} |",
+    ]
+    sc = r.get("scaling")
+    if sc:
+        for label, run in (("scaling, 1 worker", sc["one_worker"]), ("scaling, 2 workers", sc["two_workers"])):
+            lines.append(f"| {label} | {run['flights']} | {run['workers']} | {run['tasks']} x {run['flights_per_task']} | "
+                         f"{run['wall_s']:.1f} | {run['flights_per_s']:.3g} | - | {1e3 * run['overhead_per_flight_s']:.2f} |")  # fmt: skip
+        lines += ["", f"2 workers against 1: {sc['speedup']:.2f}×."]
+    lines += ["", f"Client peak memory (RSS) through the sweep: {r['client_peak_rss_mib']:.0f} MiB (rows go to Parquet as "
+              "they arrive)."]  # fmt: skip
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(prog="bench/sweep.py", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--flights", type=int, default=None)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    result = measure(args.quick, args.flights, say=lambda text: print(text, file=sys.stderr, flush=True))
+    print(json.dumps(result, indent=1))
+    print(markdown(result))

@@ -1,0 +1,247 @@
+"""Running a sweep's flights on Dask, rows streamed to Parquet.
+
+Flights are cut into chunks of consecutive indices (``flights_per_task``, by default sized to
+about 0.8 s of work: Dask's own guidance is ~1 ms of overhead a task, so tasks of 0.1-1 s
+keep it under 1 %); each chunk is one task, flown by ``fly_chunk`` on a worker, which returns its
+rows. The client writes each chunk's rows as a row group of ``flights.parquet`` as it arrives,
+and keeps no more than a few tasks per worker in flight, so the memory stays flat in the number
+of flights. A flight depends only on the sweep and its index (``spec.flight``), so the rows are
+the same on one worker or fifty and in any chunking; they arrive in completion order (the
+``flight`` column says which is which).
+
+The cluster: by default a ``distributed.LocalCluster`` of the machine's cores (one process a
+core, one thread each: the kernels hold the GIL); ``scheduler="tcp://HOST:8786"`` joins any
+running Dask scheduler (``dask scheduler`` / ``dask worker``, dask-jobqueue, Kubernetes), whose
+workers must have this project installed, at the same version.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from offboard.sweep.flight import phase_columns
+from offboard.sweep.spec import PARAMETERS, SweepSpec, flights
+
+ENGINES = ("batch", "one")
+#: The work a task aims at (s): inside Dask's 0.1-1 s guidance.
+TASK_TARGET_S = 0.8
+#: At most this share of a batched task goes to its fixed part (the law's numpy calls per sample).
+FIXED_SHARE = 0.25
+#: Tasks kept in flight per worker (the rest wait in the client, not in memory on the cluster).
+TASKS_PER_WORKER = 3
+METRIC_COLUMNS_TAIL = ("final_error_m", "peak_tilt_deg", "peak_thrust_n", "flown_s", "status", "detail", "converge_s")
+
+
+def columns(spec: SweepSpec) -> list[tuple[str, str]]:
+    """The Parquet columns (name, ``float``/``string``/``int``) of a sweep's rows, in order."""
+    cols = [("flight", "int"), ("seed", "int")]
+    cols += [(d.name, "string" if PARAMETERS[d.name].kind == "spec" else "float") for d in spec.parameters]
+    cols += [(c, "float") for c in phase_columns(spec.base.trajectory.phases())]
+    cols += [(c, "string" if c in ("status", "detail") else "float") for c in METRIC_COLUMNS_TAIL]
+    return cols
+
+
+def fly_chunk(spec: SweepSpec, start: int, stop: int, engine: str = "batch") -> list[dict]:
+    """Flights ``start`` to ``stop`` of ``spec``: one row each (what a Dask task runs)."""
+    fls = flights(spec, start, stop)
+    _one_thread_per_worker()
+    if engine == "batch":
+        from offboard.sweep.batch import fly_batch
+
+        rows = fly_batch(spec, fls)
+    else:
+        from offboard.sweep.flight import fly_one
+
+        rows = [fly_one(spec, fl)[0] for fl in fls]
+    for fl, row in zip(fls, rows):
+        row.update({"flight": fl.index, "seed": fl.seed, **fl.values})
+    return rows
+
+
+def _one_thread_per_worker() -> None:
+    """In a Dask worker, numba's kernels use the worker's threads only: the cluster already runs
+    a worker per core, and numba's own pool on top would oversubscribe them."""
+    try:
+        from distributed import get_worker
+
+        threads = get_worker().state.nthreads
+    except (ImportError, ValueError, AttributeError):
+        return
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if NUMBA:
+        import numba
+
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+
+
+def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[list[dict], float]:
+    """A Dask task: ``fly_chunk`` and the seconds it took on the worker."""
+    started = time.perf_counter()
+    rows = fly_chunk(spec, start, stop, engine)
+    return rows, time.perf_counter() - started
+
+
+def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
+    for start in range(0, total, size):
+        yield start, min(start + size, total)
+
+
+def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
+    """Flights a task of ``TASK_TARGET_S`` holds, from timing a few short flights here (which also
+    loads the compiled kernels before the workers need them).
+
+    A batch costs a fixed part per sample (the law's numpy calls) and a part per flight (the
+    physics): both are measured, on 8 and on 128 flights of half a second, and scaled to the
+    flight's duration. Where the fixed part alone nears the target (long flights), the task
+    holds enough flights for the fixed part to stay within ``FIXED_SHARE`` of it."""
+    if engine == "one":
+        return 1  # a one-vehicle flight is seconds of work already
+    from dataclasses import replace
+
+    duration = spec.base.flight_duration_s
+    probe_s = min(0.5, duration)
+    probe = replace(spec, base=replace(spec.base, duration_s=probe_s))
+    small, large = min(spec.flights, 8), min(spec.flights, 128)
+    fly_chunk(probe, 0, 1, engine)  # warm-up: imports, kernels
+    timings = []
+    for n in (small, large):
+        started = time.perf_counter()
+        fly_chunk(probe, 0, n, engine)
+        timings.append((time.perf_counter() - started) * duration / probe_s)
+    per_flight = (timings[1] - timings[0]) / (large - small) if large > small else timings[0] / small
+    fixed = max(0.0, timings[0] - small * per_flight)
+    if per_flight <= 0:
+        return spec.flights
+    # fill the task to TASK_TARGET_S, but give the flights at least FIXED_SHARE of it beside the
+    # fixed part (a long flight's fixed part alone can be near the target: then the task is longer)
+    n = max((TASK_TARGET_S - fixed) / per_flight, fixed * (1 - FIXED_SHARE) / FIXED_SHARE / per_flight)
+    return max(1, min(spec.flights, int(n)))
+
+
+@dataclass
+class SweepRun:
+    """What a sweep run did (its rows are in ``parquet``)."""
+
+    parquet: Path
+    flights: int
+    tasks: int
+    flights_per_task: int
+    workers: int
+    wall_s: float
+    scheduler: str
+    compute_s: float = 0.0  # the tasks' own time on the workers, summed
+
+    @property
+    def overhead_per_flight_s(self) -> float:
+        """Worker time not spent flying, per flight: cluster start, scheduling, transfers, Parquet."""
+        return max(0.0, self.wall_s * self.workers - self.compute_s) / self.flights if self.flights else math.nan
+
+
+class ParquetRows:
+    """Rows appended as row groups of one Parquet file, with a schema fixed up front."""
+
+    def __init__(self, path: Path, cols: list[tuple[str, str]]) -> None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        types = {"int": pa.int64(), "float": pa.float64(), "string": pa.string()}
+        self._pa = pa
+        self.cols = cols
+        self.schema = pa.schema([(name, types[kind]) for name, kind in cols])
+        self.writer = pq.ParquetWriter(path, self.schema)
+        self.rows = 0
+
+    def write(self, rows: list[dict]) -> None:
+        arrays = {}
+        for name, kind in self.cols:
+            values = [r.get(name) for r in rows]
+            if kind == "float":
+                values = [math.nan if v is None else float(v) for v in values]
+            arrays[name] = values
+        self.writer.write_table(self._pa.Table.from_pydict(arrays, schema=self.schema))
+        self.rows += len(rows)
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def run_sweep(
+    spec: SweepSpec,
+    run_dir: Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    engine: str = "batch",
+    flights_per_task: int | None = None,
+    limit: int | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> SweepRun:
+    """Fly the sweep's flights on Dask into ``run_dir/flights.parquet`` (module docstring).
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a running Dask scheduler; None starts a local cluster.
+    workers : int, optional
+        The local cluster's worker processes (default: the machine's cores).
+    engine : str
+        ``batch`` (N flights stepped together, ``offboard.sweep.batch``) or ``one``
+        (``simulate`` per flight, the reference).
+    flights_per_task : int, optional
+        Chunk size; by default about ``TASK_TARGET_S`` of work (``estimate_flights_per_task``).
+    limit : int, optional
+        Fly only the first ``limit`` flights.
+    progress : callable, optional
+        Called with (flights done, flights in all, seconds since the start) after each task.
+    """
+    from distributed import Client, LocalCluster, as_completed
+
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    total = spec.flights if limit is None else max(0, min(limit, spec.flights))
+    started = time.perf_counter()
+    size = flights_per_task or estimate_flights_per_task(spec, engine)
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=":0", host="127.0.0.1")  # fmt: skip
+    out = ParquetRows(run_dir / "flights.parquet", columns(spec))
+    tasks = 0
+    try:
+        with Client(cluster if cluster is not None else scheduler) as client:
+            n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+            spec_future = client.scatter(spec, broadcast=True)
+            pending = chunks(total, size)
+            window = as_completed()
+            for start, stop in pending:
+                window.add(client.submit(_task, spec_future, start, stop, engine, pure=False))
+                tasks += 1
+                if window.count() >= TASKS_PER_WORKER * n_workers:
+                    break
+            done = 0
+            compute_s = 0.0
+            for future in window:
+                rows, seconds = future.result()
+                compute_s += seconds
+                future.release()
+                out.write(rows)
+                done += len(rows)
+                if progress is not None:
+                    progress(done, total, time.perf_counter() - started)
+                nxt = next(pending, None)
+                if nxt is not None:
+                    window.add(client.submit(_task, spec_future, nxt[0], nxt[1], engine, pure=False))
+                    tasks += 1
+            address = client.scheduler.address
+    finally:
+        out.close()
+        if cluster is not None:
+            cluster.close()
+    return SweepRun(run_dir / "flights.parquet", out.rows, tasks, size, n_workers, time.perf_counter() - started,
+                    "local" if cluster is not None else str(address), compute_s)  # fmt: skip

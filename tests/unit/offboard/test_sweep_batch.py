@@ -1,0 +1,93 @@
+"""The batched engine flies every flight as the one-vehicle ``simulate`` does (to 1e-9 m)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from helpers.sweeps import MISSIONS, MIXED, write_sweep
+from offboard.sweep.batch import fly_batch, fly_group, unsupported
+from offboard.sweep.flight import fly_one
+from offboard.sweep.spec import flights, load_sweep, scenario_of
+
+TOL_M = 1e-9
+
+
+def _close_rows(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        if isinstance(a[key], str):
+            assert a[key] == b[key], key
+        elif math.isnan(a[key]):
+            assert math.isnan(b[key]), key
+        else:
+            assert a[key] == pytest.approx(b[key], abs=1e-7), key  # degrees, newtons, metres
+
+
+def test_batched_flights_equal_simulate_per_flight(tmp_path):
+    spec = load_sweep(write_sweep(tmp_path, MIXED, flights=6, duration_s=0.6))
+    fls = flights(spec)
+    setups = [scenario_of(spec, f) for f in fls]
+    assert not any(unsupported(s) for s in setups)
+    assert {s.latency_s for s in setups} == {0.0, 0.01} and len({s.scenario.wind for s in setups}) == 6
+    assert {s.scenario.sensors for s in setups[:4]} == {"paper:0.0", "paper:0.05"}  # noisy and clean in the sample
+    # latency is part of a group's key: fly the two groups as fly_batch would
+    batched = {}
+    for late in (0.0, 0.01):
+        members = [k for k, s in enumerate(setups) if s.latency_s == late]
+        batched.update(zip(members, fly_group([setups[k] for k in members])))
+    for k, fl in enumerate(fls[:4]):  # a sample of the flights on the reference path
+        row, result = fly_one(spec, fl)
+        rec = result.record
+        series = batched[k]
+        assert len(series.t_s) == len(rec) == 13
+        np.testing.assert_allclose(series.pos_ned_m, rec["pos_ned_m"], rtol=0, atol=TOL_M)
+        np.testing.assert_allclose(series.euler_rad, rec["euler_rad"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(series.thrust_n, rec["thrust_n"], rtol=0, atol=1e-8)
+        assert float(np.max(np.abs(series.pos_ned_m[-1] - series.pos_ned_m[0]))) > 0.05  # it flew
+    rows = fly_batch(spec, fls[:4])
+    for fl, row in zip(fls[:4], rows):
+        _close_rows(row, fly_one(spec, fl)[0])
+
+
+def test_a_diverging_flight_ends_where_simulate_ends_it(tmp_path):
+    gains = "kx2 = 0.64\nkx3 = 0.74\nkx4 = 0.85\nkx5 = 0.78\nkx6 = 0.70\n"  # a draw of sweep-gains.toml that is lost
+    spec = load_sweep(write_sweep(tmp_path, f"[parameters.controller]\nintegral_gain_per_s = 0.5\n[parameters.controller.gains]\n"
+                                            f"kx1 = {{ grid = [0.52, 0.78] }}\n{gains}", flights=2, duration_s=1.0))  # fmt: skip
+    rows = fly_batch(spec, flights(spec))
+    reference = [fly_one(spec, f)[0] for f in flights(spec)]
+    assert [r["status"] for r in rows] == [r["status"] for r in reference]
+    assert "diverged" in [r["status"] for r in rows], "the low position gain loses the vehicle"
+    for a, b in zip(rows, reference):
+        assert a["detail"] == b["detail"]
+        _close_rows(a, b)
+
+
+def test_what_the_batch_does_not_fly_goes_by_simulate(tmp_path):
+    spec = load_sweep(write_sweep(tmp_path, "[parameters]\nsensors = { grid = [\"paper:0.02\", \"imu\"] }\n",
+                                  flights=2, duration_s=0.3))  # fmt: skip
+    setups = [scenario_of(spec, f) for f in flights(spec)]
+    assert [unsupported(s) for s in setups] == ["", "sensors imu"]
+    for row, fl in zip(fly_batch(spec, flights(spec)), flights(spec)):
+        _close_rows(row, fly_one(spec, fl)[0])
+
+
+def test_latency_flies_the_previous_command_until_the_new_one_arrives():
+    from offboard.controller.paper import PaperController
+    from offboard.inprocess import simulate
+    from offboard.scenario import load_scenario
+
+    sc = load_scenario(MISSIONS / "paper-sim1-rigid-body.toml")
+
+    def fly(latency_s: float):
+        return simulate(sc.vehicle, PaperController(sc.controller, vehicle_model=sc.model), sc.trajectory, drive=sc.drive,
+                        model=sc.model, duration_s=0.5, latency_s=latency_s).record  # fmt: skip
+
+    plain, late = fly(0.0), fly(0.02)
+    np.testing.assert_array_equal(plain["pos_ned_m"][0], late["pos_ned_m"][0])
+    assert late["pos_ned_m"][1, 2] > plain["pos_ned_m"][1, 2]  # the first command came 20 ms late: less climbed
+    assert float(np.max(np.abs(plain["pos_ned_m"] - late["pos_ned_m"]))) > 1e-4
+    with pytest.raises(ValueError, match="latency_s must lie in"):
+        fly(0.05)
