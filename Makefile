@@ -31,10 +31,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
-# two workers: the tests that fly on the wall clock run one at a time on one of them
-# (tests/conftest.py, REALTIME_MODULES), everything else fills both
+# two workers, a test file at a time each (a module's PX4 or bench fixture starts once; tests/conftest.py)
 test: $(TEST_STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
 test-fast: $(TEST_STAMP)

@@ -19,9 +19,9 @@ E2E_DIR = Path(__file__).resolve().parent / "e2e"
 
 
 #: e2e modules whose tests fly on the wall clock (a real-time plant, PX4 at --speed, timeouts and
-#: rates measured in wall time): with ``make test``'s two workers (pytest-xdist, --dist
-#: loadgroup) they run one at a time on one worker, so that no two of them share the cores; the
-#: rest (pure tests, lockstep flights, in-process sweeps) fill both workers.
+#: rates measured in wall time), marked ``realtime`` (``-m "not realtime"`` leaves them out).
+#: ``make test`` runs on two workers a file at a time (pytest-xdist ``--dist loadfile``): a module's
+#: PX4 or bench fixture starts once, and a flight shares the cores with at most one other test.
 REALTIME_MODULES = frozenset({
     "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fuzz",
     "test_killed", "test_lost_track", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
@@ -36,7 +36,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.e2e)
         if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or path.stem.startswith("test_px4"):
             item.add_marker(pytest.mark.realtime)
-            item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
 @pytest.fixture

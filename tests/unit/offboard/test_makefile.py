@@ -45,7 +45,7 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadgroup")  # two workers (tests/conftest.py)
+    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile")  # two workers (tests/conftest.py)
 
 
 def test_demo_then_test_installs_only_the_test_extra(tmp_path):
