@@ -90,6 +90,7 @@ class LinkStats:
 class _Source:
     last_seq: int
     recent: dict[int, bytes]
+    missing: set[int] = field(default_factory=set)  # sequence numbers skipped, in the last half
 
 
 class MavLink:
@@ -295,6 +296,7 @@ class MavLink:
                     self.stats.refused[verdict.value] = self.stats.refused.get(verdict.value, 0) + 1
                     continue
                 verified = verdict is Verdict.SIGNED  # (a RADIO_STATUS taken unsigned proves nothing)
+            self._track(msg, header)
             self.stats.received += 1
             kind = msg.get_type()
             self.stats.received_by_type[kind] = self.stats.received_by_type.get(kind, 0) + 1
@@ -306,27 +308,42 @@ class MavLink:
         return trusted
 
     def _is_duplicate(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> bool:
-        """Track the source's sequence numbers: duplicates are dropped, gaps counted as lost.
+        """Whether ``msg`` repeats, byte for byte, one of the latest packets of its source (a
+        lockstep keepalive, a duplicating link). Read only: ``_track`` counts what is accepted.
 
         ``header`` (sequence, system, component) read from the frame, for messages whose header
         pymavlink did not decode (``MAVLink_unknown``)."""
-        if header is None:
-            header = (msg.get_seq(), msg.get_srcSystem(), msg.get_srcComponent())
-        seq, key = header[0], (header[1], header[2])
+        seq, sysid, compid = header if header is not None else (msg.get_seq(), msg.get_srcSystem(), msg.get_srcComponent())
+        src = self._sources.get((sysid, compid))
+        if src is None:
+            return False
+        return ((src.last_seq - seq) & 0xFF) < DUPLICATE_WINDOW and src.recent.get(seq) == bytes(msg.get_msgbuf())
+
+    def _track(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> None:
+        """Follow the sequence numbers of an accepted packet's source: a forward jump counts the
+        packets skipped as lost; one of them arriving late (a reordering link) is taken back off
+        the count, so that ``lost`` counts only what never came (issue 14: 2 034 "lost" of none)."""
+        seq, sysid, compid = header if header is not None else (msg.get_seq(), msg.get_srcSystem(), msg.get_srcComponent())
+        key = (sysid, compid)
         packet = bytes(msg.get_msgbuf())
         src = self._sources.get(key)
         if src is None:
             self._sources[key] = _Source(seq, {seq: packet})
-            return False
-        behind = (src.last_seq - seq) & 0xFF
-        if behind < DUPLICATE_WINDOW and src.recent.get(seq) == packet:
-            return True
+            return
         src.recent[seq] = packet
-        if 0 < behind < 128:  # late (reordered) or from a second sequence: nothing lost, baseline kept
-            return False
-        self.stats.lost += (seq - src.last_seq - 1) & 0xFF  # a forward jump: packets lost on the way
+        behind = (src.last_seq - seq) & 0xFF
+        if 0 < behind < 128:  # late (reordered), or from a second sequence: the baseline stays
+            if seq in src.missing:
+                src.missing.discard(seq)
+                self.stats.lost -= 1
+            return
+        gap = (seq - src.last_seq - 1) & 0xFF  # a forward jump: packets lost on the way (so far)
+        if gap:
+            src.missing.update((src.last_seq + k) & 0xFF for k in range(1, gap + 1))
+            self.stats.lost += gap
         src.last_seq = seq
-        return False
+        if src.missing:  # a packet more than half the sequence behind is not coming any more
+            src.missing = {m for m in src.missing if ((seq - m) & 0xFF) < 128}
 
     # -- the end -----------------------------------------------------------------------------------
 
