@@ -121,10 +121,10 @@ def kill_trials(folder: Path, n: int, seed: int = 14) -> dict:
 
 def measure(quick: bool = False, folder: Path | None = None) -> dict:
     folder = folder or Path(tempfile.mkdtemp(prefix="bench-faults-"))
-    mission = hover(folder, 2.0) if quick else HELIX
+    mission = hover(folder, 1.0) if quick else HELIX
     return {
         "lossy": lossy_helix(folder / "lossy", [1] if quick else list(range(1, 21)), mission),
-        "kill": kill_trials(folder / "kill", 2 if quick else 20),
+        "kill": kill_trials(folder / "kill", 1 if quick else 20),
     }
 
 

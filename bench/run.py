@@ -5,7 +5,7 @@ law, RotorPy's ``Multirotor``, the numpy batch, a bare pymavlink ping-pong); tra
 the paper's law, SE(3) and the PX4 cascade through the same missions and conditions. Raw
 numbers go to ``results.json`` beside the output, the tracking plots to ``img/``.
 
-    python bench/run.py [--output bench/RESULTS.md] [--quick] [--workers 2] [--only speed,loop,tracking,design,sweep]
+    python bench/run.py [--output bench/RESULTS.md] [--quick] [--workers 2] [--only speed,loop,tracking,design,sweep,faults]
 
 ``--quick`` shrinks every measurement (about a minute in all: 54 s wall on a shared 2-core machine):
 for the smoke test, not for figures.
@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python bench/run.py` from anywhere
     sys.path.insert(0, str(ROOT))
 
-PARTS = ("speed", "loop", "tracking", "design", "sweep")
+PARTS = ("speed", "loop", "tracking", "design", "sweep", "faults")
 
 # sizes of every measurement: (full, quick)
 SIZES = {
@@ -140,6 +140,13 @@ def measure_design(quick: bool) -> dict:
 
     _say("design: the law over MAVLink through the attitude loop, Table I against the designed gains")
     return design.run(quick=quick, say=_say)
+
+
+def measure_faults(quick: bool) -> dict:
+    from bench import faults
+
+    _say("faults: a lossy link, a killed offboard (real time)")
+    return faults.measure(quick=quick)
 
 
 def measure_sweep(quick: bool) -> dict:
@@ -274,6 +281,10 @@ def write(results: dict, output: Path, command: str) -> None:
         from bench import sweep
 
         body += [sweep.markdown(results["sweep"]), ""]
+    if "faults" in results:
+        from bench import faults
+
+        body += [faults.markdown(results["faults"]), ""]
     output.write_text("\n".join(head + body).rstrip() + "\n")
 
 
@@ -305,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         results["design"] = measure_design(args.quick)
     if "sweep" in parts:
         results["sweep"] = measure_sweep(args.quick)
+    if "faults" in parts:
+        results["faults"] = measure_faults(args.quick)
     results["wall_s"] = time.perf_counter() - start
     command = "make bench" if output == (ROOT / "bench" / "RESULTS.md") and not args.quick and len(parts) == len(PARTS) \
         else "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:])  # fmt: skip

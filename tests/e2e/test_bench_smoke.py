@@ -38,7 +38,8 @@ def test_report_has_every_section(quick_run):
     text = out.read_text()
     for heading in ("# Benchmarks", "## Speed", "### Controller step", "### Physics: one vehicle",
                     "### Physics: many vehicles", "### MAVLink lockstep loop", "### Real-time loop",
-                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop", "## Sweep (issue 15)"):  # fmt: skip
+                    "### Memory", "## Tracking", "#### helix", "## The law through an autopilot's attitude loop", "## Sweep (issue 15)",
+                    "### Faults: a lossy link, a killed offboard"):  # fmt: skip
         assert heading in text, heading
     assert "Machine:" in text and "python bench/run.py --quick" in text
     assert (out.parent / "img" / "tracking-helix.png").stat().st_size > 1000
@@ -81,3 +82,10 @@ def test_bad_option_is_one_line():
                           capture_output=True, text=True, cwd=REPO)  # fmt: skip
     assert proc.returncode == 2
     assert "unknown part 'warp'" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_faults_part_completes_its_flights(quick_run):
+    _, results = quick_run
+    lossy, kill = results["faults"]["lossy"], results["faults"]["kill"]
+    assert lossy["clean_status"] == "complete" and lossy["trials"] == 1
+    assert kill["fired"] == kill["trials"] == 1  # the plant's failsafe fired after the SIGKILL
