@@ -19,7 +19,7 @@ from offboard.inprocess import Scenario, run_scenario
 from offboard.missions import MISSIONS_DIR, load_mission
 from sitl_plant.params import to_float32
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
-from helpers.flights import ENV, PY, fly, free_udp_ports, hover_mission, read_tlog, series, write_mission
+from helpers.flights import ENV, PY, arc_mission, fly, free_udp_ports, hover_mission, read_tlog, series
 
 pytestmark = pytest.mark.e2e
 
@@ -142,18 +142,7 @@ def test_attitude_output_on_the_paper_model_reproduces_run_scenario(tmp_path):
 
 
 def test_two_lockstep_runs_write_identical_logs(tmp_path):
-    mission = write_mission(tmp_path / "arc.toml", """
-[[mission.segment]]
-type = "helix"
-name = "arc"
-center = [0, 0, 1]
-radius_m = 1.0
-phase = 0
-angular_rate = 1.0
-climb_rate_m_s = 0.2
-yaw = 0
-until_s = 3
-""")
+    mission = arc_mission(tmp_path / "arc.toml")
     a = fly(tmp_path, mission, name="first")
     b = fly(tmp_path, mission, name="second")
     assert a.returncode == b.returncode == 0, a.stderr + b.stderr

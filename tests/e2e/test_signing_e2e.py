@@ -10,7 +10,7 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from helpers.flights import ENV, PY, fly, write_mission
+from helpers.flights import ENV, PY, arc_mission, fly
 from helpers.fuzz import Fuzzer
 from offboard.replay import TlogReader
 from offboard.signing import ACCEPTED_UNSIGNED
@@ -18,18 +18,6 @@ from offboard.signing import ACCEPTED_UNSIGNED
 KEY = bytes(range(1, 33))
 FUZZ_FRAMES = 100_000  # at the offboard, before its vehicle starts
 ARMED = "armed: flying the mission"
-ARC = """
-[[mission.segment]]
-type = "helix"
-name = "arc"
-center = [0, 0, 1]
-radius_m = 1.0
-phase = 0
-angular_rate = 1.0
-climb_rate_m_s = 0.2
-yaw = 0
-until_s = 3
-"""
 
 
 def records(path, without: frozenset[int] = frozenset()) -> list[tuple[float, bytes]]:
@@ -80,7 +68,7 @@ def fuzz_the_offboard(ctx) -> None:
 def test_a_signed_lockstep_flight_refuses_the_intruder_and_the_fuzz_and_is_bit_identical(tmp_path):
     key = tmp_path / "key.bin"
     key.write_bytes(KEY)
-    mission = write_mission(tmp_path / "arc.toml", ARC)
+    mission = arc_mission(tmp_path / "arc.toml")
     signed = ("--signing-key", str(key))
     a = fly(tmp_path, mission, name="attacked", fly_args=signed, plant_args=signed, before_plant=fuzz_the_offboard,
             during=intrude)  # fmt: skip

@@ -37,6 +37,26 @@ def write_mission(path: Path, segments: str, name: str = "test-mission") -> Path
     return path
 
 
+def arc_mission(path: Path) -> Path:
+    """Three seconds of a climbing arc of radius 1 m about (0, 0, 1): a short flight that turns."""
+    return write_mission(path, ARC_SEGMENTS)
+
+
+#: The arc of ``arc_mission``.
+ARC_SEGMENTS = """
+[[mission.segment]]
+type = "helix"
+name = "arc"
+center = [0, 0, 1]
+radius_m = 1.0
+phase = 0
+angular_rate = 1.0
+climb_rate_m_s = 0.2
+yaw = 0
+until_s = 3
+"""
+
+
 def hover_mission(path: Path, height_m: float = 2.0, duration_s: float = 3.0) -> Path:
     return write_mission(path, f'[[mission.segment]]\ntype = "hold"\nname = "hover"\nposition = [0, 0, {height_m}]\n'
                                f"yaw = 0\nuntil_s = {duration_s}\n")
