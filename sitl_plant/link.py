@@ -318,6 +318,19 @@ class Link:
             return True
         return bool(readable)
 
+    def impairment_status(self) -> str:
+        """`` link: N dropped, M duplicated, ...`` of the impaired directions (the status line's
+        tail; '' on a clean link)."""
+        dropped = duplicated = corrupted = 0
+        for e in self.endpoints:
+            for impair in (e.impair_in, e.impair_out):
+                if impair is not None:
+                    c = impair.counts
+                    dropped, duplicated, corrupted = dropped + c.dropped, duplicated + c.duplicated, corrupted + c.corrupted
+        if not any(e.impair_in or e.impair_out for e in self.endpoints):
+            return ""
+        return f" link: {dropped} dropped, {duplicated} duplicated, {corrupted} corrupted"
+
     def note(self, text: str) -> None:
         """Record ``text`` in the tlog as a STATUSTEXT of ours that is not sent (what the log was
         recorded under, such as the link's impairment); no sequence number is spent."""

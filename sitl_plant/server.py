@@ -907,7 +907,7 @@ class _Driver:
     def housekeeping(self) -> None:
         now = self.clock()
         if self.status is not None and now >= self._next_status:
-            self.status(self.plant.status_line())
+            self.status(self.plant.status_line() + self.link.impairment_status())
             self._next_status = now + 0.5
         if now >= self._next_flush:
             self.link.flush()

@@ -101,3 +101,18 @@ def test_a_delayed_lossy_link_on_real_sockets():
     assert delays[len(delays) // 2] < 0.060  # about the 40 ms asked, typically
     order = sorted(arrived, key=arrived.get)
     assert order != sorted(order)  # 10 ms of jitter at 1 ms spacing reorders them
+
+
+def test_the_status_line_says_what_the_bad_link_did():
+    impair = Impairment(ImpairmentSpec(loss=50), seed=1)
+    for _ in range(100):
+        impair.schedule(b"x" * 20, 0.0)
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, impair_in=impair)
+    clean = Endpoint("gcs", ("127.0.0.1", 0), None, 1, 1)
+    try:
+        assert Link([clean], None, lambda: 0).impairment_status() == ""
+        assert Link([endpoint, clean], None, lambda: 0).impairment_status() == f" link: {impair.counts.dropped} dropped, 0 duplicated, 0 corrupted"
+        assert 30 < impair.counts.dropped < 70
+    finally:
+        endpoint.close()
+        clean.close()
