@@ -57,8 +57,12 @@ def lossy_helix(folder: Path, seeds: list[int], mission: Path = HELIX) -> dict:
     clean = fly(folder / "clean", mission, lockstep=False, rss_interval_s=None)
 
     def one(seed: int) -> dict:
-        run = fly(folder / f"lossy-{seed}", mission, lockstep=False, rss_interval_s=None,
-                  plant_args=("--link", LINK, "--seed", str(seed)))  # fmt: skip
+        try:
+            run = fly(folder / f"lossy-{seed}", mission, lockstep=False, rss_interval_s=None,
+                      plant_args=("--link", LINK, "--seed", str(seed)))  # fmt: skip
+        except RuntimeError as exc:  # no summary: the flight never started (counted, not complete)
+            return {"seed": seed, "status": "no summary", "detail": str(exc).splitlines()[-1], "helix_rms_m": None,
+                    "lost": None, "received": None}  # fmt: skip
         s = run["summary"]
         return {"seed": seed, "status": s["status"], "helix_rms_m": _helix_rms(s), "lost": s["messages"]["lost"],
                 "received": s["messages"]["received"]}  # fmt: skip

@@ -654,6 +654,8 @@ class Flight:
             if name in self.vehicle_params:
                 continue
             value = self._read_param(name)
+            if value is None and self._link_lossy():  # a lossy link, not an absent parameter: ask longer
+                value = self._read_param(name, 2 * cfg.param_attempts)
             if value is None and name in required:
                 hint = " (pass --thrust-max-n for a vehicle without it)" if name == "SIM_THR_MAX" else ""
                 raise LinkTimeout(f"the vehicle did not answer PARAM_REQUEST_READ {name} ({VEHICLE_PARAMS[name]}) "
@@ -840,11 +842,15 @@ class Flight:
                 return family
         return "none"
 
-    def _read_param(self, name: str) -> float | None:
+    def _link_lossy(self) -> bool:
+        """Whether the link has lost packets of the vehicle (its sequence numbers)."""
+        return int(getattr(getattr(self.link, "stats", None), "lost", 0)) > 0
+
+    def _read_param(self, name: str, attempts: int | None = None) -> float | None:
         assert self.target is not None
         self._param_wanted = name
         try:
-            for _ in range(self.config.param_attempts):
+            for _ in range(attempts or self.config.param_attempts):
                 self.link.send(codec.param_request_read(self.target[0], self.target[1], name))
                 if self._pump(lambda: name in self.vehicle_params, self.config.param_timeout_s):
                     return self.vehicle_params.pop(name)
