@@ -113,6 +113,7 @@ def fly_script(c: Client, obs: Observed) -> None:
     # by height, not vertical speed: PX4's EKF velocity wanders by 0.2 m/s on the ground
     lift = next(s.t_s for s in climb if s.pos_ned_m[2] < ground - 0.5)
     obs.figures["takeoff: 0.5 m up after the command (s)"] = lift - t_cmd
+    obs.figures["takeoff: 0.5 m up to Hold (s)"] = obs.figures["takeoff: to Hold after the command (s)"] - (lift - t_cmd)
     obs.figures["takeoff: top climb rate (m/s)"] = -min(s.vel_ned_m_s[2] for s in climb)
     obs.figures["takeoff: height (m)"] = ground - c.down_m
     obs.heartbeat["hold armed in the air"] = _hb(c)
@@ -255,8 +256,11 @@ def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs):
     name = "takeoff: 0.5 m up after the command (s)"
     assert abs(plant.figures[name] - px4.figures[name]) < 1.5
     assert plant.figures["takeoff: top climb rate (m/s)"] == pytest.approx(px4.figures["takeoff: top climb rate (m/s)"], rel=0.3)
-    # Hold within NAV_MC_ALT_RAD of the height (PX4 5.7-7.4 s; 1 Hz heartbeats: +-1 s)
-    assert abs(plant.figures["takeoff: to Hold after the command (s)"] - px4.figures["takeoff: to Hold after the command (s)"]) < 2.0
+    # Hold within NAV_MC_ALT_RAD of the height. Command to Hold is lift-off (checked above; PX4's
+    # spreads by 1.5 s on a loaded machine) plus the climb, so the climb is compared on its own:
+    # PX4 1.9-2.2 s from 0.5 m up to Hold, the plant 1.7 s; Hold is seen on 1 Hz heartbeats (+-1 s)
+    name = "takeoff: 0.5 m up to Hold (s)"
+    assert abs(plant.figures[name] - px4.figures[name]) < 1.5
     for obs in runs:
         assert obs.figures["takeoff: height (m)"] == pytest.approx(2.5, abs=0.3)
 
