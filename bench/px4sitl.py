@@ -5,6 +5,15 @@ SITL with its SIH quadrotor; its README). Tests without one are skipped with the
 ``SKIP_REASON`` saying how to point them at a PX4. ``running_px4`` starts it on free ports and
 always stops it.
 
+PX4's ``--instance`` N picks more than the ports we pass: its payload, gimbal and SIH-display links
+bind UDP 14280+N, 13030+N and 19450+N (``etc/init.d-posix/px4-rc.mavlink``), and its daemon takes
+the lock ``/tmp/px4_lock-N``, so a second PX4 on the same N refuses to start ("PX4 server already
+running for instance N"). Two pytest-xdist workers (``make test`` runs two) or two checkouts on
+one machine must therefore not pick the same N: ``choose_instance`` tries the calling worker's own
+share of the instances first (``PYTEST_XDIST_WORKER``), in a random order, and only those whose
+ports bind; ``running_px4`` tries another instance when PX4 still does not start on the chosen one
+(the port probe and PX4's own bind are not atomic).
+
 A copy of PX4's ``bin/`` that lost its symbolic links (each ``px4-<module>`` then a small file
 holding the word ``px4``, not executable: PX4's start-up script fails with "px4-param:
 Permission denied") is run from a mirror with the links restored, in a temporary folder; the
@@ -16,10 +25,11 @@ from __future__ import annotations
 import hashlib
 import os
 import random
+import socket
 import subprocess
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,6 +82,78 @@ def runnable_launcher(launcher: Path) -> Path:
     return mirror / launcher.name
 
 
+INSTANCES = range(20, 100)  # clear of 0..19, which people use by hand (make px4_sitl, multi-vehicle scripts)
+WORKER_SHARES = 4  # instances are dealt round-robin to this many xdist workers: gw0 first gets 20, 24, ...
+START_ATTEMPTS = 3  # instances tried by running_px4 before it gives up
+
+
+def instance_ports(instance: int) -> tuple[int, int, int]:
+    """The UDP ports PX4 SITL ``--instance`` binds on its own: payload, gimbal, SIH display links."""
+    return 14280 + instance, 13030 + instance, 19450 + instance
+
+
+def udp_port_free(port: int) -> bool:
+    """Whether UDP ``port`` on 127.0.0.1 can be bound now (PX4 binds all addresses: that conflicts)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def instance_free(instance: int) -> bool:
+    """Whether every port PX4 ``--instance`` binds is free now."""
+    return all(udp_port_free(port) for port in instance_ports(instance))
+
+
+def worker_index(worker: str | None) -> int:
+    """The pytest-xdist worker's number (``gw3`` -> 3), 0 outside xdist."""
+    digits = (worker or "").removeprefix("gw")
+    return int(digits) if digits.isdigit() else 0
+
+
+def choose_instance(
+    *,
+    worker: str | None = None,
+    avoid: Iterable[int] = (),
+    is_free: Callable[[int], bool] = instance_free,
+    rng: random.Random | None = None,
+) -> int:
+    """A PX4 SITL instance number whose ports are free, this worker's own first.
+
+    Parameters
+    ----------
+    worker : str or None
+        ``PYTEST_XDIST_WORKER`` (``gw0``, ``gw1``, ...); None reads it from the environment.
+        Worker k's own instances are those with ``n % WORKER_SHARES == k % WORKER_SHARES``, so two
+        workers of one run never race for the same one; the others follow, for when it is full.
+    avoid : iterable of int
+        Instances not to give (those PX4 has already failed to start on).
+    is_free : callable
+        The probe, ``instance_free`` by default (binding its UDP ports on 127.0.0.1).
+    rng : random.Random or None
+        Orders the candidates within each group, so that two checkouts' workers of the same
+        number do not walk the instances in step.
+
+    Raises
+    ------
+    RuntimeError
+        No instance in ``INSTANCES`` is free.
+    """
+    rng = rng or random.Random()
+    share = worker_index(os.environ.get("PYTEST_XDIST_WORKER") if worker is None else worker) % WORKER_SHARES
+    skip = set(avoid)
+    own = [n for n in INSTANCES if n % WORKER_SHARES == share and n not in skip]
+    others = [n for n in INSTANCES if n % WORKER_SHARES != share and n not in skip]
+    rng.shuffle(own)
+    rng.shuffle(others)
+    for instance in own + others:
+        if is_free(instance):
+            return instance
+    raise RuntimeError(f"no free PX4 SITL instance in {INSTANCES.start}..{INSTANCES.stop - 1}")
+
+
 @dataclass(frozen=True)
 class Px4:
     pid: int
@@ -85,17 +167,26 @@ def running_px4(workdir: Path, *, speed: float = 1.0) -> Iterator[Px4]:
     """A PX4 SITL on free loopback ports, ready for takeoff; stopped at the end, whatever happens."""
     launcher = px4_launcher()
     assert launcher is not None, SKIP_REASON
-    api_bind, api_remote, gcs_bind, gcs_remote = free_udp_ports(4)
-    instance = random.randint(20, 90)
     workdir.mkdir(parents=True, exist_ok=True)
-    started = subprocess.run(
-        [str(runnable_launcher(launcher)), "--api-bind", str(api_bind), "--api-remote", str(api_remote),
-         "--gcs-bind", str(gcs_bind), "--gcs-remote", str(gcs_remote), "--instance", str(instance),
-         "--speed", f"{speed:g}", "--workdir", str(workdir), "--timeout", "60"],
-        capture_output=True, text=True, timeout=90,
-    )  # fmt: skip
-    values = dict(line.split("=", 1) for line in started.stdout.splitlines() if "=" in line)
-    assert started.returncode == 0 and "PX4_PID" in values, f"PX4 SITL did not start:\n{started.stderr}"
+    tried: list[int] = []
+    failures: list[str] = []
+    values: dict[str, str] = {}
+    while len(tried) < START_ATTEMPTS:
+        api_bind, api_remote, gcs_bind, gcs_remote = free_udp_ports(4)
+        instance = choose_instance(avoid=tried)
+        tried.append(instance)
+        started = subprocess.run(
+            [str(runnable_launcher(launcher)), "--api-bind", str(api_bind), "--api-remote", str(api_remote),
+             "--gcs-bind", str(gcs_bind), "--gcs-remote", str(gcs_remote), "--instance", str(instance),
+             "--speed", f"{speed:g}", "--workdir", str(workdir if not failures else workdir / f"retry-{instance}"), "--timeout", "60"],
+            capture_output=True, text=True, timeout=90,
+        )  # fmt: skip
+        values = dict(line.split("=", 1) for line in started.stdout.splitlines() if "=" in line)
+        if started.returncode == 0 and "PX4_PID" in values:
+            break
+        failures.append(f"--instance {instance}: {started.stderr.strip()}")
+    else:
+        raise AssertionError("PX4 SITL did not start:\n" + "\n".join(failures))
     pid = int(values["PX4_PID"])
     try:
         yield Px4(pid, Path(values.get("PX4_LOG", workdir / "px4.log")), api_remote, gcs_remote)
