@@ -15,6 +15,9 @@ what to fly. What PX4 v1.16 SITL does was measured (docs/parity/commander.md) an
   ``COM_SPOOLUP_TIME`` after arming, then the upward velocity limit ramps over ``MPC_TKO_RAMP_T``
   from the value that gives no thrust (``-g / MPC_Z_VEL_P_ACC``) to ``MPC_TKO_SPEED``; the climb
   slows near the takeoff height; within ``NAV_MC_ALT_RAD`` of it, Hold (at the takeoff height).
+  The same handling (``_takeoff_climb_limit``) applies to every take-off from the ground: the
+  navigated ones (a mission's, a DO_REPOSITION's) and the sticks' in Position/Altitude, as
+  mc_pos_control applies it whatever the flight task.
 - **Land**: PX4's speed profile (``FlightTaskAuto``): ``MPC_Z_V_AUTO_DN`` above ``MPC_LAND_ALT1``,
   blended down to ``MPC_LAND_SPEED`` at ``MPC_LAND_ALT2``, ``MPC_LAND_CRWL`` below ``MPC_LAND_ALT3``.
   Landing is detected ``LNDMC_TRIG_TIME`` + 2 s after touch-down (PX4's land detector), disarm
@@ -47,7 +50,7 @@ from typing import Union
 import numpy as np
 
 from offboard.model.state import VehicleState
-from sitl_plant.navigator import Frame, Navigator, land_speed_m_s
+from sitl_plant.navigator import Frame, NavSetpoint, Navigator, land_speed_m_s
 from sitl_plant.params import ParamTable
 
 # MAVLink enum values used here (common.xml), spelled out to keep this module free of pymavlink.
@@ -572,17 +575,22 @@ class Autopilot:
         if mode is Mode.OFFBOARD and m.last_setpoint is not None:
             return OffboardTask(m.last_setpoint)
         if mode is Mode.AUTO_TAKEOFF:
-            limit = self._takeoff_climb_limit(now)
+            limit = self._takeoff_climb_limit(now, approach_down_m=self._takeoff_down_m())
             if limit is None:
                 return IdleTask()  # spooling up
             return PositionTask((m.hold_pos[0], m.hold_pos[1], self._takeoff_down_m()), m.hold_yaw, max_climb_m_s=limit)
         if mode in _NEEDS_MANUAL_INPUT:
             return self._manual_task(now)
-        nav = self.navigator.setpoint() if (mode in _NAVIGATED or self.navigator.activity == "reposition") else None
+        nav = self._nav_setpoint()
         if nav is not None:
             if self._landed and (nav.landing or (not m.has_taken_off and nav.max_climb_m_s is None)):
                 return IdleTask()
-            return PositionTask(nav.pos_ned_m, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=nav.max_climb_m_s, vel_ned_m_s=nav.vel_ned_m_s)
+            climb = nav.max_climb_m_s
+            if climb is not None:  # the navigator's take-off speed, through PX4's takeoff handling
+                climb = self._takeoff_climb_limit(now, speed_m_s=climb, approach_down_m=nav.pos_ned_m[2] if nav.takeoff else None)
+                if climb is None:
+                    return IdleTask()  # spooling up
+            return PositionTask(nav.pos_ned_m, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s)
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
@@ -595,27 +603,33 @@ class Autopilot:
         """PX4's landing speed at the current height (``navigator.land_speed_m_s``)."""
         return land_speed_m_s(self.params.__getitem__, self.home_ned_m[2] - float(self._pos[2]))
 
-    def _takeoff_climb_limit(self, now_s: float, *, approach: bool = True) -> float | None:
-        """PX4's takeoff ramp (mc_pos_control/Takeoff, ``updateRamp``): None while the motors spool
-        up (COM_SPOOLUP_TIME after arming); then the upward velocity limit goes linearly over
-        MPC_TKO_RAMP_T from -g / MPC_Z_VEL_P_ACC (no thrust) to MPC_TKO_SPEED."""
+    def _takeoff_climb_limit(self, now_s: float, *, speed_m_s: float | None = None, approach_down_m: float | None = None) -> float | None:
+        """PX4's takeoff handling (mc_pos_control/Takeoff, ``updateRamp``), for every take-off from
+        the ground (Takeoff mode, a mission's or a DO_REPOSITION's, the sticks'): None while the
+        motors spool up (COM_SPOOLUP_TIME after arming); then the upward velocity limit goes
+        linearly over MPC_TKO_RAMP_T, from when the climb was asked for, from -g / MPC_Z_VEL_P_ACC
+        (no thrust) to ``speed_m_s`` (the flight task's take-off speed, default MPC_TKO_SPEED).
+        With ``approach_down_m`` (the take-off height, NED down) the climb slows near it. A climb
+        asked for in the air (no take-off from the ground in this flight) is not ramped."""
         m, p = self._m, self.params
+        speed = p["MPC_TKO_SPEED"] if speed_m_s is None else speed_m_s
+        target = speed
+        if approach_down_m is not None:
+            # the climb PX4's takeoff trajectory asks for slows near the height (fitted, docs/parity)
+            remaining = max(float(self._pos[2]) - approach_down_m, 0.0)
+            target = min(speed, TAKEOFF_APPROACH_GAIN * math.sqrt(remaining))
+        if m.takeoff_wanted_s is None and m.has_taken_off:
+            return target
         spooled = m.armed_at_s + p["COM_SPOOLUP_TIME"]
         if now_s < spooled:
             return None
         wanted = m.takeoff_wanted_s if m.takeoff_wanted_s is not None else now_s
         start = max(spooled, wanted)
-        speed = p["MPC_TKO_SPEED"]
         ramp_t = p["MPC_TKO_RAMP_T"]
         if not self._landed and m.has_taken_off and ramp_t <= 0:
             return speed
         init = -G_M_S2 / max(p["MPC_Z_VEL_P_ACC"], 0.01)
         progress = 1.0 if ramp_t <= 0 else min(max((now_s - start) / ramp_t, 0.0), 1.0)
-        target = speed
-        if approach:
-            # the climb PX4's takeoff trajectory asks for slows near the height (fitted, docs/parity)
-            remaining = max(float(self._pos[2]) - self._takeoff_down_m(), 0.0)
-            target = min(speed, TAKEOFF_APPROACH_GAIN * math.sqrt(remaining))
         return init + progress * (target - init)
 
     # -- the manual modes --------------------------------------------------------------------------
@@ -680,7 +694,7 @@ class Autopilot:
             return PositionTask((m.hold_pos[0], m.hold_pos[1], None), m.hold_yaw, descend_m_s=p["MPC_LAND_SPEED"])
         if self._landed and vz >= 0.0:
             return IdleTask()
-        limit = None if m.has_taken_off else self._takeoff_climb_limit(now_s, approach=False)
+        limit = None if m.has_taken_off else self._takeoff_climb_limit(now_s)
         if limit is None and not m.has_taken_off:
             return IdleTask()  # spooling up
         down = m.hold_pos[2] if vz == 0.0 else None
@@ -784,7 +798,8 @@ class Autopilot:
         """MAV_CMD_DO_REPOSITION (the server has turned its global position into local NED):
         Hold mode, flying to the point and holding there (PX4's navigator reposition). As PX4 v1.16
         was measured: disarmed it is ACCEPTED and nothing happens; armed on the ground the vehicle
-        takes off towards the point (climbing at most MPC_TKO_SPEED)."""
+        takes off towards the point (climbing at most MPC_TKO_SPEED, after the spool-up and the
+        takeoff ramp of ``_takeoff_climb_limit``)."""
         if not self.armed:
             return Reply(MAV_RESULT_ACCEPTED)
         self._enter(Mode.AUTO_LOITER, now_s, by_client=True)
@@ -805,6 +820,12 @@ class Autopilot:
         self.navigator.orbit(centre_ned_m, radius_m, speed_m_s, now_s)
         return Reply(MAV_RESULT_ACCEPTED)
 
+    def _nav_setpoint(self) -> NavSetpoint | None:
+        """The navigator's setpoint when it is the one flown (its modes, and Hold after DO_REPOSITION)."""
+        if self.mode in _NAVIGATED or self.navigator.activity == "reposition":
+            return self.navigator.setpoint()
+        return None
+
     def _navigate(self, now_s: float) -> list[StatusText]:
         nav = self.navigator
         nav.frame = self.frame()
@@ -812,6 +833,9 @@ class Autopilot:
         if not self.armed:
             return []
         nav.update(now_s)
+        sp = self._nav_setpoint()
+        if sp is not None and sp.max_climb_m_s is not None and self._landed and self._m.takeoff_wanted_s is None:
+            self._m.takeoff_wanted_s = now_s  # PX4's takeoff ramp starts with the climb asked for
         if nav.wants_rtl and self.mode is Mode.AUTO_MISSION:
             self._enter(Mode.AUTO_RTL, now_s)
             return [StatusText(MAV_SEVERITY_INFO, "Mission: returning to launch")]

@@ -10,7 +10,8 @@ times differ by seconds per leg (docs/parity/mission.md).
 
 Mission items (PX4 ``src/modules/navigator/mission_block.cpp``, ``mission.cpp``):
 
-- NAV_TAKEOFF: climb vertically at ``MPC_TKO_SPEED`` to the item's altitude (at least
+- NAV_TAKEOFF: climb vertically at ``MPC_TKO_SPEED`` (from the ground after the autopilot's
+  spool-up and takeoff ramp) to the item's altitude (at least
   ``MIS_TAKEOFF_ALT``); reached within ``NAV_MC_ALT_RAD`` of it. A mission started on the ground
   whose current item is not a takeoff first climbs to ``MIS_TAKEOFF_ALT``.
 - NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LOITER_UNLIM: fly there; reached within the acceptance radius
@@ -95,13 +96,17 @@ class Frame:
 class NavSetpoint:
     """What to fly: a position (None: that axis is not held) with a velocity feed-forward and a
     yaw; ``descend_m_s`` descends at that speed instead of holding the height (landing);
-    ``max_climb_m_s`` limits the climb (takeoff). ``landing``: idle once on the ground."""
+    ``max_climb_m_s`` is the take-off's climb speed (from the ground the autopilot ramps up to it
+    after spool-up: PX4's takeoff handling, ``Autopilot._takeoff_climb_limit``); ``takeoff``: a
+    vertical take-off to ``pos_ned_m``'s height (the climb slows near it). ``landing``: idle once
+    on the ground."""
 
     pos_ned_m: tuple[float, float, float]
     yaw_rad: float
     vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     descend_m_s: float | None = None
     max_climb_m_s: float | None = None
+    takeoff: bool = False
     landing: bool = False
 
 
@@ -290,7 +295,7 @@ class Navigator:
         if r.phase == "land":
             return NavSetpoint((r.target[0], r.target[1], self._pos[2]), self._yaw_sp, descend_m_s=self._land_speed(), landing=True)  # type: ignore[index]
         if r.phase == "takeoff":
-            return NavSetpoint(r.target, self._yaw_sp, max_climb_m_s=self._p("MPC_TKO_SPEED"))  # type: ignore[arg-type]
+            return NavSetpoint(r.target, self._yaw_sp, max_climb_m_s=self._p("MPC_TKO_SPEED"), takeoff=True)  # type: ignore[arg-type]
         if r.leg is not None:
             climb = self._p("MPC_TKO_SPEED") if self._activity == "reposition" and self._from_ground else None
             return NavSetpoint(r.leg.point(), self._yaw_sp, r.leg.velocity(), max_climb_m_s=climb)

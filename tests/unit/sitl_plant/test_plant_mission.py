@@ -14,10 +14,11 @@ from pymavlink.dialects.v20 import common as mavlink
 from helpers.mission_client import items_from_file
 from offboard.missions import MISSIONS_DIR
 from sitl_plant import codec
-from sitl_plant.autopilot import Autopilot, Command, Mode
+from sitl_plant.autopilot import Autopilot, Command, IdleTask, Mode
 from sitl_plant.mission import RETRY_S, TIMEOUT_S, MissionManager, TransferState
 from sitl_plant.navigator import Frame, Navigator, geodetic_to_ned
 from sitl_plant.params import plant_params
+from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 
 GCS = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -349,9 +350,88 @@ def test_reposition_from_the_ground_takes_off_orbit_is_taken_disarmed_refused_ar
     plant.handle(API, orbit)
     acks = [(m.command, m.result) for m in plant.outbox[API] if m.get_type() == "COMMAND_ACK"]
     assert acks == [(34, 0), (400, 0), (192, 0), (34, 1)]  # orbit armed on the ground: refused
-    for _ in range(500):  # 2 s: PX4 v1.16 takes off towards the point
+    for _ in range(500):  # 2 s: still on the ground, spooling up (COM_SPOOLUP_TIME) and ramping (MPC_TKO_RAMP_T)
+        plant.advance(plant.tick_steps)
+    assert plant._truth.pos_ned_m[2] > -0.1
+    for _ in range(1000):  # 4 s more: PX4 v1.16 takes off towards the point
         plant.advance(plant.tick_steps)
     assert plant.autopilot.mode is Mode.AUTO_LOITER and plant._truth.pos_ned_m[2] < -1.0
+
+
+def _at(down_m: float = 0.0) -> VehicleState:
+    z = np.zeros(3)
+    return VehicleState(0.0, np.array([0.0, 0.0, down_m]), z, z, z, z, z, np.array([1.0, 0.0, 0.0, 0.0]), on_ground=down_m >= 0.0)
+
+
+def _climb_limits(start, times_s):
+    """The climb limit the autopilot flies at each time after arming at 0 on the ground, after
+    ``start(ap)`` chose the take-off; None while it idles (the motors spooling up)."""
+    ap = Autopilot(plant_params(VehicleParams()), home_alt_amsl_m=488.0)
+    ap.set_origin(HOME.origin_lat_deg, HOME.origin_lon_deg, HOME.origin_alt_amsl_m)
+    ap.observe(_at())
+    ap.update(0.0)
+    start(ap)
+    out = []
+    for t in times_s:
+        ap.update(t)
+        task = ap.task()
+        out.append(None if isinstance(task, IdleTask) else task.max_climb_m_s)
+    return out
+
+
+def test_every_take_off_from_the_ground_spools_up_and_ramps_as_takeoff_mode():
+    """PX4's takeoff handling (mc_pos_control) is the same whatever asks for the take-off: a
+    mission's take-off item and a DO_REPOSITION from the ground wait COM_SPOOLUP_TIME, then ramp
+    the climb limit from -g / MPC_Z_VEL_P_ACC over MPC_TKO_RAMP_T, as Takeoff mode does."""
+    from helpers.mission_client import Item
+    from sitl_plant.mission import parse_item
+
+    times = [0.0, 0.5, 0.99, 1.0, 2.5, 4.0, 5.0]
+
+    def takeoff_mode(ap):
+        ap.on_command(Command(22, (math.nan,) * 6 + (488.0 + 5.0,)), 0.0)
+        ap.arm(0.0)
+
+    def mission(ap):
+        items = [Item(6, 22, (0, 0, 0, math.nan), 473977420, 85455940, 5.0), Item(6, 16, (0, 0, 0, math.nan), 473978420, 85455940, 5.0)]
+        ap.navigator.load([parse_item(wire(item_int(it, s)), True, 0)[0] for s, it in enumerate(items)])
+        ap.set_mode(Mode.AUTO_MISSION, 0.0)
+        ap.arm(0.0)
+
+    def reposition(ap):
+        ap.arm(0.0)
+        ap.reposition((10.0, 0.0, -5.0), -1.0, None, 0.0)
+
+    p = plant_params(VehicleParams())
+    spool, ramp, init = p["COM_SPOOLUP_TIME"], p["MPC_TKO_RAMP_T"], -9.80665 / p["MPC_Z_VEL_P_ACC"]
+    expected_takeoff = _climb_limits(takeoff_mode, times)
+    assert expected_takeoff[:3] == [None, None, None] and expected_takeoff[3] == pytest.approx(init)
+    assert _climb_limits(mission, times) == pytest.approx(expected_takeoff)  # the same 5 m take-off
+    # the reposition's leg has no take-off height to slow near: the ramp goes to MPC_TKO_SPEED
+    speed = p["MPC_TKO_SPEED"]
+    want = [None, None, None] + [init + min((t - spool) / ramp, 1.0) * (speed - init) for t in times[3:]]
+    got = _climb_limits(reposition, times)
+    assert got[:3] == want[:3] and got[3:] == pytest.approx(want[3:])
+
+
+def test_a_take_off_item_in_the_air_is_not_ramped():
+    """Only a take-off from the ground is: a mission started in the air climbs at MPC_TKO_SPEED
+    (limited near the height) at once."""
+    from helpers.mission_client import Item
+    from sitl_plant.mission import parse_item
+
+    ap = Autopilot(plant_params(VehicleParams()), home_alt_amsl_m=488.0)
+    ap.set_origin(HOME.origin_lat_deg, HOME.origin_lon_deg, HOME.origin_alt_amsl_m)
+    ap.observe(_at())
+    ap.update(0.0)
+    ap.arm(0.0)
+    ap.observe(_at(-2.0))  # armed in Hold on the ground, now 2 m up (as if flown by a client)
+    ap.update(10.0)
+    items = [Item(6, 22, (0, 0, 0, math.nan), 473977420, 85455940, 20.0)]
+    ap.navigator.load([parse_item(wire(item_int(it, s)), True, 0)[0] for s, it in enumerate(items)])
+    assert ap.set_mode(Mode.AUTO_MISSION, 10.0).result == 0
+    ap.update(10.1)
+    assert ap.task().max_climb_m_s == pytest.approx(ap.params["MPC_TKO_SPEED"])
 
 
 def test_command_positions_are_read_as_px4_1_16_flies_them():
