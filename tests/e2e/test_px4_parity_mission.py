@@ -152,10 +152,16 @@ def test_a_short_mission_reaches_the_same_items_on_both(vehicles):
     assert plant["reached"] == px4["reached"]
     assert plant["end north m"] == pytest.approx(px4["end north m"], abs=1.5)
     assert px4["disarmed s"] is not None and plant["disarmed s"] is not None
-    # simulation time from arming to disarming after the landing: PX4 took 26-30 s, the plant
-    # 16 s (PX4's take-off ramp and land detector, which the plant does not have, and its
-    # jerk-limited legs: docs/parity/mission.md); the plant is faster, never more than 2.5 x
-    assert 0.4 * px4["disarmed s"] <= plant["disarmed s"] <= px4["disarmed s"]
+    # simulation time from arming to disarming after the landing (docs/parity/mission.md): PX4
+    # 25.8-32.1 s over thirteen runs (its own spread, +-11 % about 29 s: EKF, land detector), the
+    # plant 25.6-26.3 s over five since its take-offs from the ground spool up and ramp as PX4's
+    # (before: 16-21.5 s). Against the same run's PX4 the plant was 0.93-0.99 of it; over PX4's
+    # whole spread 0.80-1.02, hence +-25 %.
+    assert plant["disarmed s"] == pytest.approx(px4["disarmed s"], rel=0.25)
+    # the take-off item reached (spool-up, ramp, climb to 5 m): PX4 7.8-9.7 s, the plant 7.8 s
+    # (before: 2.9 s, no spool-up or ramp); PX4's lift-off alone varies by 1.5 s (2.7-4.2 s,
+    # docs/parity/commander.md), hence +-30 %
+    assert plant["reached s"][1] == pytest.approx(px4["reached s"][1], rel=0.3)
 
 
 def record_until(conn, flight, done, timeout_s: float) -> bool:
