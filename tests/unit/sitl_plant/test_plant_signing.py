@@ -132,3 +132,72 @@ def test_setup_signing_is_refused_armed_and_rekeys_every_link_disarmed(tmp_path)
     finally:
         link.close()
         owner.close()
+
+
+def heartbeat() -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+
+
+def received_types(client: Client) -> list[str]:
+    """What reached ``client`` (nothing: [])."""
+    parser = mavlink.MAVLink(None)
+    out = []
+    client.sock.settimeout(0.05)
+    while True:
+        try:
+            data = client.sock.recv(65535)
+        except (TimeoutError, socket.timeout):
+            return out
+        out += [m.get_type() for m in parser.parse_buffer(data) or []]
+
+
+def test_a_frame_accepted_unsigned_is_handled_but_does_not_take_the_telemetry():
+    """Issue 14: PX4 takes RADIO_STATUS, ADSB_VEHICLE and COLLISION unsigned; one from a stranger
+    made the plant answer the stranger. Only a verified signed frame moves the remote."""
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    owner = Client(endpoint.local_address, sysid=245, secret=KEY)
+    stranger = Client(endpoint.local_address, sysid=200)
+    try:
+        owner.send(heartbeat())
+        serve(plant, link)
+        assert endpoint.remote == owner.sock.getsockname()
+        received_types(owner)
+        stranger.send(mavlink.MAVLink_radio_status_message(200, 180, 50, 40, 30, 0, 0))
+        stranger.send(mavlink.MAVLink_adsb_vehicle_message(1234, 0, 0, 0, 1000, 0, 0, 0, b"INTRUDE", 0, 1, 0, 0))
+        stranger.send(mavlink.MAVLink_collision_message(0, 1234, 1, 0, 0, 10, 10))
+        serve(plant, link)
+        # handled (counted as received, none refused) ...
+        assert {k: endpoint.counters.by_type_in.get(k) for k in ("RADIO_STATUS", "ADSB_VEHICLE", "COLLISION")} == \
+            {"RADIO_STATUS": 1, "ADSB_VEHICLE": 1, "COLLISION": 1}
+        assert endpoint.counters.refused == {}
+        # ... but the plant still answers the owner, and the stranger hears nothing
+        assert endpoint.remote == owner.sock.getsockname()
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed
+        assert "COMMAND_ACK" in received_types(owner)
+        assert received_types(stranger) == []
+    finally:
+        link.close()
+        owner.close()
+        stranger.close()
+
+
+def test_without_signing_any_accepted_frame_moves_the_remote_as_px4_does():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1)
+    link = Link([endpoint], None, plant.epoch_us)
+    first, second = Client(endpoint.local_address, sysid=245), Client(endpoint.local_address, sysid=200)
+    try:
+        first.send(heartbeat())
+        serve(plant, link)
+        assert endpoint.remote == first.sock.getsockname()
+        second.send(mavlink.MAVLink_radio_status_message(200, 180, 50, 40, 30, 0, 0))
+        serve(plant, link)
+        assert endpoint.remote == second.sock.getsockname()
+    finally:
+        link.close()
+        first.close()
+        second.close()
