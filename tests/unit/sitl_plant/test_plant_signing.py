@@ -201,3 +201,30 @@ def test_without_signing_any_accepted_frame_moves_the_remote_as_px4_does():
         link.close()
         first.close()
         second.close()
+
+
+def test_an_owners_signed_frame_sent_again_is_refused_as_replayed():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    owner = Client(endpoint.local_address, sysid=245, secret=KEY)
+    replayer = Client(endpoint.local_address, sysid=200)
+    try:
+        armed_bytes = arm().pack(owner.mav)  # recorded off the link by someone listening
+        owner.sock.sendto(armed_bytes, endpoint.local_address)
+        serve(plant, link)
+        assert plant.autopilot.armed
+        owner.send(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0))  # disarm
+        serve(plant, link)
+        assert not plant.autopilot.armed
+        received_types(owner)
+        replayer.sock.sendto(armed_bytes, endpoint.local_address)  # the same bytes, from elsewhere
+        owner.sock.sendto(armed_bytes, endpoint.local_address)  # and from the owner's own address
+        serve(plant, link)
+        assert not plant.autopilot.armed
+        assert endpoint.counters.refused == {"replayed": 2} and endpoint.counters.refused_senders == {245: 2}
+        assert endpoint.remote == owner.sock.getsockname() and received_types(replayer) == []
+    finally:
+        link.close()
+        owner.close()
+        replayer.close()
