@@ -37,7 +37,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter
-from offboard.signing import SigningKey, SigningSession, Verdict, save_key
+from offboard.signing import SigningKey, SigningSession, Verdict, persist, save_key
 from sitl_plant.impairment import DelayLine, Impairment
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
@@ -412,16 +412,15 @@ class Link:
 
     def unsign(self) -> None:
         """SETUP_SIGNING with an all-zero key: signing off on every link."""
+        persist(e.signing for e in self.endpoints if e.signing is not None)
         for e in self.endpoints:
-            if e.signing is not None:
-                e.signing.close()
             e.signing = None
             e.packer.signing.sign_outgoing = False
 
     def close(self) -> None:
+        """Close the sockets and the tlog; persist the newest signing timestamp of all links once."""
         for e in self.endpoints:
             e.close()
-            if e.signing is not None:
-                e.signing.close()
+        persist(e.signing for e in self.endpoints if e.signing is not None)
         if self.tlog is not None:
             self.tlog.close()

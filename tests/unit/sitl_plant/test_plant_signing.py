@@ -228,3 +228,64 @@ def test_an_owners_signed_frame_sent_again_is_refused_as_replayed():
         link.close()
         owner.close()
         replayer.close()
+
+
+def test_the_links_persist_the_highest_timestamp_once(tmp_path, monkeypatch):
+    """Each link's session wrote the key file as it closed: the last closed won, not the highest."""
+    import offboard.signing
+
+    path = tmp_path / "key.bin"
+    save_key(path, SigningKey(KEY))
+    plant = make_plant()
+    sessions = [SigningSession(load_key(path), plant.epoch_us, link_id=i, key_path=path) for i in range(2)]
+    endpoints = [Endpoint(n, ("127.0.0.1", 0), None, 1, 1, signing=s) for n, s in zip(("api", "gcs"), sessions)]
+    link = Link(endpoints, None, plant.epoch_us)
+    owner = Client(endpoints[API].local_address, secret=KEY)
+    owner.mav.signing.timestamp += 10**7  # the owner's clock is 100 s ahead: the API link follows it
+    writes = []
+    monkeypatch.setattr(offboard.signing, "save_key", lambda p, k: writes.append(k) or save_key(p, k))
+    try:
+        owner.send(heartbeat())
+        serve(plant, link)
+        assert endpoints[API].counters.by_type_in == {"HEARTBEAT": 1}
+    finally:
+        link.close()
+        owner.close()
+    assert len(writes) == 1
+    assert load_key(path).timestamp == sessions[API].newest > sessions[1].newest
+
+
+def test_frames_recorded_before_a_restart_cannot_be_replayed_into_it(tmp_path):
+    """The spec's one-minute window for a new stream would take them (PX4 keeps only that): the
+    timestamp persisted at exit is a floor for every stream after the restart."""
+    path = tmp_path / "key.bin"
+    save_key(path, SigningKey(KEY))
+
+    def start() -> tuple[Plant, Endpoint, Link]:
+        plant = make_plant()
+        endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1,
+                            signing=SigningSession(load_key(path), plant.epoch_us, key_path=path))  # fmt: skip
+        return plant, endpoint, Link([endpoint], None, plant.epoch_us)
+
+    plant, endpoint, link = start()
+    owner = Client(endpoint.local_address, secret=KEY)
+    try:
+        recorded = arm().pack(owner.mav)  # a second before the restart
+        owner.sock.sendto(recorded, endpoint.local_address)
+        serve(plant, link)
+        assert plant.autopilot.armed
+    finally:
+        link.close()  # a clean exit: the newest timestamp persisted
+    plant, endpoint, link = start()
+    owner.plant_address = endpoint.local_address
+    try:
+        owner.sock.sendto(recorded, endpoint.local_address)
+        serve(plant, link)
+        assert not plant.autopilot.armed and endpoint.counters.refused == {"replayed": 1}
+        owner.mav.signing.timestamp += 100_000  # the owner, a second later on its clock
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed
+    finally:
+        link.close()
+        owner.close()
