@@ -41,6 +41,10 @@ LINK = "loss=20,delay=50,jitter=20"
 COM_OF_LOSS_T_S = 1.0  # the plant's default (PX4's)
 CONTROL_PERIOD_S = 0.05
 PARALLEL = 4
+#: what ``--quick`` runs (the smoke test): seeds of the lossy flight (a 1 s hover), offboard kills
+QUICK_LOSSY_SEEDS = [1]
+QUICK_KILLS = 1
+NUMBERS = {1: "one", 2: "two", 3: "three"}
 
 
 def _helix_rms(summary: dict) -> float | None:
@@ -127,8 +131,8 @@ def measure(quick: bool = False, folder: Path | None = None) -> dict:
     folder = folder or Path(tempfile.mkdtemp(prefix="bench-faults-"))
     mission = hover(folder, 1.0) if quick else HELIX
     return {
-        "lossy": lossy_helix(folder / "lossy", [1] if quick else list(range(1, 21)), mission),
-        "kill": kill_trials(folder / "kill", 1 if quick else 20),
+        "lossy": lossy_helix(folder / "lossy", QUICK_LOSSY_SEEDS if quick else list(range(1, 21)), mission),
+        "kill": kill_trials(folder / "kill", QUICK_KILLS if quick else 20),
     }
 
 
@@ -157,7 +161,10 @@ def markdown(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="one lossy seed and two kills (the smoke test)")
+    seeds, kills = len(QUICK_LOSSY_SEEDS), QUICK_KILLS
+    parser.add_argument("--quick", action="store_true",
+                        help=f"{NUMBERS.get(seeds, seeds)} lossy seed{'s' * (seeds != 1)} of a 1 s hover and "
+                             f"{NUMBERS.get(kills, kills)} kill{'s' * (kills != 1)} (the smoke test)")  # fmt: skip
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     result = measure(args.quick)

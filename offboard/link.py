@@ -147,8 +147,9 @@ class MavLink:
         self.log_time_us = log_time_us
         self.signing = signing
         #: the (system, component) we fly, once known: only a datagram carrying one of its frames
-        #: may change where we send (pymavlink's udpin answers whoever sent last, so any datagram
-        #: from anyone else would take our setpoints away from the vehicle)
+        #: (verified signed, with signing) may change where we send (pymavlink's udpin answers
+        #: everyone it heard, so any datagram from anyone else would get our setpoints too, and
+        #: take them away from the vehicle with older pymavlink versions)
         self.trusted: tuple[int, int] | None = None
         self._tlog: TlogWriter | None = None
         if tlog_path is not None:
@@ -234,12 +235,11 @@ class MavLink:
         deadline = time.monotonic() + max(timeout_s, 0.0)
         read = False
         while not self._queue:
-            before = getattr(self.conn, "last_address", None)
-            data = self._read()
+            data, sender = self._read()
             if data:
                 read = True
-                if not self._parse(data) and self._datagrams and before is not None:
-                    self.conn.last_address = before  # a stranger's datagram: keep answering the vehicle
+                if self._parse(data) and sender is not None:
+                    self._answer(sender)  # a stranger's datagram leaves it: we keep answering the vehicle
                 continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -247,14 +247,38 @@ class MavLink:
             self._wait(remaining)
         return read
 
-    def _read(self) -> bytes:
+    def _read(self) -> tuple[bytes, tuple[str, int] | None]:
+        """The next datagram (or chunk of a stream) and, on UDP, who sent it; b"" when none waits.
+
+        On UDP we read the socket ourselves: pymavlink's ``recv`` makes every sender one we
+        answer (``udpin`` sends to every address it heard since version 2.4.4x, to the last
+        before), and ``_answer`` decides that instead."""
+        if self._datagrams:
+            try:
+                data, sender = self.conn.port.recvfrom(65535)
+            except OSError:  # nothing waiting (EAGAIN), or an earlier send found nobody (ECONNREFUSED)
+                return b"", None
+            return data, sender
         try:
             data = self.conn.recv()
         except OSError:
-            return b""
+            return b"", None
         if not data:
-            return b""
-        return bytes(data) if not isinstance(data, bytes) else data
+            return b"", None
+        return (bytes(data) if not isinstance(data, bytes) else data), None
+
+    def _answer(self, sender: tuple[str, int]) -> None:
+        """Send to ``sender`` alone from now on (UDP): the vehicle's address, or while no vehicle
+        is known, whoever sent an accepted frame last. pymavlink's ``udpin`` sends to its
+        ``clients``, its ``udpbcast`` (and older ``udpin``) to ``last_address``; ``udpout`` keeps
+        its destination."""
+        conn = self.conn
+        if getattr(conn, "udp_server", False):
+            conn.clients = {sender}
+            conn.clients_last_alive = {sender: time.time()}
+            conn.last_address = sender
+        elif getattr(conn, "broadcast", False):
+            conn.last_address = sender
 
     def _wait(self, timeout_s: float) -> None:
         if self._fileno is None:

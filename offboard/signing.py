@@ -18,18 +18,25 @@ Both processes use it: ``offboard fly --signing-key FILE`` and ``sitl-plant --si
   timestamp. pymavlink's own ``check_signature`` stores the stream's timestamp before it
   checks the hash, so a forged frame with a high timestamp would lock the real stream out;
   here only a verified frame moves a stream on.
-- **The timestamp is persisted** in the key file (PX4's layout) when a session closes, and a
-  session never starts below it, so frames recorded before a restart cannot be replayed into
-  it. In lockstep the clock is the simulation's alone (a signed lockstep flight sends the same
-  bytes every time) and nothing is persisted: a lockstep run is a reproducible experiment, not
-  a vehicle to protect.
+- **The timestamp is persisted** in the key file (PX4's layout) when a process closes cleanly
+  (:func:`persist`: the newest of all its sessions, written once), and a session never signs
+  below it. The spec's one-minute window alone (PX4 keeps only that) would let frames from the
+  last minute before a restart be replayed into it as new streams; here the persisted timestamp
+  is also a **floor** for incoming streams: a stream not seen before must start above it
+  (``SignatureCheck.floor``), so nothing recorded before a clean restart can be replayed into
+  it. (A killed process persists nothing: its last run's frames stay replayable for a minute
+  above the timestamp persisted before.) A peer whose clock lags the floor is refused until
+  it signs above the newest timestamp it has accepted from us, as the spec asks of it. In
+  lockstep the clock is the simulation's alone (a signed lockstep flight sends the same bytes
+  every time) and nothing is persisted nor used as a floor: a lockstep run is a reproducible
+  experiment, not a vehicle to protect.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -135,11 +142,13 @@ class SignatureCheck:
     """Verifies incoming frames against one key (module docstring for the rules).
 
     ``timestamp`` is our side's newest timestamp (the local clock's, or the newest verified);
+    ``floor`` the timestamp persisted before a restart, which a new stream must start above;
     ``counts`` how many frames got each verdict.
     """
 
     secret: bytes
     timestamp: int = 0
+    floor: int = 0
     accepted_unsigned: frozenset[int] = ACCEPTED_UNSIGNED
     streams: dict[tuple[int, int, int], int] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=lambda: {v.value: 0 for v in Verdict})
@@ -159,8 +168,8 @@ class SignatureCheck:
         timestamp = int.from_bytes(frame[-12:-6], "little")
         stream = (sysid, compid, link_id)
         last = self.streams.get(stream)
-        if last is not None and timestamp <= last:
-            return Verdict.REPLAYED
+        if timestamp <= (self.floor if last is None else last):
+            return Verdict.REPLAYED  # (below the floor: recorded before our restart)
         if last is None and timestamp + NEW_STREAM_WINDOW < self.timestamp:
             return Verdict.STALE_STREAM
         self.streams[stream] = timestamp
@@ -183,7 +192,8 @@ class SigningSession:
     link_id : int
         Our link id in the signatures we send.
     key_path : Path or None
-        Where the timestamp is persisted on :meth:`close` (None: nowhere, as in lockstep).
+        Where the timestamp is persisted on :meth:`close` (None: nowhere, as in lockstep), and
+        whether the key's persisted timestamp is a floor for incoming streams.
     lockstep : bool
         Sign on our clock alone. Otherwise, as the spec asks, the next timestamp is also above
         the newest one accepted from the other side, which in lockstep would make our bytes
@@ -198,8 +208,11 @@ class SigningSession:
         self.lockstep = lockstep
         self.key_path = None if key_path is None else Path(key_path)
         start = max(key.timestamp, signing_timestamp(clock_us())) if self.key_path is not None else signing_timestamp(clock_us())
-        self.check = SignatureCheck(key.secret, timestamp=start)
+        self.check = SignatureCheck(key.secret, timestamp=start, floor=self._floor(key))
         self._sent = start  # the timestamp of the last frame we signed
+
+    def _floor(self, key: SigningKey) -> int:
+        return key.timestamp if self.key_path is not None else 0
 
     def now(self) -> int:
         """The timestamp to sign the next frame with: our clock's, and never at or below the last
@@ -222,9 +235,27 @@ class SigningSession:
     def rekey(self, key: SigningKey) -> None:
         """A new key (SETUP_SIGNING): streams start afresh; the timestamp is the key's or ours."""
         self.key = key
-        self.check = SignatureCheck(key.secret, timestamp=max(key.timestamp, self._sent))
+        self.check = SignatureCheck(key.secret, timestamp=max(key.timestamp, self._sent), floor=self._floor(key))
+
+    @property
+    def newest(self) -> int:
+        """The newest timestamp we signed or accepted."""
+        return max(self._sent, self.check.timestamp)
 
     def close(self) -> None:
         """Persist the newest timestamp with the key (PX4's layout), if there is a key file."""
-        if self.key_path is not None:
-            save_key(self.key_path, SigningKey(self.key.secret, max(self._sent, self.check.timestamp)))
+        persist([self])
+
+
+def persist(sessions: Iterable[SigningSession]) -> None:
+    """Write each key file of ``sessions`` once, with the newest timestamp of the sessions that
+    share it (the plant's links share one file: written per session, the last closed would win,
+    not the highest). Sessions without a key file persist nothing."""
+    newest: dict[Path, tuple[int, bytes]] = {}
+    for s in sessions:
+        if s.key_path is not None:
+            best = newest.get(s.key_path)
+            if best is None or s.newest > best[0]:
+                newest[s.key_path] = (s.newest, s.key.secret)
+    for path, (timestamp, secret) in newest.items():
+        save_key(path, SigningKey(secret, timestamp))

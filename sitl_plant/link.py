@@ -8,7 +8,8 @@ Two links, as PX4 SITL has them, each **one** UDP socket that sends and receives
   MAVProxy).
 
 Each answers whoever talks to it: the remote address becomes the sender of the last valid
-MAVLink packet. Outgoing messages of one tick go out batched in one datagram (as PX4 batches
+MAVLink packet (with signing, of the last verified signed one: the few messages accepted
+unsigned are handled but never move the remote). Outgoing messages of one tick go out batched in one datagram (as PX4 batches
 them), which every MAVLink client parses.
 
 Incoming datagrams are parsed by pymavlink with robust parsing, one datagram at a time (MAVLink
@@ -36,7 +37,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter
-from offboard.signing import SigningKey, SigningSession, save_key
+from offboard.signing import SigningKey, SigningSession, Verdict, persist, save_key
 from sitl_plant.impairment import DelayLine, Impairment
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
@@ -236,18 +237,24 @@ class Endpoint:
             self.release(now)
         return out
 
-    def _refusal(self, msg: mavlink.MAVLink_message) -> str | None:
-        """Why a well-formed frame is refused before handling (None: it is not)."""
+    def _verdict(self, msg: mavlink.MAVLink_message) -> tuple[str | None, bool]:
+        """Why a well-formed frame is refused before handling (None: it is not), and whether it
+        may make its sender the remote we answer: with signing, only a verified signed frame
+        may (a RADIO_STATUS, ADSB_VEHICLE or COLLISION is handled unsigned, as PX4 does, but
+        proves nothing about who sent it); without signing, any accepted frame."""
         sender = msg.get_srcSystem()
         if self.allowed_senders is not None and sender not in self.allowed_senders:
-            return "sender"
+            return "sender", False
         if self.signing is not None:
             verdict = self.signing.check.check(msg.get_msgbuf(), msg.get_msgId(), sender, msg.get_srcComponent())
             if not verdict.accepted:
-                return verdict.value
-        return None
+                return verdict.value, False
+            return None, verdict is Verdict.SIGNED
+        return None, True
 
     def _parse_datagram(self, data: bytes, out: list[mavlink.MAVLink_message]) -> bool:
+        """Queue the accepted messages of one datagram; whether one of them may make its sender
+        the remote (``_verdict``)."""
         parser = self.parser
         counters = self.counters
         found = False
@@ -261,13 +268,13 @@ class Endpoint:
             if kind == "BAD_DATA":
                 counters.bad_packets += 1
                 continue
-            refusal = self._refusal(msg)
+            refusal, proves = self._verdict(msg)
             if refusal is not None:
                 counters.refused[refusal] = counters.refused.get(refusal, 0) + 1
                 sender = msg.get_srcSystem()
                 counters.refused_senders[sender] = counters.refused_senders.get(sender, 0) + 1
                 continue
-            found = True
+            found = found or proves
             counters.packets_in += 1
             if kind == "UNKNOWN" or kind.startswith("UNKNOWN_"):
                 counters.unknown_messages += 1
@@ -405,16 +412,15 @@ class Link:
 
     def unsign(self) -> None:
         """SETUP_SIGNING with an all-zero key: signing off on every link."""
+        persist(e.signing for e in self.endpoints if e.signing is not None)
         for e in self.endpoints:
-            if e.signing is not None:
-                e.signing.close()
             e.signing = None
             e.packer.signing.sign_outgoing = False
 
     def close(self) -> None:
+        """Close the sockets and the tlog; persist the newest signing timestamp of all links once."""
         for e in self.endpoints:
             e.close()
-            if e.signing is not None:
-                e.signing.close()
+        persist(e.signing for e in self.endpoints if e.signing is not None)
         if self.tlog is not None:
             self.tlog.close()

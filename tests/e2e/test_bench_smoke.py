@@ -89,3 +89,13 @@ def test_faults_part_completes_its_flights(quick_run):
     lossy, kill = results["faults"]["lossy"], results["faults"]["kill"]
     assert lossy["clean_status"] == "complete" and lossy["trials"] == 1
     assert kill["fired"] == kill["trials"] == 1  # the plant's failsafe fired after the SIGKILL
+
+
+def test_faults_quick_flies_the_lossy_link_and_fails_safe_in_time(quick_run):
+    """What ``bench/faults.py --quick`` says it runs (one lossy seed, one kill), and that both
+    went as issue 14 requires: the lossy flight completed, the failsafe fired within its bound."""
+    _, results = quick_run
+    lossy, kill = results["faults"]["lossy"], results["faults"]["kill"]
+    assert [r["seed"] for r in lossy["runs"]] == [1] and lossy["complete"] == 1, lossy["runs"]
+    assert kill["trials"] == 1 and kill["within_bound"] == 1, kill
+    assert kill["max_s"] <= kill["bound_s"] == pytest.approx(1.05)

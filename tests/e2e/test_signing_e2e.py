@@ -7,6 +7,8 @@ from __future__ import annotations
 import socket
 import subprocess
 import time
+from functools import partial
+from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -18,6 +20,9 @@ from offboard.signing import ACCEPTED_UNSIGNED
 KEY = bytes(range(1, 33))
 FUZZ_FRAMES = 100_000  # at the offboard, before its vehicle starts
 ARMED = "armed: flying the mission"
+ROUNDS = 5  # of the intruder's attacks
+REPLAYS = 4  # frames of each process recorded in an earlier flight and sent again in each round
+HOLD = 4 << 16 | 3 << 24  # PX4's custom mode Auto/Hold
 
 
 def records(path, without: frozenset[int] = frozenset()) -> list[tuple[float, bytes]]:
@@ -27,9 +32,17 @@ def records(path, without: frozenset[int] = frozenset()) -> list[tuple[float, by
     return out
 
 
-def intrude(ctx) -> None:
-    """Once armed: unsigned frames from another system, and frames forged with our ids and
-    another key: a forced disarm, a mode change to Hold, a 30 deg roll setpoint."""
+def first_sent(path: Path, sysid: int, count: int) -> list[bytes]:
+    """The first ``count`` frames system ``sysid`` sent, from a tlog of an earlier flight."""
+    return [frame for _, frame in records(path) if frame[5] == sysid][:count]
+
+
+def intrude(ctx, offboard_frames: list[bytes] = (), vehicle_frames: list[bytes] = ()) -> None:
+    """Once armed, at the plant: unsigned frames from another system, and frames forged with the
+    offboard's ids and another key: a forced disarm, a mode change to Hold, a 30 deg roll
+    setpoint; the offboard's own ``offboard_frames``, sent again. At the offboard: frames with the
+    vehicle's ids (1/1), unsigned and forged, announcing Hold and acknowledging a command; the
+    vehicle's ``vehicle_frames``, sent again."""
     ctx.wait_for(ARMED)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     plain = mavlink.MAVLink(None, srcSystem=200, srcComponent=190)
@@ -41,11 +54,27 @@ def intrude(ctx) -> None:
         mavlink.MAVLink_command_long_message(1, 1, 176, 0, 1, 4, 3, 0, 0, 0, 0),
         mavlink.MAVLink_set_attitude_target_message(0, 1, 1, 0b00000111, [0.966, 0.259, 0, 0], 0, 0, 0, 0.5),
     ]
+    vehicle_plain = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    vehicle_forged = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    vehicle_forged.signing.secret_key, vehicle_forged.signing.sign_outgoing = bytes(32 * [9]), True
+    vehicle_forged.signing.timestamp = 10**14
+    fakes = [
+        mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0x81, HOLD, 4, 3),
+        mavlink.MAVLink_command_ack_message(176, 0, 0, 0, 245, 191),
+    ]
     try:
-        for _ in range(5):
+        for _ in range(ROUNDS):
             for msg in attacks:
                 for mav in (plain, forged):
                     sock.sendto(msg.pack(mav), ("127.0.0.1", ctx.plant_port))
+            for frame in offboard_frames:
+                sock.sendto(frame, ("127.0.0.1", ctx.plant_port))
+            for msg in fakes:
+                for mav in (vehicle_plain, vehicle_forged):
+                    sock.sendto(msg.pack(mav), ("127.0.0.1", ctx.offboard_port))
+                    mav.seq = (mav.seq + 1) & 0xFF
+            for frame in vehicle_frames:
+                sock.sendto(frame, ("127.0.0.1", ctx.offboard_port))
             time.sleep(0.05)
     finally:
         sock.close()
@@ -70,9 +99,13 @@ def test_a_signed_lockstep_flight_refuses_the_intruder_and_the_fuzz_and_is_bit_i
     key.write_bytes(KEY)
     mission = arc_mission(tmp_path / "arc.toml")
     signed = ("--signing-key", str(key))
-    a = fly(tmp_path, mission, name="attacked", fly_args=signed, plant_args=signed, before_plant=fuzz_the_offboard,
-            during=intrude)  # fmt: skip
     b = fly(tmp_path, mission, name="quiet", fly_args=signed, plant_args=signed)
+    # what each process sent early in the quiet flight, the attacked one sends too (the same
+    # bytes: that is what is asserted below), and has sent by the time it is armed: a replay
+    replays = {"offboard_frames": first_sent(b.tlog, 245, REPLAYS), "vehicle_frames": first_sent(b.plant_tlog, 1, REPLAYS)}
+    assert all(len(frames) == REPLAYS for frames in replays.values())
+    a = fly(tmp_path, mission, name="attacked", fly_args=signed, plant_args=signed, before_plant=fuzz_the_offboard,
+            during=partial(intrude, **replays), quiet_plant=False)  # fmt: skip
     assert a.returncode == b.returncode == 0, a.stderr + b.stderr
     assert a.status == "complete" and a.summary["disarmed"]
     # what was refused left no trace: the attacked flight is the quiet one, byte for byte (but the
@@ -94,6 +127,15 @@ def test_a_signed_lockstep_flight_refuses_the_intruder_and_the_fuzz_and_is_bit_i
     print(f"\nthe offboard under fuzz: {m}")
     seen = m["bad"] + sum(m["refused"].values()) + m["duplicates"]
     assert seen > FUZZ_FRAMES // 4  # the fuzz reached it (and was refused, never handled)
+    # the intruder's frames at the offboard were refused too (the fuzz is refused as unsigned and
+    # badly signed as well, and some of it is lost in the kernel: those counts are at least ours),
+    # and every replay is counted as one: the fuzz holds no frame signed with the key
+    assert m["refused"]["replayed"] == ROUNDS * REPLAYS
+    assert m["refused"]["unsigned"] >= ROUNDS * 2 and m["refused"]["bad_signature"] >= ROUNDS * 2
+    # the plant counted each of the intruder's frames (the quiet flight's plant refused none)
+    n = 2 * ROUNDS * 3
+    assert (f"refused {n + ROUNDS * REPLAYS} frames before handling (bad_signature {n // 2}, replayed {ROUNDS * REPLAYS}, "
+            f"unsigned {n // 2}; system 200: {n // 2}, system 245: {n // 2 + ROUNDS * REPLAYS})") in a.plant_stderr, a.plant_stderr
     # the log of a signed flight replays
     replayed = subprocess.run([PY, "-m", "offboard.cli", "replay", str(a.tlog), "--run-dir", str(tmp_path / "replay"),
                                "--no-plots", "--json"], capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip

@@ -99,6 +99,8 @@ class Flown:
     plant_tlog: Path
     plant_returncode: int | None
     summary: dict = field(default_factory=dict)
+    #: what the plant wrote on stderr (its exit summary, with ``quiet_plant=False``)
+    plant_stderr: str = ""
 
     @property
     def status(self) -> str:
@@ -131,12 +133,15 @@ def fly(
     fly_env: dict[str, str] | None = None,
     timeout_s: float = 240.0,
     name: str = "run",
+    quiet_plant: bool = True,
 ) -> Flown:
-    """Fly ``mission`` with ``offboard fly`` against ``sitl-plant``, both real processes."""
+    """Fly ``mission`` with ``offboard fly`` against ``sitl-plant``, both real processes
+    (``quiet_plant=False``: the plant's banner, status line and exit summary kept in
+    ``Flown.plant_stderr``)."""
     run_dir = tmp_path / name
     run_dir.mkdir(parents=True, exist_ok=True)
     plant_port, offboard_port, gcs_port = free_udp_ports(3)
-    stderr_path = run_dir / "offboard.stderr"
+    stderr_path, plant_stderr_path = run_dir / "offboard.stderr", run_dir / "plant.stderr"
     tlog, plant_tlog = run_dir / "flight.tlog", run_dir / "plant.tlog"
     fly_cmd = [PY, "-m", "offboard.cli", "fly", str(mission), "--connect", f"udpin:127.0.0.1:{offboard_port}",
                "--run-dir", str(run_dir), "--log", str(tlog), "--no-plots", "--json", *fly_args]
@@ -145,7 +150,8 @@ def fly(
     # the flights here are the paper's (its quad, Table I or designed gains, figures from its runs):
     # the paper's vehicle unless the test names one (the plant's default hovers at 0.5 as PX4 SITL)
     vehicle = [] if "--vehicle" in plant_args else ["--vehicle", str(PAPER_VEHICLE_FILE)]
-    plant_cmd = [PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", "--quiet", "--log", str(plant_tlog), *vehicle,
+    plant_cmd = [PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{plant_port}", *(["--quiet"] if quiet_plant else []),
+                 "--log", str(plant_tlog), *vehicle,
                  *(["--gcs-bind", f"127.0.0.1:{gcs_port}", "--gcs-remote", "none"] if gcs else ["--gcs-bind", "none"]),
                  *plant_args]
     if lockstep:
@@ -163,7 +169,8 @@ def fly(
         ctx.wait_for("listening on", 30)
         if before_plant is not None:  # the offboard is up and waiting for a vehicle
             before_plant(ctx)
-        plant_proc = subprocess.Popen(plant_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV)
+        with plant_stderr_path.open("w") as plant_err:
+            plant_proc = subprocess.Popen(plant_cmd, stdout=subprocess.DEVNULL, stderr=plant_err, env=ENV)
         ctx.plant = plant_proc
         if during is not None:
             during(ctx)
@@ -181,7 +188,8 @@ def fly(
             proxy_obj.__exit__(None, None, None)
     summary_path = run_dir / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    return Flown(fly_proc.returncode, stdout, stderr_path.read_text(errors="replace"), run_dir, tlog, plant_tlog, plant_code, summary)
+    return Flown(fly_proc.returncode, stdout, stderr_path.read_text(errors="replace"), run_dir, tlog, plant_tlog, plant_code, summary,
+                 plant_stderr_path.read_text(errors="replace") if plant_stderr_path.is_file() else "")
 
 
 def read_tlog(path: Path) -> list:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from bench.faults import markdown
+import pytest
+
+from bench.faults import main, markdown
 
 
 def result(**lossy):
@@ -24,3 +26,11 @@ def test_the_report_says_what_was_measured():
 def test_a_run_without_ratios_says_n_a():
     text = markdown(result(rms_ratio_median=None, rms_ratio_max=None))
     assert "| 19 of 20 seeds | n/a | n/a |" in text
+
+
+def test_quick_says_what_it_runs(capsys):
+    """The help said "two kills" while --quick ran one: the smoke test (tests/e2e/test_bench_smoke.py)
+    checks what it runs, this what it says."""
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "--quick     one lossy seed of a 1 s hover and one kill (the smoke test)" in capsys.readouterr().out

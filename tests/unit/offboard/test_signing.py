@@ -140,3 +140,16 @@ def test_a_lockstep_session_signs_the_same_bytes_every_time():
         return out
 
     assert run() == run()
+
+
+def test_the_persisted_timestamp_is_a_floor_for_new_streams_unless_in_lockstep(tmp_path):
+    """Within the spec's minute, but recorded before the restart: refused with a key file."""
+    path = tmp_path / "key.bin"
+    persisted = signing_timestamp(T0_US)
+    save_key(path, SigningKey(KEY, persisted))
+    restarted = SigningSession(load_key(path), lambda: T0_US + 1_000_000, key_path=path)
+    assert restarted.check.check(frame(KEY, persisted - 1000), 0, 245, 191) is Verdict.REPLAYED
+    assert restarted.check.check(frame(KEY, persisted, sysid=246), 0, 246, 191) is Verdict.REPLAYED
+    assert restarted.check.check(frame(KEY, persisted + 1, sysid=247), 0, 247, 191) is Verdict.SIGNED
+    lockstep = SigningSession(load_key(path), lambda: T0_US + 1_000_000)  # no key file: the window alone
+    assert lockstep.check.check(frame(KEY, persisted - 1000), 0, 245, 191) is Verdict.SIGNED

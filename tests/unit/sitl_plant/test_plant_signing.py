@@ -132,3 +132,160 @@ def test_setup_signing_is_refused_armed_and_rekeys_every_link_disarmed(tmp_path)
     finally:
         link.close()
         owner.close()
+
+
+def heartbeat() -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+
+
+def received_types(client: Client) -> list[str]:
+    """What reached ``client`` (nothing: [])."""
+    parser = mavlink.MAVLink(None)
+    out = []
+    client.sock.settimeout(0.05)
+    while True:
+        try:
+            data = client.sock.recv(65535)
+        except (TimeoutError, socket.timeout):
+            return out
+        out += [m.get_type() for m in parser.parse_buffer(data) or []]
+
+
+def test_a_frame_accepted_unsigned_is_handled_but_does_not_take_the_telemetry():
+    """Issue 14: PX4 takes RADIO_STATUS, ADSB_VEHICLE and COLLISION unsigned; one from a stranger
+    made the plant answer the stranger. Only a verified signed frame moves the remote."""
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    owner = Client(endpoint.local_address, sysid=245, secret=KEY)
+    stranger = Client(endpoint.local_address, sysid=200)
+    try:
+        owner.send(heartbeat())
+        serve(plant, link)
+        assert endpoint.remote == owner.sock.getsockname()
+        received_types(owner)
+        stranger.send(mavlink.MAVLink_radio_status_message(200, 180, 50, 40, 30, 0, 0))
+        stranger.send(mavlink.MAVLink_adsb_vehicle_message(1234, 0, 0, 0, 1000, 0, 0, 0, b"INTRUDE", 0, 1, 0, 0))
+        stranger.send(mavlink.MAVLink_collision_message(0, 1234, 1, 0, 0, 10, 10))
+        serve(plant, link)
+        # handled (counted as received, none refused) ...
+        assert {k: endpoint.counters.by_type_in.get(k) for k in ("RADIO_STATUS", "ADSB_VEHICLE", "COLLISION")} == \
+            {"RADIO_STATUS": 1, "ADSB_VEHICLE": 1, "COLLISION": 1}
+        assert endpoint.counters.refused == {}
+        # ... but the plant still answers the owner, and the stranger hears nothing
+        assert endpoint.remote == owner.sock.getsockname()
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed
+        assert "COMMAND_ACK" in received_types(owner)
+        assert received_types(stranger) == []
+    finally:
+        link.close()
+        owner.close()
+        stranger.close()
+
+
+def test_without_signing_any_accepted_frame_moves_the_remote_as_px4_does():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1)
+    link = Link([endpoint], None, plant.epoch_us)
+    first, second = Client(endpoint.local_address, sysid=245), Client(endpoint.local_address, sysid=200)
+    try:
+        first.send(heartbeat())
+        serve(plant, link)
+        assert endpoint.remote == first.sock.getsockname()
+        second.send(mavlink.MAVLink_radio_status_message(200, 180, 50, 40, 30, 0, 0))
+        serve(plant, link)
+        assert endpoint.remote == second.sock.getsockname()
+    finally:
+        link.close()
+        first.close()
+        second.close()
+
+
+def test_an_owners_signed_frame_sent_again_is_refused_as_replayed():
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    owner = Client(endpoint.local_address, sysid=245, secret=KEY)
+    replayer = Client(endpoint.local_address, sysid=200)
+    try:
+        armed_bytes = arm().pack(owner.mav)  # recorded off the link by someone listening
+        owner.sock.sendto(armed_bytes, endpoint.local_address)
+        serve(plant, link)
+        assert plant.autopilot.armed
+        owner.send(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0))  # disarm
+        serve(plant, link)
+        assert not plant.autopilot.armed
+        received_types(owner)
+        replayer.sock.sendto(armed_bytes, endpoint.local_address)  # the same bytes, from elsewhere
+        owner.sock.sendto(armed_bytes, endpoint.local_address)  # and from the owner's own address
+        serve(plant, link)
+        assert not plant.autopilot.armed
+        assert endpoint.counters.refused == {"replayed": 2} and endpoint.counters.refused_senders == {245: 2}
+        assert endpoint.remote == owner.sock.getsockname() and received_types(replayer) == []
+    finally:
+        link.close()
+        owner.close()
+        replayer.close()
+
+
+def test_the_links_persist_the_highest_timestamp_once(tmp_path, monkeypatch):
+    """Each link's session wrote the key file as it closed: the last closed won, not the highest."""
+    import offboard.signing
+
+    path = tmp_path / "key.bin"
+    save_key(path, SigningKey(KEY))
+    plant = make_plant()
+    sessions = [SigningSession(load_key(path), plant.epoch_us, link_id=i, key_path=path) for i in range(2)]
+    endpoints = [Endpoint(n, ("127.0.0.1", 0), None, 1, 1, signing=s) for n, s in zip(("api", "gcs"), sessions)]
+    link = Link(endpoints, None, plant.epoch_us)
+    owner = Client(endpoints[API].local_address, secret=KEY)
+    owner.mav.signing.timestamp += 10**7  # the owner's clock is 100 s ahead: the API link follows it
+    writes = []
+    monkeypatch.setattr(offboard.signing, "save_key", lambda p, k: writes.append(k) or save_key(p, k))
+    try:
+        owner.send(heartbeat())
+        serve(plant, link)
+        assert endpoints[API].counters.by_type_in == {"HEARTBEAT": 1}
+    finally:
+        link.close()
+        owner.close()
+    assert len(writes) == 1
+    assert load_key(path).timestamp == sessions[API].newest > sessions[1].newest
+
+
+def test_frames_recorded_before_a_restart_cannot_be_replayed_into_it(tmp_path):
+    """The spec's one-minute window for a new stream would take them (PX4 keeps only that): the
+    timestamp persisted at exit is a floor for every stream after the restart."""
+    path = tmp_path / "key.bin"
+    save_key(path, SigningKey(KEY))
+
+    def start() -> tuple[Plant, Endpoint, Link]:
+        plant = make_plant()
+        endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1,
+                            signing=SigningSession(load_key(path), plant.epoch_us, key_path=path))  # fmt: skip
+        return plant, endpoint, Link([endpoint], None, plant.epoch_us)
+
+    plant, endpoint, link = start()
+    owner = Client(endpoint.local_address, secret=KEY)
+    try:
+        recorded = arm().pack(owner.mav)  # a second before the restart
+        owner.sock.sendto(recorded, endpoint.local_address)
+        serve(plant, link)
+        assert plant.autopilot.armed
+    finally:
+        link.close()  # a clean exit: the newest timestamp persisted
+    plant, endpoint, link = start()
+    owner.plant_address = endpoint.local_address
+    try:
+        owner.sock.sendto(recorded, endpoint.local_address)
+        serve(plant, link)
+        assert not plant.autopilot.armed and endpoint.counters.refused == {"replayed": 1}
+        owner.mav.signing.timestamp += 100_000  # the owner, a second later on its clock
+        owner.send(arm())
+        serve(plant, link)
+        assert plant.autopilot.armed
+    finally:
+        link.close()
+        owner.close()
