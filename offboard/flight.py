@@ -199,6 +199,8 @@ class ControllerChoice:
     latency_s : float or None
         The latency the design assumes (s); None: measured at start-up, the TIMESYNC round trip
         plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
+    velocity_integral : bool
+        With ``tuned``: design the law's velocity integral too (``--no-integral``: without).
     kind : str
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
@@ -214,6 +216,7 @@ class ControllerChoice:
     tilt_max_deg: float | None = None
     thrust_min_fraction: float | None = None
     sample_time_s: float | None = None
+    velocity_integral: bool = True
 
 
 #: Parameters read from the vehicle: name -> why.
@@ -330,7 +333,8 @@ def resolve_controller(
     params = base.with_changes(**changes)
     if choice.tuned:
         try:
-            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0)
+            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
+                                        velocity_integral=choice.velocity_integral)
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None

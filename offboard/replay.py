@@ -1416,7 +1416,8 @@ def flight_controller(
         return params, f"offboard fly's default ({PAPER_CONTROLLER_FILE.name}, the vehicle's SIM_* values from the log)"
     changes: dict[str, object] = {}
     for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware",
-                "integral_gain_per_s", "integral_limit_m_s", "tilt_lead", "linear_drag_n_s_m"):  # fmt: skip
+                "integral_gain_per_s", "integral_limit_m_s", "velocity_integral_gain_per_s2", "velocity_integral_limit_m_s2",
+                "tilt_lead", "linear_drag_n_s_m"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
     if "inertia_kg_m2" in recorded:

@@ -88,6 +88,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ctl.add_argument("--design-latency", type=float, default=None, metavar="S",
                      help="latency the designed gains allow for (default: 0 in lockstep; in real time measured, the "
                           "TIMESYNC round trip plus one telemetry period)")
+    ctl.add_argument("--no-integral", action="store_true",
+                     help="design the gains without the law's velocity integral (docs/controller-design.md)")
     ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
     ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
@@ -229,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
         tilt_max_deg=args.tilt_max_deg,
         thrust_min_fraction=args.thrust_min,
         sample_time_s=args.sample_time,
+        velocity_integral=not args.no_integral,
     )
     config = FlightConfig(
         output=args.output,
@@ -345,6 +348,8 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "drag_to_thrust_m": c.drag_to_thrust_m, "euler_rate_form": c.euler_rate_form, "yaw_aware": c.yaw_aware,
             "gains": dataclasses.asdict(c.gains),
             "integral_gain_per_s": c.integral_gain_per_s, "integral_limit_m_s": c.integral_limit_m_s,
+            "velocity_integral_gain_per_s2": c.velocity_integral_gain_per_s2,
+            "velocity_integral_limit_m_s2": c.velocity_integral_limit_m_s2,
             "reference_lead_s2": list(c.reference_lead_s2), "tilt_lead": c.tilt_lead,
             "linear_drag_n_s_m": c.linear_drag_n_s_m,
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,

@@ -62,6 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--phase-margin-deg", type=float, default=MarginSpec.phase_margin_deg, help="at least this")
     parser.add_argument("--delay-margin", type=float, default=MarginSpec.delay_margin_s, metavar="S",
                         help="extra latency the loop must tolerate")
+    parser.add_argument("--no-integral", action="store_true",
+                        help="design without the law's velocity integral (docs/controller-design.md)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE", help="controller file to write (default: stdout)")
     parser.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                         help="the loop's frequency response and poles, designed against Table I's gains")
@@ -178,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
         raise TuneArgumentError(f"{source}: no SIM_THR_MAX or SIH_T_MAX (the vehicle's thrust at normalised 1)")
     spec = MarginSpec(args.gain_margin, args.phase_margin_deg, args.delay_margin)
     try:
-        design = design_for_vehicle(values, sample_time_s=args.sample_time, latency_s=args.latency, spec=spec)
+        design = design_for_vehicle(values, sample_time_s=args.sample_time, latency_s=args.latency, spec=spec,
+                                    velocity_integral=not args.no_integral)
     except KeyError as exc:
         raise TuneArgumentError(f"{source}: {exc.args[0]}") from None
     except ValueError as exc:

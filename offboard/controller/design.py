@@ -294,36 +294,46 @@ class AxisGains:
     integral_per_s : float or ndarray
         ki of the integral action (``[law] integral_gain_per_s``), 1/s; 0 for none. In a search
         every entry is 0 or every entry is > 0 (the integral is then a state of the law).
+    velocity_integral_per_s2 : float or ndarray
+        ki of the velocity integral (``[law] velocity_integral_gain_per_s2``), 1/s^2; 0 for none;
+        as ``integral_per_s`` in a search. At most one of the two integrals is designed.
     """
 
     k_pos: float | np.ndarray
     k_vel: float | np.ndarray
     lead: float | np.ndarray = 0.0
     integral_per_s: float | np.ndarray = 0.0
+    velocity_integral_per_s2: float | np.ndarray = 0.0
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return tuple(np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
-                                          (self.k_pos, self.k_vel, self.lead, self.integral_per_s))))  # type: ignore[return-value]
+                                          (self.k_pos, self.k_vel, self.lead, self.integral_per_s,
+                                           self.velocity_integral_per_s2))))  # type: ignore[return-value]
 
 
 def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float = GRAVITY_M_S2) -> dict[str, np.ndarray]:
     """The law on one axis as a discrete state space (module docstring), batch axes first.
 
-    States (vd(n), and the integral i(n) when ``integral_per_s`` > 0); inputs y = (p, v, tilt)
-    and the reference terms (w, r) with ``w = (r(n+1) - k_pos r(n)) / To``; output the
-    acceleration setpoint a_sp = (1 + lead) a_c - lead g tilt::
+    States (vd(n), and the integral i(n) when ``integral_per_s`` > 0 or the velocity integral
+    iv(n) when ``velocity_integral_per_s2`` > 0); inputs y = (p, v, tilt) and the reference terms
+    (w, r) with ``w = (r(n+1) - k_pos r(n)) / To``; output the acceleration setpoint
+    a_sp = (1 + lead) a_c - lead g tilt::
 
         i(n+1)  = i(n) + ki To (r(n) - p(n))                         (optional integral action)
+        iv(n+1) = iv(n) + kiv To (vd(n) - v(n))                      (optional velocity integral)
         vd(n+1) = w + (k_pos - 1) / To p(n) + i(n+1)                 (eq. 32)
-        a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To    (eq. 33-34)
+        a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To + iv(n+1)   (eq. 33-34)
 
     Returns a dict of ``a`` (.., nk, nk), ``b`` (.., nk, 3), ``br`` (.., nk, 2), ``c`` (.., 1, nk),
     ``d`` (.., 1, 3), ``dr`` (.., 1, 2).
     """
     to, g = sample_time_s, gravity_m_s2
-    kp, kv, lead, ki = gains.arrays()
+    kp, kv, lead, ki, kiv = gains.arrays()
     integral = bool(np.any(ki > 0.0))
-    nk = 2 if integral else 1
+    velocity_integral = bool(np.any(kiv > 0.0))
+    if integral and velocity_integral:
+        raise ValueError("the design models one integral: the position or the velocity one, not both")
+    nk = 2 if integral or velocity_integral else 1
     f = 1.0 + lead
     zero = np.zeros_like(kp)
     kit = ki * to
@@ -343,7 +353,14 @@ def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float 
         b[..., 1, 0] = -kit
         br[..., 1, 1] = kit
         c[..., 0, 1] = f / to
-    d = np.stack([f * cp / to, f * (kv - 1.0) / to, -lead * g + zero], axis=-1)[..., None, :]
+    kvt = kiv * to
+    if velocity_integral:
+        a[..., 1, 0] = kvt
+        a[..., 1, 1] = 1.0
+        b[..., 1, 1] = -kvt
+        c[..., 0, 0] += f * kvt
+        c[..., 0, 1] = f
+    d = np.stack([f * cp / to, f * ((kv - 1.0) / to - kvt), -lead * g + zero], axis=-1)[..., None, :]
     dr = np.stack([f / to + zero, f * kit / to], axis=-1)[..., None, :]
     return {"a": a, "b": b, "br": br, "c": c, "d": d, "dr": dr}
 
@@ -383,8 +400,8 @@ def _plant_response(plant: DiscretePlant, z: np.ndarray) -> np.ndarray:
 def _law_response(gains: AxisGains, z: np.ndarray, to: float) -> np.ndarray:
     """K(z) = C (zI - A)^-1 B + D from (p, v, tilt) to the setpoint: shape (..., len(z), 3).
 
-    In closed form: (zI - A)^-1 is 1/z for vd alone, and [[z - 1, 1], [0, z]] / (z (z - 1)) with
-    the integral (``law_state_space``)."""
+    In closed form: (zI - A)^-1 is 1/z for vd alone, and the 2 x 2 inverse with an integral
+    (``law_state_space``)."""
     law = law_state_space(gains, to)
     a_nk = law["a"].shape[-1]
     zz = z.reshape((1,) * (law["a"].ndim - 2) + (-1, 1))  # (..., len(z), 1)
@@ -393,9 +410,12 @@ def _law_response(gains: AxisGains, z: np.ndarray, to: float) -> np.ndarray:
     if a_nk == 1:
         k = c[..., 0:1] * b[..., 0, :] / zz
     else:
-        den = zz * (zz - 1.0)
-        row0 = (c[..., 0:1] * (zz - 1.0)) / den  # C (zI - A)^-1, first column
-        row1 = (c[..., 0:1] + c[..., 1:2] * zz) / den
+        a = law["a"][..., None, :, :]  # (..., 1, 2, 2)
+        m00, m01 = zz - a[..., 0, 0:1], -a[..., 0, 1:2]
+        m10, m11 = -a[..., 1, 0:1], zz - a[..., 1, 1:2]
+        det = m00 * m11 - m01 * m10
+        row0 = (c[..., 0:1] * m11 - c[..., 1:2] * m10) / det  # C (zI - A)^-1
+        row1 = (c[..., 1:2] * m00 - c[..., 0:1] * m01) / det
         k = row0 * b[..., 0, :] + row1 * b[..., 1, :]
     return k + law["d"][..., None, 0, :]
 
@@ -587,10 +607,11 @@ def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePl
 def _search(plants: tuple[DiscretePlant, ...], gains: AxisGains, to: float, spec: MarginSpec) -> np.ndarray:
     """The spectral radius of each candidate (1-D arrays in ``gains``), inf where ``spec`` is not
     met on every plant."""
-    kp, kv, lead, ki = gains.arrays()
+    kp, kv, lead, ki, kiv = gains.arrays()
     if kp.size > 1024:  # in chunks: the frequency responses are (candidates, frequencies, 3) complex
-        return np.concatenate([_search(plants, AxisGains(kp[i:i + 1024], kv[i:i + 1024], lead[i:i + 1024], ki[i:i + 1024]),
-                                       to, spec) for i in range(0, kp.size, 1024)])  # fmt: skip
+        return np.concatenate([_search(plants, AxisGains(kp[i:i + 1024], kv[i:i + 1024], lead[i:i + 1024], ki[i:i + 1024],
+                                                         kiv[i:i + 1024]), to, spec)
+                               for i in range(0, kp.size, 1024)])  # fmt: skip
     w = _frequencies(to, 600)
     z = np.exp(1j * w * to)
     ok = np.ones(kp.shape, dtype=bool)
@@ -614,16 +635,22 @@ LEAD_GRID = np.round(np.arange(0.0, 3.01, 0.5), 2)
 #: they were and removes the steady error of a constant disturbance (wind, an estimator's tilt
 #: bias, a mass error).
 INTEGRAL_FRACTIONS = (0.1, 0.2, 0.3)
+#: The velocity integral gains searched (``[law] velocity_integral_gain_per_s2``, 1/s^2), as
+#: ``q rv^2`` with rv = (1 - k_vel) / To the velocity loop's own rate: the PI zero at q rv, a
+#: fraction q of the loop's bandwidth (the usual placement for a PI speed loop, which leaves
+#: its phase nearly as it was at the crossover).
+VELOCITY_INTEGRAL_FRACTIONS = (0.05, 0.1, 0.2, 0.3)
 
 
 def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: MarginSpec, *,
-                 leads: np.ndarray = LEAD_GRID, integral: bool = False,
+                 leads: np.ndarray = LEAD_GRID, integral: bool = False, velocity_integral: bool = False,
                  rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
     """The fastest law that meets ``spec`` on every plant given (one set shared by the axes).
 
     "Fastest": the smallest spectral radius of the loop without its integral (the integral,
     slow by design, would otherwise set the radius); with ``integral``, the largest integral
-    fraction (``INTEGRAL_FRACTIONS``) that keeps ``spec`` too. A grid of rates and leads, then a
+    fraction (``INTEGRAL_FRACTIONS``) that keeps ``spec`` too; likewise with
+    ``velocity_integral`` (``VELOCITY_INTEGRAL_FRACTIONS``). A grid of rates and leads, then a
     finer grid of rates around the best.
 
     Raises
@@ -634,26 +661,36 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
     to = sample_time_s
     rates = np.asarray(rates_per_s, dtype=float)
     leads = np.asarray(leads, dtype=float)
-    fractions = sorted(INTEGRAL_FRACTIONS, reverse=True) if integral else []
+    if integral and velocity_integral:
+        raise ValueError("design one integral: the position or the velocity one")
+    fractions = sorted(VELOCITY_INTEGRAL_FRACTIONS if velocity_integral else INTEGRAL_FRACTIONS, reverse=True) \
+        if integral or velocity_integral else []  # fmt: skip
 
     def pick(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> AxisGains | None:
-        kp, kv = np.exp(-a * to), np.exp(-b * to)
+        # rounded as a controller file writes them (4 decimals), so the margins checked are the
+        # margins of the gains written
+        kp, kv = np.round(np.exp(-a * to), 4), np.round(np.exp(-b * to), 4)
         rho = _search(plants, AxisGains(kp, kv, c), to, spec)
         order = [i for i in np.argsort(rho) if np.isfinite(rho[i])][:64]
         if not order:
             return None
+        def verified(cands: list[AxisGains]) -> AxisGains | None:
+            # the search's coarser frequency grid can pass a candidate just short of the spec:
+            # the first that the full analysis (analyse_axis) passes on every plant
+            return next((g for g in cands if all(analyse_axis(pl, g, to).meets(spec) for pl in plants)), None)
+
         if not fractions:
-            i = order[0]
-            return AxisGains(kp[i], kv[i], c[i])
+            return verified([AxisGains(kp[i], kv[i], c[i]) for i in order])
         # the fastest candidate that keeps the margins with an integral, and its largest integral
         idx = np.repeat(np.array(order), len(fractions))
         q = np.tile(np.array(fractions), len(order))
-        ki = q * (1.0 - kp[idx]) / to
-        ok = np.isfinite(_search(plants, AxisGains(kp[idx], kv[idx], c[idx], ki), to, spec))
-        if not ok.any():
-            return None
-        j = int(np.argmax(ok))  # candidates in speed order, fractions from the largest
-        return AxisGains(kp[idx[j]], kv[idx[j]], c[idx[j]], ki[j])
+        if velocity_integral:
+            ki, kiv = np.zeros_like(q), np.round(q * ((1.0 - kv[idx]) / to) ** 2, 4)
+        else:
+            ki, kiv = np.round(q * (1.0 - kp[idx]) / to, 4), np.zeros_like(q)
+        ok = np.isfinite(_search(plants, AxisGains(kp[idx], kv[idx], c[idx], ki, kiv), to, spec))
+        # candidates in speed order, fractions from the largest
+        return verified([AxisGains(kp[idx[j]], kv[idx[j]], c[idx[j]], ki[j], kiv[j]) for j in np.flatnonzero(ok)])
 
     a, b, c = (g.ravel() for g in np.meshgrid(rates, rates, leads, indexing="ij"))
     coarse = pick(a, b, c)
@@ -671,43 +708,56 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
     best = pick(a2, b2, c2) or coarse
     # as written in a controller file: 4 decimals
     return AxisGains(round(float(best.k_pos), 4), round(float(best.k_vel), 4), float(best.lead),
-                     round(float(best.integral_per_s), 4))  # fmt: skip
+                     round(float(best.integral_per_s), 4), round(float(best.velocity_integral_per_s2), 4))  # fmt: skip
 
 
 def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: MarginSpec | None = None, *,
-                 tilt_lead: bool = True, integral: bool = False) -> Design:  # fmt: skip
+                 tilt_lead: bool = True, integral: bool = False, velocity_integral: bool = False) -> Design:  # fmt: skip
     """The fastest law (gains, and the tilt lead and integral action where allowed) that keeps
     ``spec`` on every axis of ``model`` (module docstring).
 
-    The law has one integral gain for all axes (``[law] integral_gain_per_s``): the vertical
-    axis is designed with the one the horizontal design chose. ``integral`` is off by default:
-    the law's integral has no anti-windup, and in flight it winds up during the steps and
-    speed-limited legs the linear analysis does not see (docs/controller-design.md).
+    The law has one integral gain for all axes (``[law] integral_gain_per_s``, or
+    ``velocity_integral_gain_per_s2``): the vertical axis is designed with the one the horizontal
+    design chose. Both are off by default here; ``offboard tune`` and ``offboard fly`` design the
+    velocity integral (docs/controller-design.md: the position integral, added to eq. 32's desired
+    speed, is cut by the speed bounds exactly when a disturbance needs it most).
     """
     spec = spec or MarginSpec()
     to = sample_time_s
     north_plant, east_plant, up_plant = axis_plants(model, to)
-    h = search_gains((north_plant, east_plant), to, spec, leads=LEAD_GRID if tilt_lead else np.zeros(1), integral=integral)
-    v = _search_vertical(up_plant, to, spec, float(h.integral_per_s))
+    h = search_gains((north_plant, east_plant), to, spec, leads=LEAD_GRID if tilt_lead else np.zeros(1), integral=integral,
+                     velocity_integral=velocity_integral)  # fmt: skip
+    v = _search_vertical(up_plant, to, spec, float(h.integral_per_s), float(h.velocity_integral_per_s2))
     north, east, up = analyse_axis(north_plant, h, to), analyse_axis(east_plant, h, to), analyse_axis(up_plant, v, to)
     reference_lead = (0.5 * (north.reference_lead_s2 + east.reference_lead_s2), up.reference_lead_s2)
     return Design(to, north, east, up, reference_lead, spec, model)
 
 
-def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float,
+def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float, kiv: float = 0.0,
                      rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
-    """The vertical axis's (k_pos, k_vel) with the integral gain ``ki`` fixed (shared with the
-    horizontal axes)."""
+    """The vertical axis's (k_pos, k_vel) with the integral gains ``ki``, ``kiv`` fixed (shared
+    with the horizontal axes)."""
     rates = np.asarray(rates_per_s, dtype=float)
     a, b = (g.ravel() for g in np.meshgrid(rates, rates, indexing="ij"))
-    cand = AxisGains(np.exp(-a * to), np.exp(-b * to), 0.0, ki)
-    rho = _search((plant,), cand, to, spec)
+    def rank(kp: np.ndarray, kv: np.ndarray) -> np.ndarray:
+        # as search_gains: the fastest loop without its integral (slow by design) that keeps
+        # the margins with it
+        ok = np.isfinite(_search((plant,), AxisGains(kp, kv, 0.0, ki, kiv), to, spec))
+        return np.where(ok, _search((plant,), AxisGains(kp, kv), to, MarginSpec(0.0, -math.inf, 0.0)), np.inf)
+
+    cand = AxisGains(np.round(np.exp(-a * to), 4), np.round(np.exp(-b * to), 4), 0.0, ki, kiv)
+    rho = rank(np.asarray(cand.k_pos), np.asarray(cand.k_vel))
     if not np.isfinite(rho).any():
-        raise ValueError(f"no vertical gains keep the margins at To {to:g} s with integral gain {ki:g} /s")
+        raise ValueError(f"no vertical gains keep the margins at To {to:g} s with integral gains {ki:g} /s, {kiv:g} /s^2")
     best = int(np.argmin(rho))
     step = float(np.log(rates[1] / rates[0]))
     fine = np.exp(np.linspace(-step, step, 7))
     a2, b2 = (g.ravel() for g in np.meshgrid(a[best] * fine, b[best] * fine, indexing="ij"))
-    cand2 = AxisGains(np.exp(-a2 * to), np.exp(-b2 * to), 0.0, ki)
-    best2 = int(np.argmin(_search((plant,), cand2, to, spec)))
-    return AxisGains(round(float(np.asarray(cand2.k_pos)[best2]), 4), round(float(np.asarray(cand2.k_vel)[best2]), 4), 0.0, ki)
+    cand2 = AxisGains(np.round(np.exp(-a2 * to), 4), np.round(np.exp(-b2 * to), 4), 0.0, ki, kiv)
+    rho2 = rank(np.asarray(cand2.k_pos), np.asarray(cand2.k_vel))
+    for i in [int(i) for i in np.argsort(rho2) if np.isfinite(rho2[i])]:
+        # the first the full analysis passes too (the search's frequency grid is coarser)
+        g = AxisGains(float(np.asarray(cand2.k_pos)[i]), float(np.asarray(cand2.k_vel)[i]), 0.0, ki, kiv)
+        if analyse_axis(plant, g, to).meets(spec):
+            return g
+    return AxisGains(float(np.asarray(cand.k_pos)[best]), float(np.asarray(cand.k_vel)[best]), 0.0, ki, kiv)

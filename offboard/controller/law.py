@@ -35,7 +35,9 @@ Choices where the paper is silent or garbled (each pinned by a test):
   error as the law's weakness (Simulation 2's steady z error, docs/reproduction.md). An integral
   of each position error, ``i(n+1) = i(n) + ki To (x_d(n) - x(n))`` clamped to
   ``integral_limit_m_s``, is added to the desired speed of eq. 32; at steady state the error
-  that feeds it must vanish. Off reproduces the paper exactly.
+  that feeds it must vanish. It learns only from samples where no bound acted (a desired speed,
+  the tilt or the thrust): conditional integration, the anti-windup. Off reproduces the paper
+  exactly.
 - **Yaw differences** ``x11d - x11`` are wrapped to [-pi, pi), so a yaw reference and a measured
   yaw that differ by whole turns do not spin the vehicle; the paper's steps (pi and pi/2) are
   flown in the same direction as unwrapped differences would.
@@ -87,7 +89,8 @@ class LawMemory(NamedTuple):
     """The controller's memory of sample n: desired speeds and angle references (eq. 31-33).
 
     ``i1, i3, i5`` hold the optional integral action's contribution to the desired speeds
-    (m/s); they stay zero with the paper's law. ``yaw_ref`` is the slewed yaw reference of the
+    (m/s), ``a1, a3, a5`` the optional velocity integral's acceleration (m/s^2); they stay zero
+    with the paper's law. ``yaw_ref`` is the slewed yaw reference of the
     optional yaw-rate bound (``ActionLimits.yaw_rate_max_rad_s``); unused without it.
     """
 
@@ -103,6 +106,9 @@ class LawMemory(NamedTuple):
     i3: float = 0.0
     i5: float = 0.0
     yaw_ref: float = 0.0
+    a1: float = 0.0
+    a3: float = 0.0
+    a5: float = 0.0
 
     @classmethod
     def from_state(cls, x: tuple[float, ...] | np.ndarray) -> LawMemory:
@@ -194,12 +200,18 @@ def law_step(
         i5 = ops.minimum(ops.maximum(i5 + ki * to * (ref_n.z_up_m - x5), -cap), cap)
         x2d, x4d, x6d = x2d + i1, x4d + i3, x6d + i5
     limits = params.limits
+    # which outputs a bound changes this sample (1.0) or leaves as the linear law gives them (0.0):
+    # the integral learns only from linear samples (conditional integration, below)
+    bound_xy = bound_z = bound_tilt = bound_thrust = 0.0
     if limits.speed_xy_max_m_s is not None:  # bounded desired speeds (PX4's MPC_XY_VEL_MAX)
         scale = ops.minimum(1.0, limits.speed_xy_max_m_s / ops.maximum(ops.hypot(x2d, x4d), 1e-12))
         x2d, x4d = x2d * scale, x4d * scale
+        bound_xy = bound_xy + (scale < 1.0)
     if limits.speed_up_max_m_s is not None:  # ... MPC_Z_VEL_MAX_UP
+        bound_z = bound_z + (x6d > limits.speed_up_max_m_s)
         x6d = ops.minimum(x6d, limits.speed_up_max_m_s)
     if limits.speed_down_max_m_s is not None:  # ... MPC_Z_VEL_MAX_DN
+        bound_z = bound_z + (x6d < -limits.speed_down_max_m_s)
         x6d = ops.maximum(x6d, -limits.speed_down_max_m_s)
     yaw_n, yaw_n1, yaw_rate_ff = ref_n.yaw_rad, ref_n1.yaw_rad, ref_n1.yaw_rate_rad_s
     if limits.yaw_rate_max_rad_s is not None:
@@ -216,6 +228,17 @@ def law_step(
     dx2 = x2d - g.kx2 * (memory.x2d - x2) - x2
     dx4 = x4d - g.kx4 * (memory.x4d - x4) - x4
     dx6 = x6d - g.kx6 * (memory.x6d - x6) - x6
+    a1, a3, a5 = memory.a1, memory.a3, memory.a5
+    kiv = params.velocity_integral_gain_per_s2
+    if kiv > 0.0:
+        # optional integral of the velocity errors of eq. 33 (not in the paper): an acceleration
+        # that makes up a steady disturbance (a mass error, wind, an estimator's tilt bias), so
+        # that eq. 33's speed, and with it eq. 32's position, settles without an offset
+        cap = params.velocity_integral_limit_m_s2
+        a1 = ops.minimum(ops.maximum(a1 + kiv * to * (memory.x2d - x2), -cap), cap)
+        a3 = ops.minimum(ops.maximum(a3 + kiv * to * (memory.x4d - x4), -cap), cap)
+        a5 = ops.minimum(ops.maximum(a5 + kiv * to * (memory.x6d - x6), -cap), cap)
+        dx2, dx4, dx6 = dx2 + to * a1, dx4 + to * a3, dx6 + to * a5
     if params.linear_drag_n_s_m > 0.0:
         # a believed linear drag -d v (N): eq. 23's x2(n+1) = x2(n) + To (-u/m sin x9 - d/m x2(n)),
         # so the thrust must also make up To d/m x2(n) of speed (likewise x4, x6); not in the paper
@@ -243,7 +266,12 @@ def law_step(
         sign = ops.copysign(1.0, vertical)
         x7ez = ops.atan2(dx_right * sign, vertical * sign)
         x9ez = ops.atan2(-dx_fwd * ops.cos(x7ez) * sign, vertical * sign)
-    x7ez, x9ez = _bound_tilt(limits, x7ez, x9ez, ops)
+    if (ki > 0.0 or kiv > 0.0) and limits.tilt_max_rad is not None:
+        free7, free9 = x7ez, x9ez
+        x7ez, x9ez = _bound_tilt(limits, x7ez, x9ez, ops)
+        bound_tilt = bound_tilt + (ops.hypot(free7 - x7ez, free9 - x9ez) > 1e-9)
+    else:
+        x7ez, x9ez = _bound_tilt(limits, x7ez, x9ez, ops)
 
     s9, c9 = ops.sin(x9ez), ops.cos(x9ez)
     if limits.tilt_max_rad is None:
@@ -256,9 +284,29 @@ def law_step(
         # equals eq. 39 (Appendix A, eq. A.8).
         thrust = params.mass_kg / to * vertical / (c9 * ops.cos(x7ez))
     if limits.thrust_min_n is not None:
+        bound_thrust = bound_thrust + (thrust < limits.thrust_min_n)
         thrust = ops.maximum(thrust, limits.thrust_min_n)
     if limits.thrust_max_n is not None:
+        bound_thrust = bound_thrust + (thrust > limits.thrust_max_n)
         thrust = ops.minimum(thrust, limits.thrust_max_n)
+    # Conditional integration (anti-windup): where a bound acted this sample, the loop is not the
+    # linear one the integral gain was designed for (docs/controller-design.md), and an integral
+    # keeps its value instead of growing on an error the bound, not a steady disturbance, leaves
+    # (a 12 m step or descent at the speed limit would wind it up). The position integral holds
+    # on any bound; the velocity integral only where the velocity loop's own output is bounded
+    # (tilt, thrust): at a bounded desired speed it still tracks that speed. A thrust bound also
+    # changes the tilt flown.
+    if ki > 0.0:
+        hold_xy = ops.minimum(bound_xy + bound_z + bound_tilt + bound_thrust, 1.0)
+        hold_z = ops.minimum(bound_z + bound_thrust, 1.0)
+        i1 = i1 + hold_xy * (memory.i1 - i1)
+        i3 = i3 + hold_xy * (memory.i3 - i3)
+        i5 = i5 + hold_z * (memory.i5 - i5)
+    if kiv > 0.0:
+        hold_xy = ops.minimum(bound_tilt + bound_thrust, 1.0)
+        a1 = a1 + hold_xy * (memory.a1 - a1)
+        a3 = a3 + hold_xy * (memory.a3 - a3)
+        a5 = a5 + bound_thrust * (memory.a5 - a5)
 
     # eq. 32-33 for the angles, then eq. 40-42
     x8d = (x7ez - g.kx7 * (memory.x7ez - x7) - x7) / to
@@ -286,7 +334,7 @@ def law_step(
         roll_setpoint_rad=roll_sp,
         pitch_setpoint_rad=pitch_sp,
     )
-    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5, yaw_n1)
+    return output, LawMemory(x2d, x4d, x6d, x8d, x10d, x12d, x7ez, x9ez, i1, i3, i5, yaw_n1, a1, a3, a5)
 
 
 @dataclass(frozen=True)

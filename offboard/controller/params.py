@@ -123,6 +123,14 @@ class ControllerParams:
         0 (the default) is the paper's law.
     integral_limit_m_s : float
         Anti-windup: the integral's contribution to each desired speed is clamped to +- this.
+    velocity_integral_gain_per_s2 : float
+        ki of the optional integral action on the velocity errors of eq. 33 (``law`` module
+        docstring), m/s^2 of acceleration per metre of integrated speed error; 0 (the default)
+        is the paper's law.
+    velocity_integral_limit_m_s2 : float
+        The velocity integral's acceleration is clamped to +- this on each axis (default g / 2:
+        a steady disturbance beyond it, a 50 % mass error or a 27 deg tilt bias, is not one to
+        hold against).
     reference_lead_s2 : (float, float)
         c2 (horizontal, vertical) of the designed closed loop's reference response
         ``T = 1 + c2 s^2``: the law is handed ``r - c2 r''`` (``offboard.frames.tracking_reference``,
@@ -150,6 +158,8 @@ class ControllerParams:
     limits: ActionLimits = field(default_factory=ActionLimits)
     integral_gain_per_s: float = 0.0
     integral_limit_m_s: float = 3.0
+    velocity_integral_gain_per_s2: float = 0.0
+    velocity_integral_limit_m_s2: float = 4.9
     reference_lead_s2: tuple[float, float] = (0.0, 0.0)
     tilt_lead: float = 0.0
     linear_drag_n_s_m: float = 0.0
@@ -165,6 +175,10 @@ class ControllerParams:
             raise ValueError(f"integral_gain_per_s must be >= 0, got {self.integral_gain_per_s}")
         if not (math.isfinite(self.integral_limit_m_s) and self.integral_limit_m_s > 0):
             raise ValueError(f"integral_limit_m_s must be > 0, got {self.integral_limit_m_s}")
+        if not (math.isfinite(self.velocity_integral_gain_per_s2) and self.velocity_integral_gain_per_s2 >= 0):
+            raise ValueError(f"velocity_integral_gain_per_s2 must be >= 0, got {self.velocity_integral_gain_per_s2}")
+        if not (math.isfinite(self.velocity_integral_limit_m_s2) and self.velocity_integral_limit_m_s2 > 0):
+            raise ValueError(f"velocity_integral_limit_m_s2 must be > 0, got {self.velocity_integral_limit_m_s2}")
         if not (math.isfinite(self.linear_drag_n_s_m) and self.linear_drag_n_s_m >= 0):
             raise ValueError(f"linear_drag_n_s_m must be >= 0, got {self.linear_drag_n_s_m}")
         if not (math.isfinite(self.tilt_lead) and self.tilt_lead >= 0):
@@ -202,6 +216,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
         yaw_aware=law.boolean("yaw_aware", False),
         integral_gain_per_s=law.number("integral_gain_per_s", 0.0, ge=0),
         integral_limit_m_s=law.number("integral_limit_m_s", 3.0, gt=0),
+        velocity_integral_gain_per_s2=law.number("velocity_integral_gain_per_s2", 0.0, ge=0),
+        velocity_integral_limit_m_s2=law.number("velocity_integral_limit_m_s2", 4.9, gt=0),
         reference_lead_s2=law.vector("reference_lead_s2", 2, default=(0.0, 0.0)),  # type: ignore[arg-type]
         tilt_lead=law.number("tilt_lead", 0.0, ge=0),
         mass_kg=model.number("mass_kg", gt=0),

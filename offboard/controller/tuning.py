@@ -54,8 +54,9 @@ def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
 
 
 def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, latency_s: float = 0.0,
-                       spec: MarginSpec | None = None) -> Design:  # fmt: skip
-    """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``).
+                       spec: MarginSpec | None = None, velocity_integral: bool = True) -> Design:  # fmt: skip
+    """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``),
+    with the velocity integral unless ``velocity_integral`` is False.
 
     Raises
     ------
@@ -65,7 +66,7 @@ def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, lat
         No gains meet the margins.
     """
     model: InnerLoopModel = inner_loop_from_params(params, latency_s)
-    return design_gains(model, sample_time_s, spec)
+    return design_gains(model, sample_time_s, spec, velocity_integral=velocity_integral)
 
 
 def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, float]) -> ControllerParams:
@@ -92,6 +93,7 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
     )
     return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
                              integral_gain_per_s=float(h.integral_per_s),
+                             velocity_integral_gain_per_s2=float(h.velocity_integral_per_s2),
                              reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2))
 
 
@@ -101,8 +103,8 @@ def design_summary(design: Design) -> list[str]:
     for name, a in (("north (pitch)", design.north), ("east (roll)", design.east), ("up (thrust)", design.up)):
         g = a.gains
         lines.append(
-            f"{name:14s} k_pos {float(g.k_pos):.4g} k_vel {float(g.k_vel):.4g} tilt lead {float(g.lead):g} integral "
-            f"{float(g.integral_per_s):.3g}/s: |pole| max {a.spectral_radius:.3f} "
+            f"{name:14s} k_pos {float(g.k_pos):.4g} k_vel {float(g.k_vel):.4g} tilt lead {float(g.lead):g} velocity "
+            f"integral {float(g.velocity_integral_per_s2):.3g}/s^2: |pole| max {a.spectral_radius:.3f} "
             f"(2 % in {a.settling_time_s:.2f} s), gain margin {a.gain_margin:.2f}, phase margin "
             f"{a.phase_margin_deg:.1f} deg, delay margin {a.delay_margin_s * 1000:.0f} ms"
         )
@@ -161,6 +163,8 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"yaw_aware = {'true' if params.yaw_aware else 'false'}",
         f"integral_gain_per_s = {_fmt(params.integral_gain_per_s)}",
         f"integral_limit_m_s = {_fmt(params.integral_limit_m_s)}",
+        f"velocity_integral_gain_per_s2 = {_fmt(params.velocity_integral_gain_per_s2)}",
+        f"velocity_integral_limit_m_s2 = {_fmt(params.velocity_integral_limit_m_s2)}",
         "# the attitude setpoint is x7ez, x9ez led past the measured angles by this factor",
         f"tilt_lead = {_fmt(params.tilt_lead)}",
         "# c2 of the closed loop's reference response T = 1 + c2 s^2: the law is handed r - c2 r''",

@@ -73,6 +73,7 @@ PARAMETERS: dict[str, Parameter] = {
                                                    gt=0, truth=f"vehicle.inertia_{a}_kg_m2") for a in _AXES},  # fmt: skip
     **{f"controller.gains.kx{k}": Parameter(f"Table I gain k_x{k}, in (0, 1)", gt=0, lt=1) for k in range(1, 13)},
     "controller.integral_gain_per_s": Parameter("integral action ki (1/s; 0 = the paper's law)", ge=0),
+    "controller.velocity_integral_gain_per_s2": Parameter("velocity integral ki (1/s^2; 0 = the paper's law)", ge=0),
     "controller.tilt_lead": Parameter("lead on the attitude handed to an autopilot (px4 drive)", ge=0),
     "controller.sample_time_s": Parameter("To (s): a whole number of physics steps", gt=0),
     "wind.north_m_s": Parameter("steady wind towards north (m/s)", base=False),

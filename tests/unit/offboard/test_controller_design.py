@@ -296,3 +296,66 @@ def test_a_bounded_yaw_rate_slews_the_yaw_reference():
     assert sum(s > 0 for s in steps) == math.ceil(math.pi / (rate * 0.05))  # 80 samples: 4 s
     unbounded, _ = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, ref, ref)
     assert unbounded.yaw_ref_rad == ref.yaw_rad
+
+
+# --- the velocity integral --------------------------------------------------------------------------
+
+
+def test_the_velocity_integral_state_space_is_the_law_itself_on_one_axis():
+    """law_state_space with the velocity integral gives law_step's acceleration and next memory."""
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(velocity_integral_gain_per_s2=1.3)
+    g, to = params.gravity_m_s2, params.sample_time_s
+    p, v, vd_prev, a_prev, pitch = 1e-3, -2e-3, 5e-4, 2e-4, 1e-4
+    x = (p, v, 0, 0, 0, 0, 0, 0, pitch, 0, 0, 0)
+    memory = LawMemory(vd_prev, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, pitch, a1=a_prev)
+    ref = TrackingReference(0.0, 0.0, 0.0, 0.0)
+    out, mem = law_step(params, memory, x, ref, ref)
+    a_law = -g * math.tan(out.pitch_setpoint_rad)
+    ss = law_state_space(AxisGains(params.gains.kx1, params.gains.kx2, 0.0, 0.0, 1.3), to, g)
+    y, s = np.array([p, v, -pitch]), np.array([vd_prev, a_prev])
+    assert a_law == pytest.approx(float(ss["c"][0] @ s + ss["d"][0] @ y), rel=1e-4)
+    nxt = ss["a"] @ s + ss["b"] @ y
+    assert mem.x2d == pytest.approx(float(nxt[0]), rel=1e-9) and mem.a1 == pytest.approx(float(nxt[1]), rel=1e-9)
+
+
+def test_the_velocity_integral_removes_a_constant_disturbance():
+    north, _, _ = axis_plants(inner_loop_from_params(plant_vehicle_params()), TO)
+    for kiv, settles in ((0.0, False), (1.3, True)):
+        m, _ = closed_loop(north, AxisGains(0.93, 0.93, 0.0, 0.0, kiv), TO)
+        assert np.max(np.abs(np.linalg.eigvals(m))) < 1.0
+        x = np.zeros(m.shape[0])
+        n = north.phi.shape[0]
+        for _ in range(3000):
+            x = m @ x
+            x[:n] += north.gamma[:, 0] * 0.5
+        assert bool(abs(x[0]) < 1e-3) is settles
+
+
+def test_the_designed_velocity_integral_keeps_the_margins():
+    model = inner_loop_from_params(plant_vehicle_params())
+    design = design_gains(model, TO, velocity_integral=True)
+    for axis in (design.north, design.east, design.up):
+        assert axis.meets(design.spec)
+        assert float(axis.gains.velocity_integral_per_s2) > 0.0 and float(axis.gains.integral_per_s) == 0.0
+    with pytest.raises(ValueError, match="one integral"):
+        law_state_space(AxisGains(0.9, 0.9, 0.0, 0.1, 1.0), TO)
+
+
+def test_the_velocity_integral_holds_while_the_tilt_or_thrust_is_bounded():
+    """Conditional integration: a sample whose tilt is bounded leaves the velocity integral as it
+    was; an unbounded one moves it."""
+    base = load_controller(PAPER_CONTROLLER_FILE).with_changes(velocity_integral_gain_per_s2=1.3)
+    x = hover_state(x5=5.0, x2=-0.1)  # 0.1 m/s off the desired speed of the memory
+    start = LawMemory.from_state(x)._replace(x2d=0.0, a1=0.25)
+    bounded = base.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(5), tilt_cone=True))
+    far = TrackingReference(30.0, 0.0, 5.0, 0.0)
+    out, mem = law_step(bounded, start, x, far, far)
+    assert math.degrees(abs(out.pitch_ref_rad)) == pytest.approx(5.0) and mem.a1 == 0.25
+    free = base.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(35), tilt_cone=True))
+    near = TrackingReference(0.0, 0.0, 5.0, 0.0)
+    out, mem = law_step(free, start, x, near, near)
+    assert math.degrees(abs(out.pitch_ref_rad)) < 35.0
+    assert mem.a1 == pytest.approx(0.25 + 1.3 * base.sample_time_s * 0.1)
+    # the paper's law (no integral) keeps it at zero whatever the bounds
+    _, mem = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, far, far)
+    assert mem.a1 == 0.0
