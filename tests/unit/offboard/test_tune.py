@@ -154,3 +154,13 @@ def test_the_design_doc_quotes_what_offboard_tune_prints_for_the_plant(capsys):
 def test_the_design_doc_quotes_what_offboard_tune_prints_for_px4(capsys):
     code, _, err = tune(capsys, "--params", str(PX4_PARAMS_JSON), "--latency", "0.01")
     assert code == 0 and err.strip() == doc_blocks()[1]
+
+
+def test_the_velocity_integral_is_designed_unless_switched_off(capsys, tmp_path):
+    on, off = tmp_path / "on.toml", tmp_path / "off.toml"
+    assert tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--output", str(on))[0] == 0
+    assert tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--no-integral", "--output", str(off))[0] == 0
+    assert load_controller(on).velocity_integral_gain_per_s2 > 0.0
+    assert load_controller(off).velocity_integral_gain_per_s2 == 0.0
+    # the same position and velocity gains: the integral is searched on top of them
+    assert load_controller(on).gains.kx1 == load_controller(off).gains.kx1
