@@ -961,7 +961,7 @@ class Autopilot:
         """PX4's land detector in miniature: landed LNDMC_TRIG_TIME + LAND_DETECT_WINDDOWN_S after
         the ground contact began (at once while disarmed or before the takeoff)."""
         m = self._m
-        if not self._contact:
+        if not self._contact or not self._thrust_low_enough_to_land():
             m.contact_since_s = None
             return []
         if self._landed:
@@ -975,6 +975,23 @@ class Autopilot:
                 m.landed_since_s = now_s
                 return [StatusText(MAV_SEVERITY_INFO, "Landing detected")]
         return []
+
+    def _thrust_low_enough_to_land(self) -> bool:
+        """PX4's land detector needs the thrust at its floor: where no climb rate is controlled
+        (Offboard with attitude, rate or actuator setpoints) "maybe landed" takes a collective
+        thrust of at most MPC_MANTHR_MIN + 0.01 (MulticopterLandDetector::_get_maybe_landed_state),
+        so a client holding about hover thrust on the ground is not landed, nor disarmed. In the
+        plant's own modes its controller winds the thrust down on contact (the fitted delay)."""
+        if self.mode is not Mode.OFFBOARD or not self.armed:
+            return True
+        sp = self._m.last_setpoint
+        if isinstance(sp, AttitudeSetpoint) and sp.thrust_norm is not None:
+            thrust = sp.thrust_norm
+        elif isinstance(sp, ActuatorSetpoint):
+            thrust = sp.controls[3]
+        else:
+            return True
+        return thrust <= self.params["MPC_MANTHR_MIN"] + 0.01
 
     def _auto_disarm(self, now_s: float) -> list[StatusText]:
         if not self.armed:

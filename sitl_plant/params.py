@@ -242,6 +242,8 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
                   description="yaw rate limit of the auto modes (PX4's default; the offboard's designed yaw-rate bound)"),
         ParamSpec("MPC_TILTMAX_AIR", 45.0, min=20.0, max=89.0, unit="deg"),
         ParamSpec("MPC_THR_HOVER", hover, min=0.05, max=0.9, description="normalised hover thrust"),
+        ParamSpec("MPC_MANTHR_MIN", 0.08, min=0.0, max=1.0,
+                  description="minimum collective thrust in the manual modes, normalised; the land detector's bound where no climb rate is controlled (Offboard attitude)"),
         ParamSpec("MPC_THR_MIN", 0.12, min=0.05, max=0.5, description="minimum collective thrust in flight, normalised (the offboard's thrust floor)"),
         ParamSpec("MPC_LAND_SPEED", 0.7, min=0.3, max=4.0, unit="m/s", description="landing speed below MPC_LAND_ALT2"),
         ParamSpec("MPC_Z_V_AUTO_DN", 1.5, min=0.5, max=4.0, unit="m/s", description="auto descent speed (Land above MPC_LAND_ALT1)"),

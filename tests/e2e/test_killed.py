@@ -33,7 +33,9 @@ def test_the_offboard_killed_mid_flight_the_vehicle_fails_safe_and_both_logs_rea
 
     def kill_offboard(ctx):
         ctx.wait_for(ARMED)
-        time.sleep(1.0)
+        # two 1 Hz heartbeat periods in OFFBOARD before the kill, so that the plant's log shows
+        # the mode it left (after one period only, a loaded machine could miss the heartbeat)
+        time.sleep(2.0)
         ctx.fly.send_signal(signal.SIGKILL)
         killed_at.append(time.monotonic())
         time.sleep(2.5)  # COM_OF_LOSS_T (1 s) and more: the plant's failsafe acts, then it is stopped
