@@ -398,3 +398,19 @@ def test_unknown_command_is_not_the_autopilots(ap):
 def test_unknown_failure_unit_rejected_at_construction():
     with pytest.raises(ValueError, match="failure unit"):
         Autopilot(plant_params(VehicleParams()), failures={"warp-drive"})
+
+
+@pytest.mark.parametrize("thrust, lands", [(0.5, False), (0.3, False), (0.1, False), (0.085, True), (0.0, True)])
+def test_offboard_on_the_ground_lands_only_at_the_thrust_floor(ap, thrust, lands):
+    """PX4's land detector where no climb rate is controlled (Offboard attitude): 'maybe landed'
+    takes a thrust of at most MPC_MANTHR_MIN + 0.01 (0.09); a client holding about hover thrust
+    with the vehicle resting on the ground is neither landed nor disarmed."""
+    _flying_offboard(ap)
+    setpoint = AttitudeSetpoint(0, (1.0, 0.0, 0.0, 0.0), (None, None, None), thrust)
+    ap.observe(state(0.0))  # resting on the ground
+    t = 0.5
+    while t < 10.0:
+        ap.on_setpoint(setpoint, t)
+        ap.update(t)
+        t += 0.1
+    assert ap.armed is not lands  # landed, then disarmed COM_DISARM_LAND later
