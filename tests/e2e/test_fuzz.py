@@ -12,10 +12,9 @@ import pytest
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from helpers.flights import ENV, PY, free_udp_ports
-from helpers.fuzz import Fuzzer
+from helpers.flights import ENV, PY, arc_mission, fly, free_udp_ports
+from helpers.fuzz import FUZZ_FRAMES, Fuzzer, fuzz_the_offboard
 
-FUZZ_FRAMES = 100_000
 WATCHED = ("MPC_XY_VEL_MAX", "COM_OF_LOSS_T", "SIM_MASS", "MAV_SYS_ID")
 
 
@@ -98,3 +97,19 @@ def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
     if signed:  # what parsed was refused before handling (the fuzz holds no frame signed with the key)
         refused = int(err.split("sitl-plant: refused ")[1].split(" frames")[0])
         assert refused > FUZZ_FRAMES // 50 and bad + refused > FUZZ_FRAMES // 10
+
+
+def test_an_unsigned_offboard_survives_the_fuzz(tmp_path):
+    """10^5 frames at an unsigned offboard waiting for its vehicle: no crash. Without signing a
+    fuzzed autopilot HEARTBEAT may be taken for the vehicle (docs/plant.md, 'Who may talk to the
+    vehicle'): the flight then ends on one line saying why, or flies when the real vehicle's
+    frames win; never a traceback."""
+    flown = fly(tmp_path, arc_mission(tmp_path / "arc.toml"), name="fuzzed", before_plant=fuzz_the_offboard)
+    assert flown.returncode >= 0, flown.stderr  # not killed by a signal
+    assert "Traceback" not in flown.stderr, flown.stderr
+    if flown.returncode != 0:
+        last = flown.stderr.strip().splitlines()[-1]
+        assert last.startswith("offboard fly: ") and flown.status != "complete", flown.stderr
+    m = flown.summary["messages"]
+    print(f"\nthe unsigned offboard under fuzz: exit {flown.returncode}, bad {m['bad']}, received {m['received']}")
+    assert m["bad"] + sum(m["refused"].values()) + m["duplicates"] > FUZZ_FRAMES // 10  # the fuzz reached it

@@ -13,12 +13,11 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink
 
 from helpers.flights import ENV, PY, arc_mission, fly
-from helpers.fuzz import Fuzzer
+from helpers.fuzz import FUZZ_FRAMES, fuzz_the_offboard
 from offboard.replay import TlogReader
 from offboard.signing import ACCEPTED_UNSIGNED
 
 KEY = bytes(range(1, 33))
-FUZZ_FRAMES = 100_000  # at the offboard, before its vehicle starts
 ARMED = "armed: flying the mission"
 ROUNDS = 5  # of the intruder's attacks
 REPLAYS = 4  # frames of each process recorded in an earlier flight and sent again in each round
@@ -76,20 +75,6 @@ def intrude(ctx, offboard_frames: list[bytes] = (), vehicle_frames: list[bytes] 
             for frame in vehicle_frames:
                 sock.sendto(frame, ("127.0.0.1", ctx.offboard_port))
             time.sleep(0.05)
-    finally:
-        sock.close()
-
-
-def fuzz_the_offboard(ctx) -> None:
-    """10^5 frames of every kind (tests/helpers/fuzz.py) at the offboard, waiting for its vehicle
-    (during the flight they would be a flood that starves it: that is not what is tested)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        fuzz = Fuzzer(14).datagrams(FUZZ_FRAMES)
-        for start in range(0, len(fuzz), 200):
-            for datagram in fuzz[start:start + 200]:
-                sock.sendto(datagram, ("127.0.0.1", ctx.offboard_port))
-            time.sleep(0.05)  # paced: the kernel's buffer holds a few hundred, the offboard parses ~40 000 frames/s
     finally:
         sock.close()
 

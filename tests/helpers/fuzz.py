@@ -5,7 +5,9 @@ MAVLink 1 frames, wrong lengths and flags, and frames signed with the wrong key.
 from __future__ import annotations
 
 import random
+import socket
 import struct
+import time
 
 import numpy as np
 
@@ -113,3 +115,22 @@ class Fuzzer:
         for start in range(0, n_frames, per_datagram):
             out.append(b"".join(self.frame() for _ in range(min(per_datagram, n_frames - start))))
         return out
+
+
+#: Frames a fuzz test sends at a process's receiving socket (issue 14: at least 10^5).
+FUZZ_FRAMES = 100_000
+
+
+def fuzz_the_offboard(ctx) -> None:  # noqa: ANN001
+    """FUZZ_FRAMES frames of every kind at the offboard of a flight (``helpers.flights.fly``'s
+    context), while it waits for its vehicle (during the flight they would be a flood that starves
+    it: that is not what is tested)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        fuzz = Fuzzer(14).datagrams(FUZZ_FRAMES)
+        for start in range(0, len(fuzz), 200):
+            for datagram in fuzz[start:start + 200]:
+                sock.sendto(datagram, ("127.0.0.1", ctx.offboard_port))
+            time.sleep(0.05)  # paced: the kernel's buffer holds a few hundred, the offboard parses ~40 000 frames/s
+    finally:
+        sock.close()
