@@ -69,7 +69,9 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
     out["client_peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     m = _size("scaling_flights", quick)
     if m:
-        size = out["sweep"]["flights_per_task"]  # the same tasks on both, so that only the workers differ
+        # the same tasks on both, so that only the workers differ: the sweep's, but at least four
+        # a worker (three tasks of 787 split 2 + 1 over two workers, a third of the time idle)
+        size = min(out["sweep"]["flights_per_task"], -(-m // 8))
         say(f"sweep: {m} flights on 1 worker and on 2, in tasks of {size}")
         one, two = sweep(m, 1, size), sweep(m, 2, size)
         out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"]}
