@@ -207,6 +207,8 @@ def run_sweep(
     total = spec.flights if limit is None else max(0, min(limit, spec.flights))
     started = time.perf_counter()
     size = flights_per_task or estimate_flights_per_task(spec, engine)
+    if flights_per_task is None and scheduler is None:  # at least TASKS_PER_WORKER + 1 tasks a worker: no worker idles
+        size = max(1, min(size, -(-total // ((TASKS_PER_WORKER + 1) * (workers or os.cpu_count() or 1)))))
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
