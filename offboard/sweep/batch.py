@@ -175,12 +175,18 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
     steps_done = 0
 
     def draw_winds(count: int) -> np.ndarray:
+        """Each windy flight's wind at the next ``count`` physics steps' times, one call a flight."""
         out = wind_buf[:, :count]
+        times = np.arange(steps_done, steps_done + count) * dt  # VehicleSim's time: steps * dt
         for i in windy:
             if active[i]:
                 w = winds[i]
-                for j in range(count):
-                    out[i, j] = w.velocity_ned((steps_done + j) * dt, x[i, 0:3])  # type: ignore[union-attr]
+                many = getattr(w, "velocity_ned_many", None)
+                if many is not None:
+                    out[i] = many(times)
+                else:
+                    for j in range(count):
+                        out[i, j] = w.velocity_ned(float(times[j]), x[i, 0:3])  # type: ignore[union-attr]
         return np.ascontiguousarray(out)
 
     rec_pos = np.full((n, samples + 1, 3), np.nan)

@@ -139,3 +139,18 @@ def test_full_helix_batched_equals_simulate_compiled():
     if not NUMBA:
         pytest.skip("numba is switched off (SITL_PLANT_NO_NUMBA)")
     _check_full_helix(full_helix_errors(FULL_FLIGHTS))
+
+
+@pytest.mark.parametrize("wind", ["constant:1,2,0", "dryden:5,dir=30", "gust:t=0.3,amp=4,dur=1,dir=45",
+                                  "constant:1,0,0+dryden:3+gust:t=0.5,amp=2,dur=0.5"])  # fmt: skip
+def test_winds_drawn_many_at_once_are_the_winds_drawn_one_at_a_time(wind):
+    """The batch draws each flight's wind a control sample at a time (``velocity_ned_many``):
+    exactly ``velocity_ned`` at each physics step's time, as ``simulate`` draws it."""
+    from sitl_plant.dynamics.wind import wind_from_spec
+
+    one, many = wind_from_spec(wind, 7), wind_from_spec(wind, 7)
+    steps = np.arange(3000)
+    expected = np.array([one.velocity_ned(float(k) * 1e-3, np.zeros(3)) for k in steps])
+    drawn = np.concatenate([many.velocity_ned_many(steps[k : k + 50] * 1e-3) for k in range(0, 3000, 50)])
+    assert np.any(expected != 0.0)
+    np.testing.assert_array_equal(drawn, expected)
