@@ -1,6 +1,6 @@
 # Two commands do all the set-up from a fresh clone: `make demo` and `make test`.
 # Both create .venv when it is missing and install the project into it: `make demo` only what
-# the demo needs (pymavlink, numpy, matplotlib), `make test` also the [test] extra (pytest,
+# the demo needs (pymavlink, numpy, matplotlib, numba), `make test` also the [test] extra (pytest,
 # MAVProxy, RotorPy, Dask and pyarrow for offboard sweep: a few hundred MB). Each install leaves a stamp, so it runs once, and again
 # only when pyproject.toml changes; demo then test, or test then demo, both work.
 PYTHON ?= python3
@@ -16,7 +16,7 @@ export MPLBACKEND := Agg
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "make: creating the virtual environment $(VENV)"; $(PYTHON) -m venv $(VENV); }
-	@echo "make: installing rosales-offboard and what it needs to fly (pymavlink, numpy, matplotlib) into $(VENV)"
+	@echo "make: installing rosales-offboard and what it needs to fly (pymavlink, numpy, matplotlib, numba) into $(VENV)"
 	$(PIP) --quiet --upgrade pip
 	$(PIP) -e .
 	@touch $(STAMP)

@@ -6,7 +6,8 @@
 - **the sweep**: ``run_sweep`` with the batched engine on a local cluster of 2 workers, 10 000
   flights of 12 s (rigid body, 1 kHz RK4, 20 Hz law): wall time, flights per second, the ratio to
   one at a time, the workers' time not spent flying per flight (scheduler overhead), the client's
-  peak memory;
+  memory (RSS) when 2 000 flights are done and when all are, and the growth between (flat: rows
+  are streamed to Parquet), and its peak;
 - **scaling**: the same spec (2 000 flights, in the sweep's tasks) on 1 worker and on 2.
 
     python bench/sweep.py [--flights 10000] [--quick]
@@ -28,11 +29,18 @@ if str(ROOT) not in sys.path:
 SPEC = ROOT / "missions" / "sweep-table2.toml"
 # (full, quick)
 SIZES = {"flights": (10_000, 8), "scaling_flights": (2_000, 0), "one_at_a_time": (3, 1), "duration_s": (12.0, 0.3),
-         "workers": (2, 1), "flights_per_task": (None, 4)}
+         "workers": (2, 1), "flights_per_task": (None, 4), "rss_mark": (2_000, 4)}
 
 
 def _size(key: str, quick: bool):  # noqa: ANN202
     return SIZES[key][1 if quick else 0]
+
+
+def _rss_mib() -> float:
+    """This process's resident memory now (MiB)."""
+    import psutil  # a dependency of distributed
+
+    return psutil.Process().memory_info().rss / 2**20
 
 
 def measure(quick: bool = False, flights: int | None = None, say=lambda text: None) -> dict:  # noqa: ANN001
@@ -55,24 +63,38 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
     one_s = (time.perf_counter() - started) / k
     out["one_at_a_time"] = {"flights": k, "s_per_flight": one_s, "flights_per_s": 1.0 / one_s}
 
-    def sweep(count: int, workers: int, size: int | None = None) -> dict:
+    def sweep(count: int, workers: int, size: int | None = None, rss: dict | None = None) -> dict:
+        def progress(done: int, total: int, elapsed_s: float) -> None:  # the client's RSS as flights come in
+            if rss is not None:
+                for mark in rss:
+                    if rss[mark] is None and done >= mark:
+                        rss[mark] = _rss_mib()
+
         with tempfile.TemporaryDirectory() as tmp:
-            run = run_sweep(spec, Path(tmp), workers=workers, limit=count, flights_per_task=size or _size("flights_per_task", quick))
+            run = run_sweep(spec, Path(tmp), workers=workers, limit=count, flights_per_task=size or _size("flights_per_task", quick),
+                            progress=progress)  # fmt: skip
         return {"flights": run.flights, "workers": run.workers, "tasks": run.tasks, "flights_per_task": run.flights_per_task,
                 "wall_s": run.wall_s, "flights_per_s": run.flights / run.wall_s, "compute_s": run.compute_s,
-                "overhead_per_flight_s": run.overhead_per_flight_s}  # fmt: skip
+                "overhead_per_flight_s": run.overhead_per_flight_s, "startup_s": run.startup_s,
+                "flying_flights_per_s": run.flights / run.flying_s}  # fmt: skip
 
     workers = _size("workers", quick)
     say(f"sweep: {n} flights of {duration:g} s, batched, on a local cluster of {workers} workers")
-    out["sweep"] = sweep(n, workers)
+    marks: dict = {min(_size("rss_mark", quick), n): None, n: None}
+    out["sweep"] = sweep(n, workers, rss=marks)
+    (early, early_mib), (late, late_mib) = sorted(marks.items())
+    out["client_rss_mib"] = {"at_flights": [early, late], "mib": [early_mib, late_mib], "growth_mib": late_mib - early_mib}
     out["sweep"]["speedup_vs_one_at_a_time"] = out["sweep"]["flights_per_s"] / out["one_at_a_time"]["flights_per_s"]
     out["client_peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     m = _size("scaling_flights", quick)
     if m:
-        size = out["sweep"]["flights_per_task"]  # the same tasks on both, so that only the workers differ
+        # the same tasks on both, so that only the workers differ: the sweep's, but at least four
+        # a worker (three tasks of 787 split 2 + 1 over two workers, a third of the time idle)
+        size = min(out["sweep"]["flights_per_task"], -(-m // 8))
         say(f"sweep: {m} flights on 1 worker and on 2, in tasks of {size}")
         one, two = sweep(m, 1, size), sweep(m, 2, size)
-        out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"]}
+        out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"],
+                          "flying_speedup": two["flying_flights_per_s"] / one["flying_flights_per_s"]}  # fmt: skip
     return out
 
 
@@ -92,14 +114,20 @@ def markdown(r: dict) -> str:
         f"{s['wall_s']:.1f} | {s['flights_per_s']:.3g} | {s['speedup_vs_one_at_a_time']:.3g}× | "
         f"{1e3 * s['overhead_per_flight_s']:.2f} |",
     ]
+    tail = [f"The sweep's wall time includes {s['startup_s']:.1f} s of start-up (tasks sized, cluster started, kernels loaded)."]
     sc = r.get("scaling")
     if sc:
         for label, run in (("scaling, 1 worker", sc["one_worker"]), ("scaling, 2 workers", sc["two_workers"])):
             lines.append(f"| {label} | {run['flights']} | {run['workers']} | {run['tasks']} x {run['flights_per_task']} | "
                          f"{run['wall_s']:.1f} | {run['flights_per_s']:.3g} | - | {1e3 * run['overhead_per_flight_s']:.2f} |")  # fmt: skip
-        lines += ["", f"2 workers against 1: {sc['speedup']:.2f}×."]
-    lines += ["", f"Client peak memory (RSS) through the sweep: {r['client_peak_rss_mib']:.0f} MiB (rows go to Parquet as "
-              "they arrive)."]  # fmt: skip
+        lines += ["", f"2 workers against 1: {sc['speedup']:.2f}× in wall time; {sc['flying_speedup']:.2f}× from the first task "
+                  f"to the last row (start-up, the cluster and every worker's kernels loaded: "
+                  f"{sc['one_worker']['startup_s']:.1f} s on 1 worker, {sc['two_workers']['startup_s']:.1f} s on 2)."]  # fmt: skip
+    m = r["client_rss_mib"]
+    lines += ["", *tail]
+    lines += ["", f"Client memory (RSS) at {m['at_flights'][0]} flights done: {m['mib'][0]:.0f} MiB; at {m['at_flights'][1]}: "
+              f"{m['mib'][1]:.0f} MiB; growth {m['growth_mib']:+.1f} MiB (rows go to Parquet as they arrive). Peak through "
+              f"the sweep: {r['client_peak_rss_mib']:.0f} MiB."]  # fmt: skip
     return "\n".join(lines)
 
 

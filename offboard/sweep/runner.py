@@ -80,6 +80,14 @@ def _one_thread_per_worker() -> None:
         numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
 
 
+def _warm_up(spec: SweepSpec, engine: str) -> None:
+    """On a worker: one flight of 0.1 s, so that its imports and compiled kernels
+    are loaded (a second or more) before its first task."""
+    from dataclasses import replace
+
+    fly_chunk(replace(spec, base=replace(spec.base, duration_s=0.1)), 0, 1, engine)
+
+
 def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[list[dict], float]:
     """A Dask task: ``fly_chunk`` and the seconds it took on the worker."""
     started = time.perf_counter()
@@ -136,6 +144,12 @@ class SweepRun:
     wall_s: float
     scheduler: str
     compute_s: float = 0.0  # the tasks' own time on the workers, summed
+    startup_s: float = 0.0  # of wall_s: sizing the tasks, starting the cluster, loading every worker's kernels
+
+    @property
+    def flying_s(self) -> float:
+        """Wall time from the first task to the last row written (``wall_s`` less ``startup_s``)."""
+        return self.wall_s - self.startup_s
 
     @property
     def overhead_per_flight_s(self) -> float:
@@ -207,6 +221,8 @@ def run_sweep(
     total = spec.flights if limit is None else max(0, min(limit, spec.flights))
     started = time.perf_counter()
     size = flights_per_task or estimate_flights_per_task(spec, engine)
+    if flights_per_task is None and scheduler is None:  # at least TASKS_PER_WORKER + 1 tasks a worker: no worker idles
+        size = max(1, min(size, -(-total // ((TASKS_PER_WORKER + 1) * (workers or os.cpu_count() or 1)))))
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
@@ -217,6 +233,8 @@ def run_sweep(
         with Client(cluster if cluster is not None else scheduler) as client:
             n_workers = max(1, len(client.scheduler_info().get("workers", {})))
             spec_future = client.scatter(spec, broadcast=True)
+            client.run(_warm_up, spec, engine)  # every worker loads its kernels before the clock of the flights starts
+            ready = time.perf_counter()
             pending = chunks(total, size)
             window = as_completed()
             for start, stop in pending:
@@ -244,4 +262,4 @@ def run_sweep(
         if cluster is not None:
             cluster.close()
     return SweepRun(run_dir / "flights.parquet", out.rows, tasks, size, n_workers, time.perf_counter() - started,
-                    "local" if cluster is not None else str(address), compute_s)  # fmt: skip
+                    "local" if cluster is not None else str(address), compute_s, ready - started)  # fmt: skip

@@ -78,12 +78,23 @@ def _vjit(fn):  # noqa: ANN001, ANN202
     return _numba.njit(cache=True, fastmath=True, inline="always")(fn) if NUMBA else fn
 
 
+def _ijit(fn):  # noqa: ANN001, ANN202
+    """Compiled and inlined into its callers, with no fast-math (the batch's NaN checks need NaNs)."""
+    return _numba.njit(cache=True, inline="always")(fn) if NUMBA else fn
+
+
+def _bjit(fn):  # noqa: ANN001, ANN202
+    return _numba.njit(cache=True, parallel=True)(fn) if NUMBA else fn
+
+
 _prange = _numba.prange if NUMBA else range
 
 # the same functions as the reference, compiled (and, for the batch, inlined and vectorised)
 _rates = _jit(rigid_body._rates)
 _rates_v = _vjit(rigid_body._rates)
 _mix_forces = _jit(rigid_body.mix_forces)
+_rates_i = _ijit(rigid_body._rates)
+_mix_forces_i = _ijit(rigid_body.mix_forces)
 
 _M, _G, _L, _C, _IXX, _IYY, _IZZ, _DX, _DY, _DZ, _K, _WMIN, _WMAX, _TAU = range(14)
 
@@ -382,11 +393,15 @@ def _real_torques(e0, e1, e2, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign): 
 
     ``index`` is the W_eta angle (0: phi, zyx; 2: psi, castillo/printed), ``sign`` its sign.
     """
-    theta = e1
     a = e0 if index == 0 else e2
+    return _real_torques_sc(math.sin(e1), math.cos(e1), math.sin(a), math.cos(a), d0, d1, d2, t0, t1, t2, i0, i1, i2,
+                            index, sign)  # fmt: skip
+
+
+def _real_torques_sc(st, ct, sa, ca, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign):  # noqa: ANN001, ANN202
+    """``_real_torques`` given the sine and cosine of theta (``st``, ``ct``) and of the W_eta
+    angle (``sa``, ``ca``)."""
     a_dot = d0 if index == 0 else d2
-    st, ct = math.sin(theta), math.cos(theta)
-    sa, ca = math.sin(a), math.cos(a)
     theta_dot, psi_dot = d1, d2
     # rows w_r of W, their derivatives, and g[r][k] (see euler_lagrange._rows)
     w00, w01, w02 = 1.0, 0.0, -st
@@ -438,6 +453,10 @@ def _real_torques(e0, e1, e2, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign): 
     return c0, c1, c2
 
 
+_real_torques_sc_i = _ijit(_real_torques_sc)
+_real_torques_sc = _jit(_real_torques_sc)
+
+
 @_jit
 def _euler_accel_command(x, thrust, tau_tilde, believed, index, sign, p, cmd):  # noqa: ANN001, ANN202
     """EulerAccelActuation + RigidBodyModel.rotor_speed_command at state ``x``, into ``cmd``."""
@@ -457,6 +476,46 @@ def _euler_accel_command(x, thrust, tau_tilde, believed, index, sign, p, cmd):  
     sp = math.sin(pitch)
     vert = (t2 + sp * t0) / cp
     _speeds_for(thrust, t0, cr * t1 + sr * vert, -sr * t1 + cr * vert, p, cmd)
+
+
+def _tau_speeds(qw, qx, qy, qz, pr, qr, rr, thrust, u0, u1, u2, i0, i1, i2, index, sign, k, w_min, w_max, arm, drag):  # noqa: ANN001, ANN202
+    """EulerAccelActuation + RigidBodyModel.rotor_speed_command on floats, as ``_euler_accel_command``
+    computes them but with the sines and cosines of the Euler angles taken from the quaternion
+    algebraically (the arguments of ``_euler_from_quat``'s atan2 over their norm; the pitch's
+    cosine as sqrt(1 - sin^2), |pitch| <= 90 deg): the same numbers to rounding with no
+    trigonometric call, so that the batch kernel's loop over vehicles compiles to SIMD
+    instructions. Returns the four rotor-speed commands (rad/s)."""
+    n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    w, a, b, c = qw / n, qx / n, qy / n, qz / n
+    sp = max(-1.0, min(1.0, 2.0 * (w * b - c * a)))
+    cp = math.sqrt(1.0 - sp * sp)
+    y_r, x_r = 2.0 * (w * a + b * c), 1.0 - 2.0 * (a * a + b * b)
+    h_r = math.sqrt(y_r * y_r + x_r * x_r)
+    sr, cr = y_r / h_r, x_r / h_r
+    y_y, x_y = 2.0 * (w * c + a * b), 1.0 - 2.0 * (b * b + c * c)
+    h_y = math.sqrt(y_y * y_y + x_y * x_y)
+    sa = sr if index == 0 else y_y / h_y
+    ca = cr if index == 0 else x_y / h_y
+    # rigid_body.euler_rates_from_body_rates
+    vertical = qr * sr + rr * cr
+    t0, t1, t2 = _real_torques_sc_i(sp, cp, sa, ca, pr + vertical * (sp / cp), qr * cr - rr * sr, vertical / cp,
+                                    u0, u1, u2, i0, i1, i2, index, sign)  # fmt: skip
+    # rigid_body.body_torque_from_generalized, rigid_body.rotor_speeds_for
+    vert = (t2 + sp * t0) / cp
+    f0, f1, f2, f3 = _mix_forces_i(thrust, t0, cr * t1 + sr * vert, -sr * t1 + cr * vert, k, w_min, w_max, arm, drag)
+    return math.sqrt(f0 / k), math.sqrt(f1 / k), math.sqrt(f2 / k), math.sqrt(f3 / k)
+
+
+_tau_speeds_i = _ijit(_tau_speeds)
+
+
+@_jit
+def _euler_accel_command_algebraic(x, thrust, tau_tilde, believed, index, sign, p, cmd):  # noqa: ANN001, ANN202
+    """``_euler_accel_command`` by ``_tau_speeds`` (no trigonometric call), into ``cmd``."""
+    cmd[0], cmd[1], cmd[2], cmd[3] = _tau_speeds_i(
+        x[6], x[7], x[8], x[9], x[10], x[11], x[12], thrust, tau_tilde[0], tau_tilde[1], tau_tilde[2],
+        believed[0], believed[1], believed[2], index, sign, p[_K], p[_WMIN], p[_WMAX], p[_L], p[_C],
+    )  # fmt: skip
 
 
 @_jit
@@ -503,7 +562,8 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     """``n_steps`` of ``VehicleSim.step``: actuation, RK4, normalise, ground. Returns on_ground.
 
     ``mode`` 0: held thrust and body torque (mixed once); 1: the paper's tau~ (``torque``) with
-    eq. 16 at every step. ``winds`` (n_steps, 3). ``x`` and ``xdot`` are updated in place.
+    eq. 16 at every step; 2: the same, by ``_euler_accel_command_algebraic``. ``winds``
+    (n_steps, 3). ``x`` and ``xdot`` are updated in place.
     """
     k1, k2, k3, k4, tmp, nxt = physics_scratch()
     resting = False
@@ -512,6 +572,8 @@ def _advance(x, n_steps, dt, mode, thrust, torque, believed, index, sign, p, win
     for step in range(n_steps):
         if mode == 1:
             _euler_accel_command(x, thrust, torque, believed, index, sign, p, cmd)
+        elif mode == 2:
+            _euler_accel_command_algebraic(x, thrust, torque, believed, index, sign, p, cmd)
         resting = physics_step(x, cmd, winds[step], p, dt, ground, xdot, nxt, k1, k2, k3, k4, tmp)
     return resting
 
@@ -540,6 +602,173 @@ def _advance_many_kernel(x, active, n_steps, dt, mode, thrust, torque, believed,
         if active[i]:
             resting[i] = _advance(x[i], n_steps, dt, mode, thrust[i], torque[i], believed[i], index, sign, p[i], winds[i],
                                   ground, xdot[i], cmd[i])  # fmt: skip
+
+
+@_ijit
+def _stage_each(src, dst, cmd, wind, pb, n):  # noqa: ANN001, ANN202
+    """``_stage`` with each vehicle's own parameters (``pb``: (14, BLOCK)), no fast-math."""
+    for j in range(n):
+        k, lo, hi, tau = pb[_K, j], pb[_WMIN, j], pb[_WMAX, j], pb[_TAU, j]
+        moving = tau != 0.0
+        rate = 1.0 / tau if moving else 0.0
+        c0 = min(max(cmd[0, j], lo), hi)
+        c1 = min(max(cmd[1, j], lo), hi)
+        c2 = min(max(cmd[2, j], lo), hi)
+        c3 = min(max(cmd[3, j], lo), hi)
+        w0 = src[13, j] if moving else c0
+        w1 = src[14, j] if moving else c1
+        w2 = src[15, j] if moving else c2
+        w3 = src[16, j] if moving else c3
+        an, ae, ad, qwd, qxd, qyd, qzd, pd, qd, rd = _rates_i(
+            src[3, j], src[4, j], src[5, j], src[6, j], src[7, j], src[8, j], src[9, j], src[10, j], src[11, j],
+            src[12, j], k * w0 * w0, k * w1 * w1, k * w2 * w2, k * w3 * w3, wind[0, j], wind[1, j], wind[2, j],
+            pb[_M, j], pb[_G, j], pb[_L, j], pb[_C, j], pb[_IXX, j], pb[_IYY, j], pb[_IZZ, j], pb[_DX, j], pb[_DY, j],
+            pb[_DZ, j],
+        )  # fmt: skip
+        dst[0, j] = src[3, j]
+        dst[1, j] = src[4, j]
+        dst[2, j] = src[5, j]
+        dst[3, j] = an
+        dst[4, j] = ae
+        dst[5, j] = ad
+        dst[6, j] = qwd
+        dst[7, j] = qxd
+        dst[8, j] = qyd
+        dst[9, j] = qzd
+        dst[10, j] = pd
+        dst[11, j] = qd
+        dst[12, j] = rd
+        if moving:
+            dst[13, j] = (c0 - w0) * rate
+            dst[14, j] = (c1 - w1) * rate
+            dst[15, j] = (c2 - w2) * rate
+            dst[16, j] = (c3 - w3) * rate
+        else:
+            dst[13, j] = dst[14, j] = dst[15, j] = dst[16, j] = 0.0
+
+
+@_bjit
+def _advance_blocks_kernel(x, active, n_steps, dt, mode, thrust, torque, believed, index, sign, p, winds, ground, xdot, cmd, resting):  # noqa: ANN001, ANN202
+    """``_advance_many_kernel`` with mode 2's command (``_tau_speeds``) or mode 0's held one, the
+    active vehicles taken in blocks of ``BLOCK`` transposed to (rows, BLOCK), as ``_step_many_kernel``
+    does: each step's command, RK4 stages, renormalisation and mean derivative are loops over a
+    block's vehicles that compile to SIMD instructions. Ground contact (a vehicle at or below the
+    ground) goes by ``_ground`` one vehicle at a time."""
+    rows = np.nonzero(active)[0]
+    n_all = rows.shape[0]
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    for block in _prange((n_all + BLOCK - 1) // BLOCK):
+        a = block * BLOCK
+        n = min(n_all, a + BLOCK) - a
+        xb = np.zeros((STATE_SIZE, BLOCK))
+        nb = np.zeros((STATE_SIZE, BLOCK))
+        db = np.zeros((STATE_SIZE, BLOCK))
+        k1 = np.zeros((STATE_SIZE, BLOCK))
+        k2 = np.zeros((STATE_SIZE, BLOCK))
+        k3 = np.zeros((STATE_SIZE, BLOCK))
+        k4 = np.zeros((STATE_SIZE, BLOCK))
+        t = np.zeros((STATE_SIZE, BLOCK))
+        pb = np.ones((14, BLOCK))
+        ub = np.zeros((4, BLOCK))
+        bb = np.ones((3, BLOCK))
+        cb = np.zeros((4, BLOCK))
+        wb = np.zeros((3, BLOCK))
+        rb = np.zeros(BLOCK, dtype=np.bool_)
+        one = np.empty(STATE_SIZE)
+        for j in range(n):
+            i = rows[a + j]
+            for r in range(STATE_SIZE):
+                xb[r, j] = x[i, r]
+            for r in range(14):
+                pb[r, j] = p[i, r]
+            ub[0, j] = thrust[i]
+            for r in range(3):
+                ub[r + 1, j] = torque[i, r]
+                bb[r, j] = believed[i, r]
+            for r in range(4):
+                cb[r, j] = cmd[i, r]
+        if mode == 0:
+            for j in range(n):
+                f0, f1, f2, f3 = _mix_forces_i(ub[0, j], ub[1, j], ub[2, j], ub[3, j], pb[_K, j], pb[_WMIN, j], pb[_WMAX, j],
+                                               pb[_L, j], pb[_C, j])  # fmt: skip
+                k = pb[_K, j]
+                cb[0, j] = math.sqrt(f0 / k)
+                cb[1, j] = math.sqrt(f1 / k)
+                cb[2, j] = math.sqrt(f2 / k)
+                cb[3, j] = math.sqrt(f3 / k)
+        for step in range(n_steps):
+            for j in range(n):
+                i = rows[a + j]
+                wb[0, j] = winds[i, step, 0]
+                wb[1, j] = winds[i, step, 1]
+                wb[2, j] = winds[i, step, 2]
+            if mode != 0:
+                for j in range(n):
+                    c0, c1, c2, c3 = _tau_speeds_i(
+                        xb[6, j], xb[7, j], xb[8, j], xb[9, j], xb[10, j], xb[11, j], xb[12, j], ub[0, j], ub[1, j],
+                        ub[2, j], ub[3, j], bb[0, j], bb[1, j], bb[2, j], index, sign, pb[_K, j], pb[_WMIN, j],
+                        pb[_WMAX, j], pb[_L, j], pb[_C, j],
+                    )  # fmt: skip
+                    cb[0, j] = c0
+                    cb[1, j] = c1
+                    cb[2, j] = c2
+                    cb[3, j] = c3
+            # RK4 in the reference's order (_rk4_into), then renormalised
+            _stage_each(xb, k1, cb, wb, pb, n)
+            for r in range(STATE_SIZE):
+                for j in range(n):
+                    t[r, j] = xb[r, j] + half * k1[r, j]
+            _stage_each(t, k2, cb, wb, pb, n)
+            for r in range(STATE_SIZE):
+                for j in range(n):
+                    t[r, j] = xb[r, j] + half * k2[r, j]
+            _stage_each(t, k3, cb, wb, pb, n)
+            for r in range(STATE_SIZE):
+                for j in range(n):
+                    t[r, j] = xb[r, j] + dt * k3[r, j]
+            _stage_each(t, k4, cb, wb, pb, n)
+            for r in range(STATE_SIZE):
+                for j in range(n):
+                    nb[r, j] = xb[r, j] + sixth * (k1[r, j] + 2.0 * k2[r, j] + 2.0 * k3[r, j] + k4[r, j])
+            for j in range(n):
+                inv = 1.0 / math.sqrt(nb[6, j] * nb[6, j] + nb[7, j] * nb[7, j] + nb[8, j] * nb[8, j] + nb[9, j] * nb[9, j])
+                nb[6, j] *= inv
+                nb[7, j] *= inv
+                nb[8, j] *= inv
+                nb[9, j] *= inv
+            # physics_step: the mean derivative, then the ground (whose _normalize runs again)
+            for r in range(STATE_SIZE):
+                for j in range(n):
+                    db[r, j] = (nb[r, j] - xb[r, j]) / dt
+            if ground:
+                for j in range(n):
+                    inv = 1.0 / math.sqrt(nb[6, j] * nb[6, j] + nb[7, j] * nb[7, j] + nb[8, j] * nb[8, j]
+                                          + nb[9, j] * nb[9, j])  # fmt: skip
+                    nb[6, j] *= inv
+                    nb[7, j] *= inv
+                    nb[8, j] *= inv
+                    nb[9, j] *= inv
+                for j in range(n):
+                    rb[j] = False
+                    if not (nb[2, j] < 0.0 or (nb[2, j] == 0.0 and nb[5, j] < 0.0)):
+                        for r in range(STATE_SIZE):
+                            one[r] = nb[r, j]
+                        rb[j] = _ground(one)
+                        for r in range(STATE_SIZE):
+                            nb[r, j] = one[r]
+                            if rb[j]:
+                                db[r, j] = 0.0
+            xb, nb = nb, xb
+        for j in range(n):
+            i = rows[a + j]
+            for r in range(STATE_SIZE):
+                x[i, r] = xb[r, j]
+                xdot[i, r] = db[r, j]
+            for r in range(4):
+                cmd[i, r] = cb[r, j]
+            if ground and n_steps > 0:
+                resting[i] = rb[j]
 
 
 def advance_many(
@@ -583,6 +812,10 @@ def advance_many(
         torque (``HeldActuation``, as ``VehicleSim``'s idle actuation before the first command).
     """
     index, sign = _EULER_FORMS[euler_rate_form]
+    if mode in (0, 2) and NUMBA:
+        _advance_blocks_kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2,
+                               believed_inertia_kg_m2, index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
+        return
     _advance_many_kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2, believed_inertia_kg_m2,
                          index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
 

@@ -14,6 +14,9 @@ body feels through its linear drag. Kinds:
 Directions are headings the air moves **towards**, degrees clockwise from north (so
 ``dir=90`` blows towards the east; a meteorologist's "wind from" is this plus 180).
 
+Each kind also has ``velocity_ned_many(times_s) -> ndarray (n, 3)``: ``velocity_ned`` at many
+times at once, the same numbers (every wind here depends on time only), for the batched sweep.
+
 Two ways in: a command-line spec (``wind_from_spec("constant:3,0,0+dryden:5", seed)``) and a
 TOML table (``wind_from_table``). See ``docs/model.md`` for the equations and sources.
 """
@@ -91,6 +94,9 @@ class ConstantWind:
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
         return np.array(self.velocity_ned_m_s)
 
+    def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        return np.tile(np.array(self.velocity_ned_m_s), (len(times_s), 1))
+
 
 @dataclass(frozen=True)
 class Gust:
@@ -130,6 +136,13 @@ class Gust:
             return 0.0
         return 0.5 * self.amplitude_m_s * (1.0 - math.cos(2.0 * math.pi * phase))
 
+    def speeds(self, times_s: np.ndarray) -> np.ndarray:
+        """``speed`` at each of ``times_s`` (the cosine by ``math.cos``, as ``speed`` takes it)."""
+        out = np.zeros(len(times_s))
+        for k in np.nonzero((times_s >= self.start_s) & (times_s <= self.start_s + self.duration_s))[0]:
+            out[k] = self.speed(float(times_s[k]))
+        return out
+
 
 @dataclass(frozen=True)
 class GustWind:
@@ -143,6 +156,15 @@ class GustWind:
             speed = gust.speed(time_s)
             if speed:
                 total += _horizontal(speed, gust.direction_deg)
+        return total
+
+    def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        total = np.zeros((len(times_s), 3))
+        for gust in self.gusts:
+            speed = gust.speeds(times_s)
+            heading = math.radians(gust.direction_deg)
+            total[:, 0] += speed * math.cos(heading)  # _horizontal's products, element by element
+            total[:, 1] += speed * math.sin(heading)
         return total
 
 
@@ -356,6 +378,29 @@ class DrydenTurbulence:
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
         return self._mean + self.turbulence_ned(time_s)
 
+    def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        """``velocity_ned`` at each of ``times_s`` (ascending): the grid stepped once to the last
+        of them, each time interpolated as ``turbulence_ned`` does."""
+        times_s = np.asarray(times_s, dtype=float)
+        if not self._active or len(times_s) == 0:
+            return self._mean + np.zeros((len(times_s), 3))
+        position = np.maximum(times_s, 0.0) / self.sample_dt_s
+        index = position.astype(np.int64)
+        if int(index[0]) < self._index:
+            self._restart()
+        first = int(index[0])
+        self.turbulence_ned(float(times_s[0]))  # the grid at the first time
+        nows, deltas = [self._now], [self._delta]
+        while self._index < int(index[-1]):
+            self._now = self._next
+            self._next = self._advance()
+            self._delta = self._next - self._now
+            self._index += 1
+            nows.append(self._now)
+            deltas.append(self._delta)
+        k = index - first
+        return self._mean + (np.asarray(nows)[k] + (position - index)[:, None] * np.asarray(deltas)[k])
+
 
 @dataclass(frozen=True)
 class CompositeWind:
@@ -367,6 +412,12 @@ class CompositeWind:
         total = np.zeros(3)
         for part in self.parts:
             total += part.velocity_ned(time_s, pos_ned_m)
+        return total
+
+    def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        total = np.zeros((len(times_s), 3))
+        for part in self.parts:
+            total += part.velocity_ned_many(times_s)  # type: ignore[attr-defined]
         return total
 
 

@@ -63,6 +63,9 @@ def test_sweep_part_flies_its_flights(quick_run):
     s = results["sweep"]
     assert s["sweep"]["flights"] == 8 and s["sweep"]["tasks"] == 2
     assert _finite_positive(s["sweep"]["flights_per_s"]) and _finite_positive(s["one_at_a_time"]["flights_per_s"])
+    rss = s["client_rss_mib"]  # the client's memory part way and at the end, for the flat-memory claim
+    assert rss["at_flights"] == [4, 8] and all(_finite_positive(m) for m in rss["mib"])
+    assert rss["growth_mib"] == pytest.approx(rss["mib"][1] - rss["mib"][0])
 
 
 def test_tracking_flies_every_controller_in_every_condition(quick_run):

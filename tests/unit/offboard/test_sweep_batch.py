@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from helpers.sweeps import MISSIONS, MIXED, write_sweep
+from helpers.sweeps import MISSIONS, MIXED, full_helix_errors, write_sweep
 from offboard.sweep.batch import fly_batch, fly_group, unsupported
 from offboard.sweep.flight import fly_one
 from offboard.sweep.spec import flights, load_sweep, scenario_of
@@ -91,3 +91,66 @@ def test_latency_flies_the_previous_command_until_the_new_one_arrives():
     assert float(np.max(np.abs(plain["pos_ned_m"] - late["pos_ned_m"]))) > 1e-4
     with pytest.raises(ValueError, match="latency_s must lie in"):
         fly(0.05)
+
+
+#: Flights of the bundled Table II sweep flown over the helix's full 12 s (the first three).
+FULL_FLIGHTS = [0, 1, 2]
+
+
+def _check_full_helix(results: list[dict]) -> None:
+    """Over 12 s these flights saturate the thrust (19.6 N) and tilt ~70 deg, and amplify rounding:
+    ``simulate`` against itself with the true mass two ulps off differs by up to ~1e-9 m on these
+    three (1.6e-6 m on flight 72). The batch is held to 1e-9 m plus ten times that spread: a real
+    difference (a belief, a gain, a step of latency off) moves a flight by millimetres."""
+    for k, r in zip(FULL_FLIGHTS, results):
+        assert r["duration_s"] == 12.0 and r["samples"] == r["batch_samples"] == 241, k
+        assert r["status"] == r["batch_status"] == "COMPLETE", k
+        assert r["spread_m"] < 1e-7, (k, r)  # the three are well-conditioned flights
+        assert r["error_m"] <= TOL_M + 10 * r["spread_m"], (k, r)
+
+
+@pytest.mark.slow
+def test_full_helix_batched_equals_simulate_interpreted():
+    """The interpreted kernels (SITL_PLANT_NO_NUMBA=1): in a subprocess when numba is installed."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if not NUMBA:
+        _check_full_helix(full_helix_errors(FULL_FLIGHTS))
+        return
+    tests = Path(__file__).resolve().parents[2]
+    code = f"import json; from helpers.sweeps import full_helix_errors; print(json.dumps(full_helix_errors({FULL_FLIGHTS})))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=tests,
+                          env={**os.environ, "SITL_PLANT_NO_NUMBA": "1", "PYTHONPATH": str(tests)})  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    _check_full_helix(json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+@pytest.mark.slow
+def test_full_helix_batched_equals_simulate_compiled():
+    pytest.importorskip("numba")
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if not NUMBA:
+        pytest.skip("numba is switched off (SITL_PLANT_NO_NUMBA)")
+    _check_full_helix(full_helix_errors(FULL_FLIGHTS))
+
+
+@pytest.mark.parametrize("wind", ["constant:1,2,0", "dryden:5,dir=30", "gust:t=0.3,amp=4,dur=1,dir=45",
+                                  "constant:1,0,0+dryden:3+gust:t=0.5,amp=2,dur=0.5"])  # fmt: skip
+def test_winds_drawn_many_at_once_are_the_winds_drawn_one_at_a_time(wind):
+    """The batch draws each flight's wind a control sample at a time (``velocity_ned_many``):
+    exactly ``velocity_ned`` at each physics step's time, as ``simulate`` draws it."""
+    from sitl_plant.dynamics.wind import wind_from_spec
+
+    one, many = wind_from_spec(wind, 7), wind_from_spec(wind, 7)
+    steps = np.arange(3000)
+    expected = np.array([one.velocity_ned(float(k) * 1e-3, np.zeros(3)) for k in steps])
+    drawn = np.concatenate([many.velocity_ned_many(steps[k : k + 50] * 1e-3) for k in range(0, 3000, 50)])
+    assert np.any(expected != 0.0)
+    np.testing.assert_array_equal(drawn, expected)
