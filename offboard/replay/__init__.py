@@ -17,7 +17,15 @@ One idea a module, in the order the data flows:
 """
 
 from offboard.replay.reader import Damage, LoggedMessage, TlogReader
-from offboard.replay.record import Scaling, SetpointSeries, _telemetry_rows, build_record, mode_phases, sample_numbers, setpoints_for
+from offboard.replay.record import (
+    SetpointSeries,
+    _telemetry_rows,
+    build_record,
+    logged_scale,
+    mode_phases,
+    sample_numbers,
+    setpoints_for,
+)
 from offboard.replay.report import LogReport, MessageRate, SourceStats, format_log_report, log_report
 from offboard.replay.rerun import RERUN_FIELDS, RerunResult, flight_controller, format_rerun, rerun_controller, rerun_panels
 from offboard.replay.scan import (
@@ -44,7 +52,6 @@ __all__ = [
     "LoggedMessage",
     "MessageRate",
     "RerunResult",
-    "Scaling",
     "SeqCounter",
     "SetpointSeries",
     "SourceStats",
@@ -57,6 +64,7 @@ __all__ = [
     "format_log_report",
     "format_rerun",
     "log_report",
+    "logged_scale",
     "logged_mission_offset",
     "mode_phases",
     "offboard_start_s",

@@ -119,21 +119,19 @@ def mode_phases(scan: LogScan, sysid: int, t0_s: float) -> list[Phase]:
     return phases
 
 
-@dataclass(frozen=True)
-class Scaling:
-    """The vehicle's published scaling of normalised setpoints (``SIM_THR_MAX`` etc.), or NaN."""
+def logged_scale(params: dict[str, float], thrust_max_n: float | None = None) -> tuple[float, float, float]:
+    """(thrust [N], roll/pitch torque [N m], yaw torque [N m]) at normalised 1, as the vehicle
+    published them in the log (``SIM_THR_MAX``, ``SIM_TQ_RP_MAX``, ``SIM_TQ_Y_MAX``), NaN where
+    it did not; ``thrust_max_n`` instead of the log's thrust (a real PX4 publishes none).
 
-    thrust_max_n: float = math.nan
-    torque_roll_pitch_max_nm: float = math.nan
-    torque_yaw_max_nm: float = math.nan
-
-    @classmethod
-    def from_params(cls, params: dict[str, float]) -> Scaling:
-        return cls(
-            params.get("SIM_THR_MAX", math.nan),
-            params.get("SIM_TQ_RP_MAX", math.nan),
-            params.get("SIM_TQ_Y_MAX", math.nan),
-        )
+    Plain numbers, NaN allowed: a record names what the log cannot tell as NaN, while
+    ``offboard.codec.Scaling`` (what a command is encoded with) must know the thrust.
+    """
+    return (
+        params.get("SIM_THR_MAX", math.nan) if thrust_max_n is None else thrust_max_n,
+        params.get("SIM_TQ_RP_MAX", math.nan),
+        params.get("SIM_TQ_Y_MAX", math.nan),
+    )
 
 
 def sample_numbers(elapsed_s: np.ndarray, sample_time_s: float) -> np.ndarray:
@@ -215,7 +213,7 @@ def build_record(
     sysid: int | None = None,
     trajectory: Trajectory | None = None,
     sample_time_s: float | None = None,
-    scaling: Scaling | None = None,
+    thrust_max_n: float | None = None,
     source: str = "",
 ) -> FlightRecord:
     """The aligned series of a log: one row per control sample.
@@ -227,7 +225,8 @@ def build_record(
     Without commands (a log from another system) the rows are every LOCAL_POSITION_NED, with the
     latest ATTITUDE, ``t_s`` from the first. References: the mission ``trajectory`` when given,
     else the vehicle's POSITION_TARGET_LOCAL_NED; the attitude reference and thrust are the
-    commands' (q -> x7ez, x9ez, yaw; ``thrust * SIM_THR_MAX``), or the vehicle's ATTITUDE_TARGET.
+    commands' (q -> x7ez, x9ez, yaw; ``thrust * SIM_THR_MAX``, or ``thrust_max_n`` when given:
+    ``logged_scale``), or the vehicle's ATTITUDE_TARGET.
     Columns a log cannot fill are NaN (torques and tau_tilde of attitude commands: ``rerun``
     recomputes them).
 
@@ -240,7 +239,7 @@ def build_record(
     if vehicle is None or vehicle not in scan.attitude or vehicle not in scan.local_position:
         who = "any system" if sysid is None else f"system {sysid}"
         raise LogFormatError(f"{source or 'the log'}: no ATTITUDE and LOCAL_POSITION_NED from {who}; nothing to replay")
-    scaling = Scaling.from_params(scan.params.get(vehicle, {})) if scaling is None else scaling
+    thrust_max, torque_rp_max, torque_y_max = logged_scale(scan.params.get(vehicle, {}), thrust_max_n)
     setpoints = setpoints_for(scan, vehicle)
     commanded = setpoints.kind in ("attitude", "actuator")
     duration = trajectory.duration_s if trajectory is not None else None
@@ -305,11 +304,11 @@ def build_record(
             euler = np.array([euler_from_quat(row) for row in q]).reshape(-1, 3)
             euler[(mask & 128) != 0] = np.nan  # attitude ignored
             columns["ref_euler_rad"][ok] = euler
-            columns["thrust_n"][ok] = np.where((mask & 64) != 0, np.nan, thrust * scaling.thrust_max_n)
+            columns["thrust_n"][ok] = np.where((mask & 64) != 0, np.nan, thrust * thrust_max)
         else:
-            columns["thrust_n"][ok] = v[:, 3] * scaling.thrust_max_n
+            columns["thrust_n"][ok] = v[:, 3] * thrust_max
             columns["torques_nm"][ok] = v[:, 0:3] * np.array(
-                [scaling.torque_roll_pitch_max_nm, scaling.torque_roll_pitch_max_nm, scaling.torque_yaw_max_nm]
+                [torque_rp_max, torque_rp_max, torque_y_max]
             )
 
     t0_log = float(log_time[0] - columns["t_s"][0]) if n else scan.first_time_s
@@ -332,7 +331,7 @@ def build_record(
             "references": reference_source,
             "sample_time_s": to,
             "start_log_time_s": t0_log,
-            "thrust_max_n": scaling.thrust_max_n,
+            "thrust_max_n": thrust_max,
             "setpoint_rows": rows,  # rows of setpoints_for(scan, vehicle) behind each sample
             "time_boot_ms": grid,
         },
