@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
+from offboard.model import px4_modes
 from offboard.replay.reader import TlogReader
 
 # MAVLink enum values used below (common.xml)
@@ -33,7 +34,7 @@ _YAW_IGNORE = 1 << 10
 
 def px4_mode_name(custom_mode: int) -> str:
     """PX4's name of a HEARTBEAT custom_mode (``main << 16 | sub << 24``), by ``offboard.codec``."""
-    return codec.px4_mode_name((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
+    return codec.px4_mode_name(*px4_modes.main_sub(custom_mode))
 
 
 @dataclass
