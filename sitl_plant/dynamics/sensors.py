@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
+from offboard.model.euler_lagrange import zyx_euler_rates_from_body_rates
 from offboard.model.rotations import euler_from_quat, quat_multiply, wrap_pi
 from offboard.model.errors import UserError
 from offboard.model.state import VehicleState
@@ -201,7 +201,7 @@ class ImuNoise:
             quat_wxyz=quat,
             euler_rad=euler,
             body_rate_frd_rad_s=truth.body_rate_frd_rad_s + rate_noise,
-            euler_rate_rad_s=truth.euler_rate_rad_s + euler_rates_from_body_rates(euler, rate_noise),
+            euler_rate_rad_s=truth.euler_rate_rad_s + zyx_euler_rates_from_body_rates(euler, rate_noise),
             acc_ned_m_s2=truth.acc_ned_m_s2 + self.acc_std_m_s2 * noise[4],
         )
 
