@@ -271,17 +271,17 @@ class _EulerReader:
         self.q, self.w = q, w
 
     def euler(self, x: object) -> tuple[np.ndarray, np.ndarray]:
-        from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
+        from offboard.model.euler_lagrange import zyx_euler_rates_from_body_rates
         from offboard.model.rotations import euler_from_quat
 
         eta = euler_from_quat(self.q)
-        return eta, euler_rates_from_body_rates(eta, self.w)
+        return eta, zyx_euler_rates_from_body_rates(eta, self.w)
 
     def torque_from_generalized(self, x: object, tau: np.ndarray) -> np.ndarray:
-        from sitl_plant.dynamics.rigid_body import body_torque_from_generalized
+        from offboard.model.euler_lagrange import zyx_body_torque_from_generalized
         from offboard.model.rotations import euler_from_quat
 
-        return body_torque_from_generalized(euler_from_quat(self.q), tau)
+        return zyx_body_torque_from_generalized(euler_from_quat(self.q), tau)
 
 
 # --- physics: many vehicles ---------------------------------------------------------------------------

@@ -44,17 +44,15 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import VEHICLE_MODELS, Command, require
+from offboard.model import px4_modes
 from offboard.model.rotations import quat_from_euler
 
 MAVLinkMessage = mavlink.MAVLink_message
 
-#: PX4's custom main modes (px4_custom_mode.h) the offboard process cares about.
-PX4_MAIN_MODE_OFFBOARD = 6
-PX4_MAIN_MODE_AUTO = 4
-PX4_SUB_MODE_AUTO_LAND = 6
-#: Names of PX4's main modes and AUTO sub modes, for messages.
-PX4_MAIN_MODES = {1: "Manual", 2: "Altitude", 3: "Position", 4: "Auto", 5: "Acro", 6: "Offboard", 7: "Stabilized", 8: "Rattitude"}
-PX4_AUTO_SUB_MODES = {1: "Ready", 2: "Takeoff", 3: "Hold", 4: "Mission", 5: "Return", 6: "Land", 8: "Follow", 9: "Precland"}
+#: PX4's custom main modes (px4_custom_mode.h) the offboard process cares about (offboard.model.px4_modes).
+PX4_MAIN_MODE_OFFBOARD = px4_modes.MAIN_OFFBOARD
+PX4_MAIN_MODE_AUTO = px4_modes.MAIN_AUTO
+PX4_SUB_MODE_AUTO_LAND = px4_modes.SUB_AUTO_LAND
 
 #: The vehicle models the offboard process knows how to talk to (``--model``).
 MODELS = VEHICLE_MODELS
@@ -378,10 +376,8 @@ class VehicleStatus:
         return px4_mode_name(self.main_mode, self.sub_mode) if self.custom_mode_enabled else "non-PX4 mode"
 
 
-def px4_mode_name(main_mode: int, sub_mode: int) -> str:
-    if main_mode == PX4_MAIN_MODE_AUTO:
-        return PX4_AUTO_SUB_MODES.get(sub_mode, f"Auto/{sub_mode}")
-    return PX4_MAIN_MODES.get(main_mode, f"mode {main_mode}")
+#: PX4's name of a (main, sub) mode, for messages.
+px4_mode_name = px4_modes.mode_name
 
 
 def is_autopilot_heartbeat(msg: MAVLinkMessage) -> bool:
@@ -393,12 +389,12 @@ def is_autopilot_heartbeat(msg: MAVLinkMessage) -> bool:
 
 def vehicle_status(msg: MAVLinkMessage) -> VehicleStatus:
     """Decode PX4's HEARTBEAT: custom_mode = main << 16 | sub << 24."""
-    custom = int(msg.custom_mode)
+    main_mode, sub_mode = px4_modes.main_sub(int(msg.custom_mode))
     base = int(msg.base_mode)
     return VehicleStatus(
         armed=bool(base & mavlink.MAV_MODE_FLAG_SAFETY_ARMED),
-        main_mode=(custom >> 16) & 0xFF,
-        sub_mode=(custom >> 24) & 0xFF,
+        main_mode=main_mode,
+        sub_mode=sub_mode,
         system_status=int(msg.system_status),
         custom_mode_enabled=bool(base & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
     )

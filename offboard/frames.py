@@ -28,24 +28,6 @@ def ned_from_paper_position(xyz_up_m: np.ndarray) -> np.ndarray:
     return np.array([xyz_up_m[0], xyz_up_m[1], -xyz_up_m[2]])
 
 
-def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: str) -> np.ndarray:
-    """eta_dot = W_eta^-1 omega (eq. 3), solved in closed form (W's first column is (1, 0, 0)).
-
-    With W = [[1, 0, -s_theta], [0, c_a, c_theta s_a], [0, k s_a, c_theta c_a]] (eq. 4, ``a`` and
-    ``k`` set by ``form``) the lower 2x2 block gives the pitch and yaw rates and the first row the
-    roll rate. Raises ``numpy.linalg.LinAlgError`` where W is singular, as ``numpy.linalg.solve``.
-    """
-    w = euler_rate_matrix(np.asarray(euler_rad, dtype=float), form)
-    p, q, r = (float(v) for v in body_rate_frd_rad_s)
-    ca, ct_sa, k_sa, ct_ca = float(w[1, 1]), float(w[1, 2]), float(w[2, 1]), float(w[2, 2])
-    det = ca * ct_ca - ct_sa * k_sa
-    if det == 0.0:
-        raise np.linalg.LinAlgError(f"W_eta ({form}) is singular at the Euler angles {tuple(euler_rad)}")
-    theta_dot = (ct_ca * q - ct_sa * r) / det
-    psi_dot = (ca * r - k_sa * q) / det
-    return np.array((p - float(w[0, 2]) * psi_dot, theta_dot, psi_dot))
-
-
 def body_rates_from_euler_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, form: str) -> np.ndarray:
     """omega = W_eta eta_dot (eq. 3)."""
     return euler_rate_matrix(np.asarray(euler_rad, dtype=float), form) @ np.asarray(euler_rate_rad_s, dtype=float)
@@ -108,12 +90,3 @@ def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: fl
     if model == "rigid-body":
         roll, pitch = tilt_about_heading(roll_ref_rad, pitch_ref_rad, law_heading_rad, yaw_ref_rad)
     return quat_from_euler(roll, pitch, yaw_ref_rad)
-
-
-def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
-    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
-
-    By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
-    (eq. 3), so ``tau_gen = W_eta^T tau_body``.
-    """
-    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))

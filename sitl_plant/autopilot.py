@@ -49,6 +49,7 @@ from typing import Union
 
 import numpy as np
 
+from offboard.model import px4_modes as M
 from offboard.model.state import VehicleState
 from sitl_plant.navigator import Frame, NavSetpoint, Navigator, land_speed_m_s
 from sitl_plant.params import ParamTable
@@ -100,59 +101,43 @@ FAILURE_TYPE_OK = 0
 
 
 class Mode(Enum):
-    """PX4 modes as (main mode, sub mode) of ``px4_custom_mode.h``."""
+    """PX4 modes as (main mode, sub mode) of ``px4_custom_mode.h`` (``offboard.model.px4_modes``)."""
 
-    MANUAL = (1, 0)
-    ALTCTL = (2, 0)
-    POSCTL = (3, 0)
-    AUTO_READY = (4, 1)
-    AUTO_TAKEOFF = (4, 2)
-    AUTO_LOITER = (4, 3)
-    AUTO_MISSION = (4, 4)
-    AUTO_RTL = (4, 5)
-    AUTO_LAND = (4, 6)
-    ORBIT = (3, 1)  # PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT: entered by MAV_CMD_DO_ORBIT
-    ACRO = (5, 0)
-    OFFBOARD = (6, 0)
-    STABILIZED = (7, 0)
+    MANUAL = (M.MAIN_MANUAL, 0)
+    ALTCTL = (M.MAIN_ALTCTL, 0)
+    POSCTL = (M.MAIN_POSCTL, 0)
+    AUTO_READY = (M.MAIN_AUTO, M.SUB_AUTO_READY)
+    AUTO_TAKEOFF = (M.MAIN_AUTO, M.SUB_AUTO_TAKEOFF)
+    AUTO_LOITER = (M.MAIN_AUTO, M.SUB_AUTO_LOITER)
+    AUTO_MISSION = (M.MAIN_AUTO, M.SUB_AUTO_MISSION)
+    AUTO_RTL = (M.MAIN_AUTO, M.SUB_AUTO_RTL)
+    AUTO_LAND = (M.MAIN_AUTO, M.SUB_AUTO_LAND)
+    ORBIT = (M.MAIN_POSCTL, M.SUB_POSCTL_ORBIT)  # entered by MAV_CMD_DO_ORBIT
+    ACRO = (M.MAIN_ACRO, 0)
+    OFFBOARD = (M.MAIN_OFFBOARD, 0)
+    STABILIZED = (M.MAIN_STABILIZED, 0)
 
     @property
     def custom_mode(self) -> int:
         """The heartbeat's custom_mode: ``main << 16 | sub << 24``."""
-        main, sub = self.value
-        return (main << 16) | (sub << 24)
+        return M.custom_mode(*self.value)
 
     @property
     def label(self) -> str:
-        return _LABELS[self]
+        return M.mode_name(*self.value)
 
     @classmethod
     def from_custom(cls, main: int, sub: int) -> Mode | None:
         """The mode for PX4's (main, sub); sub is ignored for main modes other than AUTO and
         POSCTL (whose sub mode 1 is Orbit)."""
-        key = (main, sub if main in (3, 4) else 0)
+        key = (main, sub if main in (M.MAIN_POSCTL, M.MAIN_AUTO) else 0)
         return _BY_VALUE.get(key)
 
     @classmethod
     def from_custom_mode(cls, custom_mode: int) -> Mode | None:
-        return cls.from_custom((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
+        return cls.from_custom(*M.main_sub(custom_mode))
 
 
-_LABELS = {
-    Mode.MANUAL: "Manual",
-    Mode.ALTCTL: "Altitude",
-    Mode.POSCTL: "Position",
-    Mode.AUTO_READY: "Ready",
-    Mode.AUTO_TAKEOFF: "Takeoff",
-    Mode.AUTO_LOITER: "Hold",
-    Mode.AUTO_MISSION: "Mission",
-    Mode.AUTO_RTL: "Return",
-    Mode.AUTO_LAND: "Land",
-    Mode.ACRO: "Acro",
-    Mode.ORBIT: "Orbit",
-    Mode.OFFBOARD: "Offboard",
-    Mode.STABILIZED: "Stabilized",
-}
 _BY_VALUE = {m.value: m for m in Mode}
 _NEEDS_MANUAL_INPUT = (Mode.MANUAL, Mode.ALTCTL, Mode.POSCTL, Mode.ACRO, Mode.STABILIZED)
 #: Modes PX4 arms in (with their requirements met: setpoints for Offboard, sticks for the manual

@@ -222,10 +222,9 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
         if trajectory is not mission.trajectory:
             mission_note += f"; moved by NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m, {offset_note}"
     params_log = scan.params.get(vehicle, {}) if vehicle is not None else {}
-    thrust_max = args.thrust_max_n if args.thrust_max_n is not None else params_log.get("SIM_THR_MAX", math.nan)
-    scaling = replay.Scaling(thrust_max, params_log.get("SIM_TQ_RP_MAX", math.nan), params_log.get("SIM_TQ_Y_MAX", math.nan))
+    thrust_max = replay.logged_scale(params_log, args.thrust_max_n)[0]
     recorded_to = ((summary_json or {}).get("controller") or {}).get("sample_time_s")
-    record = replay.build_record(scan, sysid=args.sysid, trajectory=trajectory, scaling=scaling, source=str(args.log),
+    record = replay.build_record(scan, sysid=args.sysid, trajectory=trajectory, thrust_max_n=args.thrust_max_n, source=str(args.log),
                                  sample_time_s=recorded_to)  # fmt: skip
     log_report = replay.log_report(reader, scan, float(record.meta["start_log_time_s"]))  # type: ignore[arg-type]
     if record.meta["references"] == "none":

@@ -23,14 +23,8 @@ import numpy as np
 from offboard.controller.command import VEHICLE_MODELS, Command, StateEstimate
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
-from offboard.frames import (
-    body_rates_from_euler_rates,
-    body_torque_from_generalized,
-    euler_rates_from_body_rates,
-    paper_state,
-    setpoint_attitude,
-    tracking_reference,
-)
+from offboard.frames import body_rates_from_euler_rates, paper_state, setpoint_attitude, tracking_reference
+from offboard.model.euler_lagrange import body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
 
 def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:

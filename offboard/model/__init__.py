@@ -8,5 +8,6 @@ simulator imports it too, so each idea has one home:
 - ``mixer``: the eq. 9-11 rotor forces of a thrust and torque;
 - ``state``: ``VehicleState``; ``vehicle``: vehicle parameters and files;
 - ``tomlfile``: the TOML field reader every file format uses; ``errors``: the user-error classes;
+- ``px4_modes``: PX4's mode numbers, names and HEARTBEAT custom_mode;
 - ``tlog``: the tlog writer; ``paths``: the output-file rules; ``clihelp``: the CLIs' help format.
 """

@@ -171,3 +171,61 @@ def euler_acceleration(
 def rotational_lagrangian(eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: str = "castillo") -> float:
     """T_rot = 1/2 eta_dot^T J eta_dot (eq. 6), for tests of eq. 14 from first principles."""
     return 0.5 * float(eta_dot @ generalized_inertia(eta, inertia, form) @ eta_dot)
+
+
+# --- eq. 3 solved: Euler-angle rates of body rates, body torque of a generalised torque -------------
+
+
+def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: str) -> np.ndarray:
+    """eta_dot = W_eta^-1 omega (eq. 3), solved in closed form (W's first column is (1, 0, 0)).
+
+    With W = [[1, 0, -s_theta], [0, c_a, c_theta s_a], [0, k s_a, c_theta c_a]] (eq. 4, ``a`` and
+    ``k`` set by ``form``) the lower 2x2 block gives the pitch and yaw rates and the first row the
+    roll rate. Raises ``numpy.linalg.LinAlgError`` where W is singular, as ``numpy.linalg.solve``.
+    """
+    w = euler_rate_matrix(np.asarray(euler_rad, dtype=float), form)
+    p, q, r = (float(v) for v in body_rate_frd_rad_s)
+    ca, ct_sa, k_sa, ct_ca = float(w[1, 1]), float(w[1, 2]), float(w[2, 1]), float(w[2, 2])
+    det = ca * ct_ca - ct_sa * k_sa
+    if det == 0.0:
+        raise np.linalg.LinAlgError(f"W_eta ({form}) is singular at the Euler angles {tuple(euler_rad)}")
+    theta_dot = (ct_ca * q - ct_sa * r) / det
+    psi_dot = (ca * r - k_sa * q) / det
+    return np.array((p - float(w[0, 2]) * psi_dot, theta_dot, psi_dot))
+
+
+def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
+    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
+
+    By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
+    (eq. 3), so ``tau_gen = W_eta^T tau_body``.
+    """
+    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))
+
+
+def zyx_euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
+    """ZYX Euler-angle rates from body rates: ``W_zyx^-1 omega`` (singular at pitch +-90 deg).
+
+    ``euler_rates_from_body_rates(euler, omega, "zyx")`` in closed form, for the physics step: the
+    same map (they agree to rounding, ~1e-16 relative), written with tan theta.
+    """
+    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
+    cp, tp = math.cos(euler_rad[1]), math.tan(euler_rad[1])
+    p, q, r = (float(v) for v in body_rate_frd_rad_s)
+    vertical = q * sr + r * cr
+    return np.array([p + vertical * tp, q * cr - r * sr, vertical / cp])
+
+
+def zyx_body_torque_from_generalized(euler_rad: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
+    """Body FRD torque that exerts the generalised torque ``tau`` on the ZYX Euler angles.
+
+    With ``omega = W_zyx eta_dot`` the virtual work is ``tau_body . W_zyx d eta``, so the
+    generalised torque of eq. 13 is ``W_zyx^T tau_body``; this solves ``W_zyx^T tau_body = tau``:
+    ``body_torque_from_generalized(tau, euler, "zyx")`` in closed form, for the physics step.
+    """
+    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
+    sp, cp = math.sin(euler_rad[1]), math.cos(euler_rad[1])
+    t1, t2, t3 = (float(v) for v in tau_generalized)
+    # rows of W^T: (1, 0, 0), (0, cr, -sr), (-sp, cp sr, cp cr)
+    vertical = (t3 + sp * t1) / cp  # = sr tau_y + cr tau_z
+    return np.array([t1, cr * t2 + sr * vertical, -sr * t2 + cr * vertical])

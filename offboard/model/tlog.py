@@ -1,4 +1,4 @@
-"""The tlog writer both processes record with (the reader is ``offboard.replay.TlogReader``).
+"""The tlog writer both processes record with (the reader is ``offboard.replay.reader.TlogReader``).
 
 A tlog is what MAVProxy, QGroundControl and ``mavlogdump.py`` read: per packet, an 8-byte
 big-endian timestamp (µs since the Unix epoch) and the raw MAVLink packet.

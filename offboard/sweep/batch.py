@@ -4,7 +4,7 @@ Per control sample, for every flight still flying at once:
 
 - the measurement: the true state of each rigid body (``RigidBodyModel.vehicle_state``'s
   Euler angles from the normalised quaternion) and the Euler rates by eq. 3 with the
-  controller's W_eta (``frames.euler_rates_from_body_rates``), as numpy arrays over the batch;
+  controller's W_eta (``offboard.model.euler_lagrange.euler_rates_from_body_rates``), as numpy arrays over the batch;
 - the law: ``law_step`` itself on numpy batches (``NUMPY_OPS``), each flight with its own
   believed mass, gravity and gains (arrays in the parameters it reads);
 - the vehicle: the paper's inner loop (tau~ held, eq. 16 at the physics rate with the believed
@@ -106,7 +106,7 @@ def _truth(x: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 def _euler_rates(euler: tuple[np.ndarray, ...], rates: np.ndarray, form: str) -> tuple[np.ndarray, ...]:
-    """``frames.euler_rates_from_body_rates`` over the batch (eq. 3 solved in closed form)."""
+    """``offboard.model.euler_lagrange.euler_rates_from_body_rates`` over the batch (eq. 3 solved in closed form)."""
     index, k = _EULER_FORMS[form]
     theta, a = euler[1], euler[int(index)]
     st, ct = np.sin(theta), np.cos(theta)

@@ -463,7 +463,7 @@ def _euler_accel_command(x, thrust, tau_tilde, believed, index, sign, p, cmd):  
     qw, qx, qy, qz = x[6], x[7], x[8], x[9]
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     roll, pitch, yaw = _euler_from_quat(qw / n, qx / n, qy / n, qz / n)
-    # rigid_body.euler_rates_from_body_rates
+    # offboard.model.euler_lagrange.zyx_euler_rates_from_body_rates
     sr, cr = math.sin(roll), math.cos(roll)
     cp, tp = math.cos(pitch), math.tan(pitch)
     pr, qr, rr = x[10], x[11], x[12]
@@ -472,7 +472,7 @@ def _euler_accel_command(x, thrust, tau_tilde, believed, index, sign, p, cmd):  
         roll, pitch, yaw, pr + vertical * tp, qr * cr - rr * sr, vertical / cp,
         tau_tilde[0], tau_tilde[1], tau_tilde[2], believed[0], believed[1], believed[2], index, sign,
     )  # fmt: skip
-    # rigid_body.body_torque_from_generalized
+    # offboard.model.euler_lagrange.zyx_body_torque_from_generalized
     sp = math.sin(pitch)
     vert = (t2 + sp * t0) / cp
     _speeds_for(thrust, t0, cr * t1 + sr * vert, -sr * t1 + cr * vert, p, cmd)

@@ -41,6 +41,7 @@ import math
 
 import numpy as np
 
+from offboard.model.euler_lagrange import zyx_body_torque_from_generalized, zyx_euler_rates_from_body_rates
 from offboard.model.mixer import rotor_forces, thrust_torque_from_rotor_forces
 from offboard.model.rotations import euler_from_quat, quat_from_euler
 from offboard.model.state import VehicleState
@@ -67,8 +68,6 @@ __all__ = [
     "mix_rotor_forces",
     "rotor_speeds_for",
     "hover_rotor_speed",
-    "euler_rates_from_body_rates",
-    "body_torque_from_generalized",
     "RigidBodyModel",
 ]
 
@@ -310,32 +309,6 @@ def normalize(x: np.ndarray) -> np.ndarray:
     return x
 
 
-# --- Euler angles ------------------------------------------------------------------------------
-
-
-def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
-    """ZYX Euler-angle rates from body rates: ``W_zyx^-1 omega`` (singular at pitch +-90 deg)."""
-    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
-    cp, tp = math.cos(euler_rad[1]), math.tan(euler_rad[1])
-    p, q, r = (float(v) for v in body_rate_frd_rad_s)
-    vertical = q * sr + r * cr
-    return np.array([p + vertical * tp, q * cr - r * sr, vertical / cp])
-
-
-def body_torque_from_generalized(euler_rad: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
-    """Body FRD torque that exerts the generalised torque ``tau`` on the ZYX Euler angles.
-
-    With ``omega = W_zyx eta_dot`` the virtual work is ``tau_body . W_zyx d eta``, so the
-    generalised torque of eq. 13 is ``W_zyx^T tau_body``; this solves ``W_zyx^T tau_body = tau``.
-    """
-    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
-    sp, cp = math.sin(euler_rad[1]), math.cos(euler_rad[1])
-    t1, t2, t3 = (float(v) for v in tau_generalized)
-    # rows of W^T: (1, 0, 0), (0, cr, -sr), (-sp, cp sr, cp cr)
-    vertical = (t3 + sp * t1) / cp  # = sr tau_y + cr tau_z
-    return np.array([t1, cr * t2 + sr * vertical, -sr * t2 + cr * vertical])
-
-
 # --- the adapter for VehicleSim ------------------------------------------------------------------
 
 
@@ -386,12 +359,12 @@ class RigidBodyModel:
     def euler(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """ZYX (roll, pitch, yaw) of the quaternion and their rates ``W_zyx^-1 omega``."""
         eta = euler_from_quat(x[QUAT] / np.linalg.norm(x[QUAT]))
-        return eta, euler_rates_from_body_rates(eta, x[RATES])
+        return eta, zyx_euler_rates_from_body_rates(eta, x[RATES])
 
     def torque_from_generalized(self, x: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
         """Body torque exerting ``tau_generalized`` on the ZYX angles (``W_zyx^-T tau``)."""
         eta = euler_from_quat(x[QUAT] / np.linalg.norm(x[QUAT]))
-        return body_torque_from_generalized(eta, tau_generalized)
+        return zyx_body_torque_from_generalized(eta, tau_generalized)
 
     def ground_contact(self, x: np.ndarray) -> tuple[np.ndarray, bool]:
         """Contact with the ground plane down = 0 (also renormalises the quaternion).
@@ -425,7 +398,7 @@ class RigidBodyModel:
             vel_ned_m_s=np.array(s[3:6]),
             acc_ned_m_s2=np.array(xdot[VEL], dtype=float),
             euler_rad=eta,
-            euler_rate_rad_s=euler_rates_from_body_rates(eta, s[10:13]),
+            euler_rate_rad_s=zyx_euler_rates_from_body_rates(eta, s[10:13]),
             body_rate_frd_rad_s=np.array(s[10:13]),
             quat_wxyz=q,
             motor_speeds_rad_s=speeds,

@@ -23,11 +23,12 @@ from typing import Protocol
 
 import numpy as np
 
-from sitl_plant.dynamics.rigid_body import euler_rates_from_body_rates
+from offboard.model.euler_lagrange import zyx_euler_rates_from_body_rates
 from offboard.model.rotations import euler_from_quat, quat_multiply, wrap_pi
 from offboard.model.errors import UserError
 from offboard.model.state import VehicleState
 from offboard.model.tomlfile import Fields
+from sitl_plant.dynamics import specstring
 
 __all__ = [
     "SensorModel",
@@ -201,7 +202,7 @@ class ImuNoise:
             quat_wxyz=quat,
             euler_rad=euler,
             body_rate_frd_rad_s=truth.body_rate_frd_rad_s + rate_noise,
-            euler_rate_rad_s=truth.euler_rate_rad_s + euler_rates_from_body_rates(euler, rate_noise),
+            euler_rate_rad_s=truth.euler_rate_rad_s + zyx_euler_rates_from_body_rates(euler, rate_noise),
             acc_ned_m_s2=truth.acc_ned_m_s2 + self.acc_std_m_s2 * noise[4],
         )
 
@@ -215,16 +216,6 @@ class ImuNoise:
 # --- the command-line spec and the TOML table ----------------------------------------------------
 
 
-def _number(spec: str, name: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise SensorSpecError(f"sensor spec {spec!r}: {name} must be a number, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise SensorSpecError(f"sensor spec {spec!r}: {name} must be a number >= 0, got {text!r}")
-    return value
-
-
 def sensors_from_spec(spec: str, seed: int = 0) -> SensorModel:
     """A sensor model from a command-line spec (``SENSOR_SPEC_HELP``).
 
@@ -236,28 +227,21 @@ def sensors_from_spec(spec: str, seed: int = 0) -> SensorModel:
     SensorSpecError
         (a ``ValueError``) naming the bad part, in one line.
     """
-    text = spec.strip()
-    kind, _, args = text.partition(":")
-    kind, args = kind.strip().lower(), args.strip()
+    kind, args = specstring.kind_and_args(spec.strip())
+
+    def fail(message: str) -> SensorSpecError:
+        return SensorSpecError(f"sensor spec {spec!r}: {message}")
+
     if kind == "clean":
         if args:
             raise SensorSpecError(f"sensor spec {spec!r}: 'clean' takes no arguments")
         return CleanSensors()
     if kind == "paper":
-        return PaperAccelNoise(_number(spec, "fraction", args) if args else 0.05, seed)
+        return PaperAccelNoise(specstring.number("fraction", args, fail, nonnegative=True) if args else 0.05, seed)
     if kind == "imu":
         values = dict(IMU_DEFAULTS)
-        given: set[str] = set()
-        for item in args.split(",") if args else []:
-            key, sep, value = (s.strip() for s in item.partition("="))
-            if not sep or key not in IMU_DEFAULTS:
-                raise SensorSpecError(
-                    f"sensor spec {spec!r}: expected key=value with key one of {', '.join(IMU_DEFAULTS)}, got {item.strip()!r}"
-                )
-            if key in given:
-                raise SensorSpecError(f"sensor spec {spec!r}: option {key!r} given twice")
-            given.add(key)
-            values[key] = _number(spec, key, value)
+        for key, value in (specstring.options(args, tuple(IMU_DEFAULTS), fail) if args else {}).items():
+            values[key] = specstring.number(key, value, fail, nonnegative=True)
         return ImuNoise(values["pos"], values["vel"], values["att"], values["rate"], values["acc"], seed)
     raise SensorSpecError(f"sensor spec {spec!r}: unknown model {kind!r} (expected {SENSOR_SPEC_HELP})")
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from offboard.model.errors import UserError
 from offboard.model.tomlfile import Fields
+from sitl_plant.dynamics import specstring
 
 __all__ = [
     "WindField",
@@ -434,34 +435,13 @@ def _combine(parts: list[WindField]) -> WindField:
 # --- the command-line spec ---------------------------------------------------------------------
 
 
-def _number(part: str, name: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise WindSpecError(f"wind spec {part!r}: {name} must be a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise WindSpecError(f"wind spec {part!r}: {name} must be finite, got {text!r}")
-    return value
-
-
-def _options(part: str, text: str, allowed: Sequence[str]) -> dict[str, str]:
-    options: dict[str, str] = {}
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        key, value = key.strip(), value.strip()
-        if not sep or not key:
-            raise WindSpecError(f"wind spec {part!r}: expected key=value, got {item.strip()!r}")
-        if key not in allowed:
-            raise WindSpecError(f"wind spec {part!r}: unknown option {key!r} (expected {', '.join(allowed)})")
-        if key in options:
-            raise WindSpecError(f"wind spec {part!r}: option {key!r} given twice")
-        options[key] = value
-    return options
+def _fail(part: str) -> specstring.Fail:
+    return lambda message: WindSpecError(f"wind spec {part!r}: {message}")
 
 
 def _parse_part(part: str, seed: Sequence[int]) -> WindField:
-    kind, _, args = part.partition(":")
-    kind, args = kind.strip().lower(), args.strip()
+    kind, args = specstring.kind_and_args(part)
+    fail = _fail(part)
     if kind == "none":
         if args:
             raise WindSpecError(f"wind spec {part!r}: 'none' takes no arguments")
@@ -470,37 +450,37 @@ def _parse_part(part: str, seed: Sequence[int]) -> WindField:
         values = [v.strip() for v in args.split(",")] if args else []
         if len(values) != 3:
             raise WindSpecError(f"wind spec {part!r}: expected constant:NORTH,EAST,DOWN (3 numbers in m/s)")
-        return ConstantWind(tuple(_number(part, "velocity", v) for v in values))  # type: ignore[arg-type]
+        return ConstantWind(tuple(specstring.number("velocity", v, fail) for v in values))  # type: ignore[arg-type]
     if kind == "dryden":
         speed_text, _, rest = args.partition(",")
         if not speed_text.strip():
             raise WindSpecError(f"wind spec {part!r}: expected dryden:SPEED[,dir=DEG,alt=M,airspeed=M_S]")
-        speed = _number(part, "speed", speed_text.strip())
+        speed = specstring.number("speed", speed_text.strip(), fail)
         if speed < 0:
             raise WindSpecError(f"wind spec {part!r}: speed must be >= 0, got {speed:g}")
-        options = _options(part, rest, ("dir", "alt", "airspeed")) if rest.strip() else {}
-        altitude = _number(part, "alt", options.get("alt", "10"))
+        options = specstring.options(rest, ("dir", "alt", "airspeed"), fail) if rest.strip() else {}
+        altitude = specstring.number("alt", options.get("alt", "10"), fail)
         if altitude <= 0:
             raise WindSpecError(f"wind spec {part!r}: alt must be > 0, got {altitude:g}")
-        airspeed = _number(part, "airspeed", options["airspeed"]) if "airspeed" in options else None
+        airspeed = specstring.number("airspeed", options["airspeed"], fail) if "airspeed" in options else None
         if airspeed is not None and airspeed <= 0:
             raise WindSpecError(f"wind spec {part!r}: airspeed must be > 0, got {airspeed:g}")
         return DrydenTurbulence(
-            speed, _number(part, "dir", options.get("dir", "0")), altitude, airspeed, seed=tuple(seed)
+            speed, specstring.number("dir", options.get("dir", "0"), fail), altitude, airspeed, seed=tuple(seed)
         )
     if kind == "gust":
-        options = _options(part, args, ("t", "amp", "dur", "dir")) if args else {}
+        options = specstring.options(args, ("t", "amp", "dur", "dir"), fail) if args else {}
         missing = [key for key in ("t", "amp", "dur") if key not in options]
         if missing:
             raise WindSpecError(f"wind spec {part!r}: missing {', '.join(missing)} (gust:t=S,amp=M_S,dur=S[,dir=DEG])")
-        duration = _number(part, "dur", options["dur"])
+        duration = specstring.number("dur", options["dur"], fail)
         if duration <= 0:
             raise WindSpecError(f"wind spec {part!r}: dur must be > 0, got {duration:g}")
         gust = Gust(
-            _number(part, "t", options["t"]),
-            _number(part, "amp", options["amp"]),
+            specstring.number("t", options["t"], fail),
+            specstring.number("amp", options["amp"], fail),
             duration,
-            _number(part, "dir", options.get("dir", "0")),
+            specstring.number("dir", options.get("dir", "0"), fail),
         )
         return GustWind((gust,))
     raise WindSpecError(f"wind spec {part!r}: unknown kind {kind!r} (expected none, constant, dryden or gust)")

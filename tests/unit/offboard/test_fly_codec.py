@@ -14,7 +14,8 @@ from offboard import codec
 from offboard.controller import PAPER_CONTROLLER_FILE, RosalesController, TrackingReference, load_controller
 from offboard.controller.command import MissingCommand
 from offboard.controller.paper import paper_command, paper_state_of
-from offboard.frames import body_torque_from_generalized, euler_rates_from_body_rates, paper_state, tilt_about_heading
+from offboard.frames import paper_state, tilt_about_heading
+from offboard.model.euler_lagrange import body_torque_from_generalized, euler_rates_from_body_rates
 from sitl_plant import codec as plant_codec
 from offboard.model.euler_lagrange import euler_rate_matrix
 from offboard.model.rotations import euler_from_quat, quat_from_euler, rotation_matrix

@@ -9,7 +9,13 @@ import pytest
 from numpy.testing import assert_allclose
 
 from sitl_plant.dynamics import rigid_body as rb
-from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.euler_lagrange import (
+    body_torque_from_generalized,
+    euler_rate_matrix,
+    euler_rates_from_body_rates,
+    zyx_body_torque_from_generalized,
+    zyx_euler_rates_from_body_rates,
+)
 from sitl_plant.dynamics.integrate import rk4_step
 from offboard.model.rotations import euler_from_quat, quat_from_euler, rotation_matrix
 from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
@@ -155,10 +161,21 @@ def test_generalized_torque_is_the_transpose_map() -> None:
     for _ in range(20):
         eta = rng.uniform([-1.0, -1.2, -3.0], [1.0, 1.2, 3.0])
         tau = rng.normal(size=3)
-        body = rb.body_torque_from_generalized(eta, tau)
+        body = zyx_body_torque_from_generalized(eta, tau)
         assert_allclose(euler_rate_matrix(eta, "zyx").T @ body, tau, atol=1e-12)
         omega = rng.normal(size=3)
-        assert_allclose(euler_rate_matrix(eta, "zyx") @ rb.euler_rates_from_body_rates(eta, omega), omega, atol=1e-12)
+        assert_allclose(euler_rate_matrix(eta, "zyx") @ zyx_euler_rates_from_body_rates(eta, omega), omega, atol=1e-12)
+
+
+
+def test_the_zyx_closed_forms_are_the_general_maps_with_the_zyx_form() -> None:
+    """The physics step's closed forms and the controller's W_eta solve are one map for form "zyx"."""
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        eta = rng.uniform([-1.5, -1.5, -3.0], [1.5, 1.5, 3.0])
+        v = rng.normal(size=3) * 3.0
+        assert_allclose(zyx_euler_rates_from_body_rates(eta, v), euler_rates_from_body_rates(eta, v, "zyx"), rtol=1e-12, atol=1e-12)
+        assert_allclose(zyx_body_torque_from_generalized(eta, v), body_torque_from_generalized(v, eta, "zyx"), rtol=1e-12, atol=1e-12)
 
 
 # --- motors -----------------------------------------------------------------------------------

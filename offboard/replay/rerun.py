@@ -1,0 +1,304 @@
+"""The controller re-run on the recorded telemetry, sample by sample, against the logged commands;
+and which controller that is (``flight_controller``, resolved as ``offboard fly`` resolves it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from offboard import codec
+from offboard.controller.params import ControllerParams
+from offboard.errors import LogFormatError, ParameterFileError
+from offboard.model.rotations import euler_from_quat
+from offboard.record import FlightRecord
+from offboard.replay.record import _telemetry_rows, setpoints_for
+from offboard.replay.scan import LogScan
+from offboard.trajectory.base import Trajectory
+
+#: The setpoint fields compared, per output kind (message units).
+RERUN_FIELDS = {
+    "attitude": ("q_w", "q_x", "q_y", "q_z", "roll_rate_rad_s", "pitch_rate_rad_s", "yaw_rate_rad_s", "thrust_norm"),
+    "actuator": ("roll_torque_norm", "pitch_torque_norm", "yaw_torque_norm", "thrust_norm"),
+}
+
+
+@dataclass(frozen=True)
+class RerunResult:
+    """The controller fed the recorded telemetry sample by sample, against the logged commands.
+
+    Attributes
+    ----------
+    output : str
+        ``attitude`` or ``actuator``: the commands compared.
+    fields : tuple of str
+        Names of the compared message fields (``RERUN_FIELDS``).
+    logged, rerun : ndarray (samples, fields)
+        The logged fields, and the re-run's as the message would carry them (float32).
+    record : FlightRecord
+        The re-run as a flight record: the logged state and the re-run's law outputs (u, the
+        angle references, eq. 16 torques, tau_tilde), as ``offboard fly`` records a flight.
+    gaps : int
+        Missing samples in the log (the controller in flight stepped on them; the re-run cannot).
+    """
+
+    output: str
+    fields: tuple[str, ...]
+    t_s: np.ndarray
+    logged: np.ndarray
+    rerun: np.ndarray
+    record: FlightRecord
+    gaps: int
+
+    @property
+    def difference(self) -> np.ndarray:
+        return np.abs(self.rerun.astype(np.float64) - self.logged.astype(np.float64))
+
+    @property
+    def max_difference(self) -> dict[str, float]:
+        d = self.difference
+        return {name: float(np.max(d[:, i])) if len(d) else 0.0 for i, name in enumerate(self.fields)}
+
+    @property
+    def mismatched_samples(self) -> int:
+        return int(np.count_nonzero(np.any(self.rerun != self.logged, axis=1)))
+
+    @property
+    def exact(self) -> bool:
+        """Every compared field equal to the logged one after float32 rounding."""
+        return len(self.t_s) > 0 and self.mismatched_samples == 0
+
+    def first_mismatch(self) -> tuple[float, str, float, float] | None:
+        """(t_s, field, logged, re-run) of the first difference, or None."""
+        rows = np.nonzero(np.any(self.rerun != self.logged, axis=1))[0]
+        if not len(rows):
+            return None
+        k = int(rows[0])
+        i = int(np.argmax(self.rerun[k] != self.logged[k]))
+        return float(self.t_s[k]), self.fields[i], float(self.logged[k, i]), float(self.rerun[k, i])
+
+    def to_dict(self) -> dict:
+        first = self.first_mismatch()
+        return {
+            "output": self.output,
+            "samples": int(len(self.t_s)),
+            "exact": self.exact,
+            "mismatched_samples": self.mismatched_samples,
+            "max_difference": self.max_difference,
+            "first_mismatch": None if first is None else dict(zip(("t_s", "field", "logged", "rerun"), first)),
+            "missing_samples": self.gaps,
+        }
+
+
+class _Msg:
+    """A telemetry message rebuilt from a scanned row, with the fields the codec reads."""
+
+    def __init__(self, **fields: float) -> None:
+        self.__dict__.update(fields)
+
+
+def rerun_controller(
+    scan: LogScan,
+    record: FlightRecord,
+    params: ControllerParams,
+    trajectory: Trajectory,
+    scaling: codec.Scaling,
+    model: str = "rigid-body",
+    encoding: str | None = None,
+    kind: str = "paper",
+) -> RerunResult:
+    """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
+
+    ``encoding``: the ``offboard fly --output`` that was flown when the message alone does not say
+    (``rates`` travels in SET_ATTITUDE_TARGET like ``attitude``); None: the message's kind.
+
+    Each sample: the ATTITUDE and LOCAL_POSITION_NED the logged command answered become the
+    controller's state by ``offboard.codec.measured_state``, the references are the mission's at
+    ``t`` and ``t + To``, the controller (``offboard.controllers.make_controller``, as ``offboard
+    fly`` builds it) steps, and its command becomes the message fields by
+    ``codec.command_setpoint`` (the encoding ``offboard fly`` sends) and ``codec.setpoint_fields``,
+    rounded to float32 as the message carries them.
+
+    Parameters
+    ----------
+    scan : LogScan
+    record : FlightRecord
+        From ``build_record`` on the same scan, with the mission's trajectory.
+    params : ControllerParams
+        The controller to run (the flight's, or another to compare).
+    trajectory : Trajectory
+    scaling : offboard.codec.Scaling
+        The vehicle's scaling the commands were normalised by.
+    model : str
+        ``rigid-body`` or ``paper`` (the attitude and torque forms).
+    kind : str
+        Which controller flew (``paper``, ``se3``, ``px4``).
+    """
+    from offboard.controllers import make_controller
+    from offboard.record import RecordBuilder, control_row
+
+    output = record.meta.get("commands")
+    if output not in RERUN_FIELDS:
+        raise LogFormatError(f"{record.meta.get('source') or 'the log'}: no controller commands to compare with "
+                             "(SET_ATTITUDE_TARGET or SET_ACTUATOR_CONTROL_TARGET)")
+    vehicle = int(record.meta["vehicle_sysid"])  # type: ignore[arg-type]
+    setpoints = setpoints_for(scan, vehicle)
+    rows = np.asarray(record.meta["setpoint_rows"], dtype=np.int64)
+    grid = np.asarray(record.meta["time_boot_ms"], dtype=np.int64)
+    i_att, i_pos, att_table, pos_table = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows])
+    att, pos = att_table[i_att], pos_table[i_pos]
+    to = params.sample_time_s
+    controller = make_controller(kind, params, vehicle_model=model)
+    t_all = record["t_s"]
+    builder = RecordBuilder()
+    logged = setpoints.values[rows]
+    logged = logged[:, 1:9] if output == "attitude" else logged[:, 0:4]
+    rerun = np.full(logged.shape, np.nan, dtype=np.float32)
+    for k in range(len(rows)):
+        a, p = att[k], pos[k]
+        measured = codec.measured_state(
+            _Msg(time_boot_ms=int(a[0]), roll=a[1], pitch=a[2], yaw=a[3], rollspeed=a[4], pitchspeed=a[5], yawspeed=a[6]),
+            _Msg(time_boot_ms=int(p[0]), x=p[1], y=p[2], z=p[3], vx=p[4], vy=p[5], vz=p[6]),
+        )
+        t = float(t_all[k])
+        ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
+        command = controller.step(measured, ref_n, ref_n1)
+        builder.append(**control_row(t, measured, ref_n, command))
+        if not command.is_finite():
+            continue
+        sp = codec.command_setpoint(command, scaling, output=encoding or output, model=model, controller=controller.name)
+        rerun[k] = np.array(codec.setpoint_fields(sp), dtype=np.float32)
+    steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
+    gaps = int(np.sum(np.maximum(steps - 1, 0)))
+    rerun_record = builder.build(phases=record.phases, meta={**record.meta, "rerun": True})
+    return RerunResult(encoding or output, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
+                       rerun_record, gaps)  # fmt: skip
+
+
+def format_rerun(result: RerunResult, label: str) -> str:
+    """The comparison table: per field, logged and re-run ranges, largest and RMS difference."""
+    d = result.difference
+    if not len(d):
+        return f"re-run ({label}): no mission samples in the log to compare"
+    lines = [f"re-run ({label}): {len(result.t_s)} samples of {result.output} commands; "
+             + ("outputs equal the log exactly (to float32)" if result.exact
+                else f"{result.mismatched_samples} samples differ")]
+    if result.gaps:
+        lines.append(f"  note: {result.gaps} samples are missing from the log; the re-run's memory differs after them")
+    lines.append(f"  {'field':<18} {'logged min':>11} {'logged max':>11} {'re-run min':>11} {'re-run max':>11} {'max |diff|':>11} {'rms diff':>10}")
+    for i, name in enumerate(result.fields):
+        lo, ro = result.logged[:, i].astype(float), result.rerun[:, i].astype(float)
+        rms = float(np.sqrt(np.nanmean(d[:, i] ** 2))) if len(d) else 0.0
+        lines.append(f"  {name:<18} {np.nanmin(lo):>11.5g} {np.nanmax(lo):>11.5g} {np.nanmin(ro):>11.5g} {np.nanmax(ro):>11.5g} "
+                     f"{np.nanmax(d[:, i]):>11.3g} {rms:>10.3g}")
+    first = result.first_mismatch()
+    if first is not None:
+        lines.append(f"  first difference at t = {first[0]:.2f} s in {first[1]}: logged {first[2]:.7g}, re-run {first[3]:.7g}")
+    return "\n".join(lines)
+
+
+def flight_controller(
+    vehicle_params: dict[str, float],
+    scaling: object,
+    *,
+    model: str = "rigid-body",
+    output: str = "attitude",
+    controller_file: Path | None = None,
+    summary: dict | None = None,
+) -> tuple[object, str]:
+    """The controller to re-run, and where it came from (docs/replay.md).
+
+    - ``controller_file`` given: that file as ``offboard fly --controller FILE`` would fly it on
+      this vehicle (``offboard.flight.resolve_controller``: the file's mass and inertia, thrust
+      bounded by the vehicle, its tilt limit or 35 degrees);
+    - else the flight's own ``summary.json`` (``summary``): the controller file it names
+      (``controller_file``; null or absent: the paper's file believing the vehicle's SIM_*
+      values) resolved as ``offboard fly`` resolved it, then overridden by the resolved
+      controller the summary records, field by field (older summaries lack some fields);
+    - else ``offboard fly``'s default: the paper's file believing the vehicle's SIM_* values,
+      read back from the PARAM_VALUE messages in the log, with (attitude output on a rigid body)
+      the gains designed for the vehicle's inner loop from the same parameters.
+
+    Returns
+    -------
+    (ControllerParams, str)
+    """
+    from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
+    from offboard.flight import ControllerChoice, resolve_controller
+
+    if controller_file is not None:
+        choice = ControllerChoice(base=load_controller(controller_file), from_file=True)
+        return resolve_controller(choice, model, vehicle_params, scaling)[0], f"{controller_file} (as offboard fly --controller flies it)"
+    recorded = (summary or {}).get("controller")
+    flown_file = (summary or {}).get("controller_file")
+    flown_choice = (summary or {}).get("controller_choice")
+    # offboard fly's default designs the gains where the design applies (offboard.commands.fly)
+    default_tuned = model == "rigid-body" and output == "attitude"
+    tuned = flown_choice == "tuned" or (flown_choice is None and default_tuned and not isinstance(recorded, dict))
+    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), tuned=tuned)
+    file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values" + (", gains designed for it" if choice.tuned else "")
+    if isinstance(flown_file, str) and flown_file:
+        if Path(flown_file).is_file():
+            choice = ControllerChoice(base=load_controller(flown_file), from_file=True)
+            file_note = f"controller file {flown_file}"
+        elif isinstance(recorded, dict):
+            file_note = f"controller file {flown_file} no longer there: the values summary.json records"
+        else:
+            raise ParameterFileError(f"summary.json: the flight's controller file {flown_file} no longer exists and the "
+                                     "summary records no controller; pass --controller FILE (a copy of it)")
+    params = resolve_controller(choice, model, vehicle_params, scaling)[0]
+    if not isinstance(recorded, dict):
+        if summary is not None and "controller_file" in summary:
+            return params, f"the flight's ({file_note}, named in summary.json)"
+        return params, f"offboard fly's default ({PAPER_CONTROLLER_FILE.name}, the vehicle's SIM_* values from the log)"
+    changes: dict[str, object] = {}
+    for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware",
+                "integral_gain_per_s", "integral_limit_m_s", "velocity_integral_gain_per_s2", "velocity_integral_limit_m_s2",
+                "tilt_lead", "linear_drag_n_s_m"):  # fmt: skip
+        if key in recorded and recorded[key] is not None:
+            changes[key] = recorded[key]
+    if "inertia_kg_m2" in recorded:
+        changes["inertia_kg_m2"] = tuple(float(v) for v in recorded["inertia_kg_m2"])
+    if "reference_lead_s2" in recorded:
+        changes["reference_lead_s2"] = tuple(float(v) for v in recorded["reference_lead_s2"])
+    if isinstance(recorded.get("gains"), dict):
+        changes["gains"] = ControllerGains(**{k: float(v) for k, v in recorded["gains"].items()})
+    if any(k in recorded for k in ("thrust_min_n", "thrust_max_n", "tilt_max_deg")):
+        tilt = recorded.get("tilt_max_deg")
+        changes["limits"] = ActionLimits(
+            thrust_min_n=recorded.get("thrust_min_n"),
+            thrust_max_n=recorded.get("thrust_max_n"),
+            tilt_max_rad=None if tilt is None else math.radians(float(tilt)),
+            tilt_cone=bool(recorded.get("tilt_cone", False)),
+            speed_xy_max_m_s=recorded.get("speed_xy_max_m_s"),
+            speed_up_max_m_s=recorded.get("speed_up_max_m_s"),
+            speed_down_max_m_s=recorded.get("speed_down_max_m_s"),
+            yaw_rate_max_rad_s=recorded.get("yaw_rate_max_rad_s"),
+        )
+    return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"  # type: ignore[attr-defined]
+
+
+def rerun_panels(result: RerunResult, thrust_max_n: float) -> list[tuple[str, np.ndarray, np.ndarray, tuple[str, ...]]]:
+    """The comparison figure's panels in physical units (``offboard.plots.comparison_figure``)."""
+    def euler_deg(values: np.ndarray) -> np.ndarray:
+        return np.degrees(np.array([euler_from_quat(q) for q in values[:, 0:4]]).reshape(-1, 3))
+
+    scale = thrust_max_n if math.isfinite(thrust_max_n) else 1.0
+    thrust_label = "u [N]" if math.isfinite(thrust_max_n) else "thrust (normalised)"
+    logged, rerun = result.logged.astype(float), result.rerun.astype(float)
+    if result.output in ("attitude", "rates"):  # both SET_ATTITUDE_TARGET
+        a, b = euler_deg(logged), euler_deg(rerun)
+        return [
+            ("x7ez roll ref [deg]", a[:, 0], b[:, 0], ("roll",)),
+            ("x9ez pitch ref [deg]", a[:, 1], b[:, 1], ("pitch",)),
+            ("yaw ref [deg]", a[:, 2], b[:, 2], ("yaw",)),
+            ("body rate refs [rad/s]", logged[:, 4:7], rerun[:, 4:7], ("p", "q", "r")),
+            (thrust_label, logged[:, 7] * scale, rerun[:, 7] * scale, ("u",)),
+        ]
+    return [
+        ("torques (normalised)", logged[:, 0:3], rerun[:, 0:3], ("roll", "pitch", "yaw")),
+        (thrust_label, logged[:, 3] * scale, rerun[:, 3] * scale, ("u",)),
+    ]
