@@ -296,7 +296,8 @@ class MavLink:
         parser = self._parser
         trusted = False
         try:
-            messages = parser.parse_buffer(data) or []
+            # a UDP datagram holds whole frames: the hot ones decoded with pre-built structs
+            messages = mavfast.parse_datagram(parser, data) if self._datagrams else (parser.parse_buffer(data) or [])
         except Exception:  # noqa: BLE001 - bad bytes must never stop a flight
             messages = []
             self.stats.bad += 1

@@ -260,7 +260,7 @@ class Endpoint:
         counters = self.counters
         found = False
         try:
-            messages = parser.parse_buffer(data) or []
+            messages = mavfast.parse_datagram(parser, data)  # the hot frames with pre-built structs, as pymavlink
         except Exception:  # noqa: BLE001 - a malformed packet must never stop the plant
             messages = []
             counters.bad_packets += 1

@@ -106,3 +106,80 @@ def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
         signing.timestamp += 1
         frame += hashlib.sha256(signing.secret_key + frame).digest()[:6]
     return frame
+
+
+# --- parsing -------------------------------------------------------------------------------------
+
+
+class _Unpacker:
+    """One message type: its payload ``struct`` and pymavlink's field order, arrays regrouped."""
+
+    __slots__ = ("cls", "crc_extra", "size", "unpack", "plan")
+
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+        self.crc_extra = bytes((cls.crc_extra,))
+        self.size = cls.unpacker.size
+        self.unpack = cls.unpacker.unpack
+        lengths = cls.lengths
+        # (start, length) in the unpacked tuple of each constructor argument, as pymavlink's decode
+        self.plan = tuple((sum(lengths[:order]), lengths[order]) for order in cls.orders)
+
+    def fields(self, payload: bytes) -> list:
+        t = self.unpack(payload)
+        out: list = []
+        for start, length in self.plan:
+            v = t[start]
+            if length == 1 or isinstance(v, bytes):
+                out.append(v.rstrip(b"\x00") if isinstance(v, bytes) else v)
+            else:
+                out.append(list(t[start : start + length]))
+        return out
+
+
+UNPACKERS: dict[int, _Unpacker] = {cls.id: _Unpacker(cls) for cls in HOT_TYPES}
+
+
+def parse_datagram(parser: mavlink.MAVLink, data: bytes) -> list[mavlink.MAVLink_message]:
+    """``parser.parse_buffer(data) or []`` for one whole datagram, on a parser holding no partial
+    frame: the leading frames of the ``HOT`` types decoded here (checked CRC, pymavlink's message
+    objects with the same fields, header, buffer and CRC), the rest from the first other frame on
+    by pymavlink. A parser with a signing key (pymavlink then verifies signatures) gets
+    pymavlink's path throughout.
+
+    Raises what ``parse_buffer`` raises."""
+    out: list[mavlink.MAVLink_message] = []
+    i, n = 0, len(data)
+    if parser.signing.secret_key is None and not parser.buf:
+        while n - i >= 12 and data[i] == 0xFD:
+            mlen, flags = data[i + 1], data[i + 2]
+            if flags & ~_SIGNED:
+                break
+            sig = 13 if flags else 0
+            end = i + 12 + mlen + sig
+            u = UNPACKERS.get(data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16)
+            if u is None or end > n:
+                break
+            crc_at = i + 10 + mlen
+            crc = data[crc_at] | data[crc_at + 1] << 8
+            if crc != x25crc(data[i + 1 : crc_at] + u.crc_extra):
+                break  # pymavlink says what is wrong
+            payload = data[i + 10 : crc_at]
+            if mlen < u.size:
+                payload += bytes(u.size - mlen)
+            m = u.cls(*u.fields(payload[: u.size]))
+            frame = bytearray(data[i:end])
+            m._signed = False
+            m._msgbuf = frame
+            m._payload = frame[6 : -(2 + sig)]
+            m._crc = crc
+            m._header = mavlink.MAVLink_header(u.cls.id, flags, data[i + 3], mlen, data[i + 4], data[i + 5], data[i + 6])
+            if sig:
+                parser.signing.sig_count += 1
+            parser.total_packets_received += 1
+            parser.total_bytes_received += end - i
+            out.append(m)
+            i = end
+    if i < n:
+        out += parser.parse_buffer(data[i:] if i else data) or []
+    return out

@@ -77,3 +77,70 @@ def test_a_value_out_of_range_raises_as_pymavlink_does():
         msg.pack(_mav(False))
     with pytest.raises(type(theirs.value)):
         mavfast.pack(msg, _mav(False))
+
+
+def _same(a: mavlink.MAVLink_message, b: mavlink.MAVLink_message) -> None:
+    assert type(a) is type(b)
+    assert bytes(a.get_msgbuf()) == bytes(b.get_msgbuf()) and bytes(a._payload) == bytes(b._payload)
+    assert (a.get_crc(), a._signed, a.get_seq(), a.get_srcSystem(), a.get_srcComponent()) == \
+           (b.get_crc(), b._signed, b.get_seq(), b.get_srcSystem(), b.get_srcComponent())  # fmt: skip
+    assert vars(a._header) == vars(b._header)
+    da, db = a.to_dict(), b.to_dict()
+    assert repr(da) == repr(db)  # NaN compares equal as text
+
+
+def _datagram(rng: random.Random, mav: mavlink.MAVLink, messages: list) -> bytes:
+    out = b""
+    for msg in messages:
+        out += msg.pack(mav)
+        mav.seq = (mav.seq + 1) & 0xFF
+    return out
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_datagrams_parse_as_pymavlink_parses_them(signed):
+    rng = random.Random(4)
+    mav = _mav(signed)
+    text = mavlink.MAVLink_statustext_message(4, b"between")
+    cases = []
+    for _ in range(20):
+        hot = _samples(rng)
+        cases += [
+            _datagram(rng, mav, hot),  # all hot
+            _datagram(rng, mav, hot[:2] + [text] + hot[2:]),  # another message in the middle: pymavlink from there
+            _datagram(rng, mav, hot[:3]) + b"\x01\x02garbage",  # a bad tail
+        ]
+    damaged = bytearray(_datagram(rng, mav, _samples(rng)[:2]))
+    damaged[12] ^= 0xFF  # a CRC error in the first frame
+    cases.append(bytes(damaged))
+    cases.append(_datagram(rng, mav, _samples(rng))[:-5])  # a truncated last frame
+    raised = 0
+    for data in cases:
+        fast, slow = mavlink.MAVLink(None), mavlink.MAVLink(None)
+        try:
+            theirs = slow.parse_buffer(data) or []
+        except mavlink.MAVError as exc:  # pymavlink gives up on the datagram (the links count it bad): so do we
+            with pytest.raises(type(exc), match=str(exc)):
+                mavfast.parse_datagram(fast, data)
+            raised += 1
+            continue
+        ours = mavfast.parse_datagram(fast, data)
+        assert len(ours) == len(theirs) and ours, data.hex()
+        for a, b in zip(ours, theirs, strict=True):
+            if b.get_type() == "BAD_DATA":
+                assert a.get_type() == "BAD_DATA" and bytes(a.data) == bytes(b.data)
+            else:
+                _same(a, b)
+        assert fast.total_packets_received == slow.total_packets_received
+        assert fast.signing.sig_count == slow.signing.sig_count
+    assert 0 < raised < len(cases)
+
+
+def test_a_parser_that_verifies_signatures_keeps_pymavlinks_path():
+    rng = random.Random(5)
+    data = _datagram(rng, _mav(True), _samples(rng))
+    checking = _mav(True, sysid=9)
+    checking.signing.sign_outgoing = False
+    ours = mavfast.parse_datagram(checking, data)
+    assert [m.get_type() for m in ours] == [m.get_type() for m in _samples(rng)]
+    assert all(m._signed for m in ours)  # verified by pymavlink
