@@ -330,9 +330,51 @@ def land_params() -> tuple[int, tuple[float, ...]]:
     return mavlink.MAV_CMD_NAV_LAND, (0.0, 0.0, 0.0, nan, nan, nan, nan)
 
 
-def message_interval_params(message_id: int, rate_hz: float) -> tuple[int, tuple[float, ...]]:
-    """MAV_CMD_SET_MESSAGE_INTERVAL for one stream."""
-    return mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(message_id), float(round(1e6 / rate_hz)))
+#: The streams ``offboard fly`` samples: asked for at its telemetry rate (a multiple of 1/To).
+SAMPLED_STREAMS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+#: Streams it reads and leaves at the vehicle's rate: HEARTBEAT (mode, armed), EXTENDED_SYS_STATE
+#: (the landed state that ends the landing), HOME_POSITION (mission alignment, replay).
+KEPT_STREAMS = (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+                mavlink.MAVLINK_MSG_ID_HOME_POSITION)  # fmt: skip
+#: PX4 v1.16's default streams on an onboard link (``configure_streams_to_default``,
+#: MAVLINK_MODE_ONBOARD, as measured on its SITL: docs/parity/wire.md) that ``offboard fly`` never
+#: reads: switched off with MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do. TIMESYNC is
+#: PX4's own requests (tc1 = 0); the answers to ours come from its receiver, not this stream.
+UNREAD_STREAMS = (
+    8,  # LINK_NODE_STATUS (PX4's development dialect)
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
+    mavlink.MAVLINK_MSG_ID_PING,
+    mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD,
+    mavlink.MAVLINK_MSG_ID_TIMESYNC,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU,
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR,
+    mavlink.MAVLINK_MSG_ID_ALTITUDE,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
+    mavlink.MAVLINK_MSG_ID_VIBRATION,
+    mavlink.MAVLINK_MSG_ID_ODOMETRY,
+    380,  # TIME_ESTIMATE_TO_TARGET (PX4's development dialect)
+    436,  # CURRENT_MODE (development.xml)
+    mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_LOCATION,
+    mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_SYSTEM,
+)
+#: MAV_CMD_SET_MESSAGE_INTERVAL's interval that switches a stream off.
+INTERVAL_OFF_US = -1
+
+
+def message_interval_params(message_id: int, rate_hz: float | None) -> tuple[int, tuple[float, ...]]:
+    """MAV_CMD_SET_MESSAGE_INTERVAL for one stream: at ``rate_hz``, or off (interval -1) for None."""
+    interval_us = INTERVAL_OFF_US if rate_hz is None else round(1e6 / rate_hz)
+    return mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(message_id), float(interval_us))
 
 
 def param_request_read(target_system: int, target_component: int, name: str) -> MAVLinkMessage:

@@ -6,7 +6,8 @@ fake clock. The sequence (docs/offboard.md):
 
 1. wait for the vehicle's HEARTBEAT (``LinkTimeout`` naming the address otherwise);
 2. read the parameters it needs (PARAM_REQUEST_READ by name, with retries), synchronise time
-   (TIMESYNC), ask for the telemetry rate it needs (MAV_CMD_SET_MESSAGE_INTERVAL);
+   (TIMESYNC), switch off the streams it never reads and ask for the ones it samples at its
+   telemetry rate (MAV_CMD_SET_MESSAGE_INTERVAL);
 3. stream setpoints (the vehicle's own attitude, thrust 0) **before** asking for OFFBOARD
    (MAV_CMD_DO_SET_MODE, PX4 main mode 6), then arm (MAV_CMD_COMPONENT_ARM_DISARM);
 4. fly the mission: mission time 0 is the first sample after the arm is acknowledged; each
@@ -73,6 +74,11 @@ MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicl
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
 MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second (the commander's)
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
+#: ``FlightConfig.telemetry_rate_hz`` that follows the sample rate (``telemetry_rate_for``).
+AUTO_TELEMETRY_RATE = "auto"
+#: In real time the telemetry comes at a whole multiple of the sample rate at or above this:
+#: sampled on our own clock, the freshest ATTITUDE is then at most ~10 ms old.
+REAL_TIME_TELEMETRY_MIN_HZ = 100.0
 
 
 class SampleClock(StrEnum):
@@ -127,12 +133,19 @@ class FlightConfig:
         Setpoints streamed before asking for OFFBOARD.
     land_timeout_s : float
         Wall-clock limit for the landing (then we report and stop waiting).
-    telemetry_rate_hz : float or None
-        Rate asked for LOCAL_POSITION_NED and ATTITUDE (None: leave the vehicle's defaults). At
+    telemetry_rate_hz : float, "auto" or None
+        Rate asked for LOCAL_POSITION_NED and ATTITUDE (None: leave the vehicle's defaults;
+        ``"auto"``: the sample rate 1/To in lockstep, where the vehicle sends one of each a period
+        whatever the rate, and in real time the smallest whole multiple of it at or above
+        ``REAL_TIME_TELEMETRY_MIN_HZ``, so that a sample's telemetry is at most ~10 ms old). At
         equal rates the vehicle stamps them alike, and a real-time sample uses the ATTITUDE of the
         latest LOCAL_POSITION_NED's instant: PX4's defaults (30 and 100 Hz) leave the law
         differencing positions and velocities up to 33 ms old against fresher angles, which
         shows as jagged angle references and a lasting oscillation on the paper helix.
+    unread_streams_off : bool
+        Switch off (MAV_CMD_SET_MESSAGE_INTERVAL -1) PX4's default streams we never read
+        (``codec.UNREAD_STREAMS``), as PX4's clients do: the vehicle then neither builds nor sends
+        them, and we neither parse nor log them.
     target_system : int or None
         Fly this system id (None: the first autopilot heard).
     connect : str
@@ -152,7 +165,8 @@ class FlightConfig:
     param_attempts: int = 6
     prestream_samples: int = 10
     land_timeout_s: float = 60.0
-    telemetry_rate_hz: float | None = 100.0
+    telemetry_rate_hz: float | str | None = AUTO_TELEMETRY_RATE
+    unread_streams_off: bool = True
     target_system: int | None = None
     connect: str = ""
 
@@ -168,6 +182,19 @@ class FlightConfig:
                 raise ValueError(f"{name} must be > 0, got {value}")
         if self.command_attempts < 1 or self.param_attempts < 1 or self.prestream_samples < 1:
             raise ValueError("attempts and prestream_samples must be >= 1")
+        rate = self.telemetry_rate_hz
+        if rate is not None and rate != AUTO_TELEMETRY_RATE and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+            raise ValueError(f"telemetry_rate_hz must be > 0, {AUTO_TELEMETRY_RATE!r} or None, got {rate!r}")
+
+    def telemetry_rate_for(self, sample_time_s: float) -> float | None:
+        """The ATTITUDE and LOCAL_POSITION_NED rate to ask for at sample time To (None: the vehicle's)."""
+        rate = self.telemetry_rate_hz
+        if rate != AUTO_TELEMETRY_RATE:
+            return None if rate is None else float(rate)
+        sample_hz = 1.0 / sample_time_s
+        if self.lockstep:
+            return sample_hz
+        return sample_hz * max(1, math.ceil(REAL_TIME_TELEMETRY_MIN_HZ / sample_hz - 1e-9))
 
 
 @dataclass(frozen=True)
@@ -447,6 +474,7 @@ class _Pending:
     result: int | None = None
     acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: the last counts)
     first_ack_s: float | None = None
+    results: list[int] = field(default_factory=list)  # every ACK's result, in order (a burst counts them)
     #: what a heartbeat shows once the command is done, and whether one since the first try did
     took_effect: Callable[[VehicleStatus], bool] | None = None
     seen_done: bool = False
@@ -680,7 +708,8 @@ class Flight:
         if measure_latency:
             self._do_timesync()
             rtt_s = self.timesync["rtt_ms"] / 1000.0 if self.timesync else 0.0
-            period_s = 1.0 / cfg.telemetry_rate_hz if cfg.telemetry_rate_hz else 0.0
+            rate_hz = cfg.telemetry_rate_for(self.to)
+            period_s = 1.0 / rate_hz if rate_hz else 0.0
             choice = replace(choice, latency_s=rtt_s + period_s)
             self._say(f"latency {choice.latency_s * 1000:.0f} ms for the design: TIMESYNC round trip "
                       f"{rtt_s * 1000:.1f} ms + one telemetry period {period_s * 1000:.0f} ms")
@@ -715,13 +744,35 @@ class Flight:
             self._do_timesync()
         if self.mission_home is not None:
             self._align_mission()
-        if cfg.telemetry_rate_hz is not None:
-            for mid in (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
-                command, params = codec.message_interval_params(mid, cfg.telemetry_rate_hz)
-                try:
-                    self._command(command, params)
-                except CommandRejected as exc:
-                    self._say(f"note: {exc} (keeping the vehicle's default rate)")
+        self._configure_streams()
+
+    def _configure_streams(self) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: the streams we never read off (-1), then ATTITUDE and
+        LOCAL_POSITION_NED at the telemetry rate.
+
+        All go out at once (one round trip, as MAVSDK keeps several in flight: a COMMAND_ACK names
+        the command, not its stream); when an ACK is missing or not ACCEPTED, each is sent again
+        alone and retried as every command (they are idempotent), so that a refusal names its
+        stream. A refusal (a vehicle without that stream, or a link that lost every try) is one
+        note: the flight goes on."""
+        cfg = self.config
+        rate_hz = cfg.telemetry_rate_for(self.to)
+        wanted: list[tuple[int, float | None]] = [(mid, None) for mid in codec.UNREAD_STREAMS] if cfg.unread_streams_off else []
+        if rate_hz is not None:
+            wanted += [(mid, rate_hz) for mid in codec.SAMPLED_STREAMS]
+        if not wanted or self._command_burst([codec.message_interval_params(mid, rate) for mid, rate in wanted]):
+            return
+        refused = []
+        for mid, rate in wanted:
+            command, params = codec.message_interval_params(mid, rate)
+            try:
+                self._command(command, params)
+            except CommandRejected as exc:
+                name = mavlink.mavlink_map[mid].msgname if mid in mavlink.mavlink_map else str(mid)
+                refused.append(f"{name} {'off' if rate is None else f'at {rate:g} Hz'}: {exc.result_name}")
+        if refused:
+            self._say(f"note: SET_MESSAGE_INTERVAL refused for {len(refused)} stream(s), keeping the vehicle's rate: "
+                      + "; ".join(refused))
 
     def _stream_and_arm(self) -> None:
         target = self._samples_sent + self.config.prestream_samples
@@ -835,6 +886,22 @@ class Flight:
             if reason:
                 exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
             raise exc
+
+    def _command_burst(self, commands: list[tuple[int, tuple[float, ...]]]) -> bool:
+        """Send COMMAND_LONGs of one command id at once; whether every one was ACCEPTED within the
+        command timeout (False: the caller sends them one by one, with ``_command``'s retries)."""
+        assert self.target is not None
+        command = commands[0][0]
+        assert all(c == command for c, _ in commands)
+        pending = _Pending(command, (), codec.mav_cmd_name(command))
+        self._pending = pending
+        try:
+            for _, params in commands:
+                self.link.send(codec.command_long(self.target[0], self.target[1], command, params, 0))
+            self._pump(lambda: len(pending.results) >= len(commands), self.config.command_timeout_s)
+        finally:
+            self._pending = None
+        return len(pending.results) == len(commands) and all(r == mavlink.MAV_RESULT_ACCEPTED for r in pending.results)
 
     def _param_family(self) -> str:
         """Probe which simulator's physical parameters the vehicle publishes: ``SIM`` (sitl-plant),
@@ -1038,6 +1105,7 @@ class Flight:
             p = self._pending
             if p is not None and int(msg.command) == p.command and int(getattr(msg, "target_system", 0)) in (0, self._own_sysid()):
                 p.result = int(msg.result)
+                p.results.append(p.result)
                 p.acks += 1
                 if p.first_ack_s is None:
                     p.first_ack_s = self.clock()

@@ -42,6 +42,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.codec import frame_header
+from offboard.model import mavfast
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter, wall_clock_us
 from offboard.signing import SigningSession, Verdict
@@ -185,7 +186,7 @@ class MavLink:
         """Pack with our identity and next sequence number (signed, with signing), log, send."""
         if self.signing is not None:
             self.signing.stamp(self._packer)
-        packet = msg.pack(self._packer)
+        packet = mavfast.pack(msg, self._packer)  # pymavlink's bytes, pre-built for the hot messages
         self._packer.seq = (self._packer.seq + 1) & 0xFF
         if self._tlog is not None:
             self._tlog.write(self.log_time_us(), packet)
@@ -295,7 +296,8 @@ class MavLink:
         parser = self._parser
         trusted = False
         try:
-            messages = parser.parse_buffer(data) or []
+            # a UDP datagram holds whole frames: the hot ones decoded with pre-built structs
+            messages = mavfast.parse_datagram(parser, data) if self._datagrams else (parser.parse_buffer(data) or [])
         except Exception:  # noqa: BLE001 - bad bytes must never stop a flight
             messages = []
             self.stats.bad += 1

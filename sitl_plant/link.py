@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.model import mavfast
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter
 from offboard.signing import SigningKey, SigningSession, Verdict, persist, save_key
@@ -149,7 +150,7 @@ class Endpoint:
             if signing is not None:
                 signing.stamp(packer)
             try:
-                packet = msg.pack(packer)
+                packet = mavfast.pack(msg, packer)  # pymavlink's bytes, pre-built for the hot messages
             except (struct.error, OverflowError, ValueError, TypeError):
                 self.counters.encode_errors += 1  # a value out of its field's range: not sent
                 continue
@@ -259,7 +260,7 @@ class Endpoint:
         counters = self.counters
         found = False
         try:
-            messages = parser.parse_buffer(data) or []
+            messages = mavfast.parse_datagram(parser, data)  # the hot frames with pre-built structs, as pymavlink
         except Exception:  # noqa: BLE001 - a malformed packet must never stop the plant
             messages = []
             counters.bad_packets += 1

@@ -30,7 +30,7 @@ from offboard import jsonout
 BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
-from offboard.flight import OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
+from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.model.clihelp import HelpFormatter
@@ -72,8 +72,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="telemetry older than this stops the setpoints (LINK_LOST)")
     link.add_argument("--reconnect-timeout", type=float, default=5.0, metavar="S",
                       help="give up when telemetry has not come back within this")
-    link.add_argument("--telemetry-rate", type=float, default=100.0, metavar="HZ",
-                      help="ask for ATTITUDE and LOCAL_POSITION_NED at this rate (0: keep the vehicle's)")
+    link.add_argument("--telemetry-rate", type=float, default=None, metavar="HZ",
+                      help="ask for ATTITUDE and LOCAL_POSITION_NED at this rate (0: keep the vehicle's; default: the "
+                           "sample rate 1/To in lockstep, in real time its smallest whole multiple >= 100 Hz)")
+    link.add_argument("--keep-streams", action="store_true",
+                      help="leave on the vehicle's streams we never read (default: switched off with "
+                           "MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do)")
     link.add_argument("--land-timeout", type=float, default=60.0, metavar="S", help="wall-clock limit for the landing")
     ctl = parser.add_argument_group("controller")
     ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
@@ -120,7 +124,7 @@ def _check(args: argparse.Namespace) -> None:
         positive(name, getattr(args, name.replace("-", "_")))
     if args.signing_key is not None:
         _signing_key(args.signing_key)  # a bad key file: one line before anything starts
-    if not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
+    if args.telemetry_rate is not None and not (math.isfinite(args.telemetry_rate) and args.telemetry_rate >= 0):
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
     if args.clock == "vehicle" and args.lockstep:
         raise FlyArgumentError("--clock vehicle: not with --lockstep (which samples on every telemetry burst)")
@@ -242,7 +246,8 @@ def run(args: argparse.Namespace) -> int:
         reconnect_timeout_s=args.reconnect_timeout,
         heartbeat_timeout_s=args.heartbeat_timeout,
         land_timeout_s=args.land_timeout,
-        telemetry_rate_hz=args.telemetry_rate or None,
+        telemetry_rate_hz=AUTO_TELEMETRY_RATE if args.telemetry_rate is None else (args.telemetry_rate or None),
+        unread_streams_off=not args.keep_streams,
         target_system=args.target_system,
         connect=args.connect,
     )

@@ -489,7 +489,12 @@ def test_a_mission_from_elsewhere_is_refused():
 def test_a_command_whose_acks_are_all_lost_counts_when_the_heartbeat_shows_it_done():
     """A lossy link loses every ACK of the arming (the vehicle armed): the heartbeat says armed,
     so the flight goes on, saying so (issue 14: three lost tries ended one lossy flight in four)."""
-    link = PlantLink(make_plant(), FakeClock())
+    plant = make_plant()
+    # six tries of 0.5 s on this fake clock are 30 s of the vehicle's time, beyond PX4's 10 s
+    # preflight auto-disarm: the vehicle then disarms between tries, which is not this test's case
+    # (whether the mission started before the disarmed heartbeats came hung on one period)
+    plant.autopilot.params.set("COM_DISARM_PRFLT", -1.0)
+    link = PlantLink(plant, FakeClock())
 
     def lose_arm_acks(lk) -> None:
         lk.queue = type(lk.queue)(m for m in lk.queue if not (m.get_type() == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and m.result == 0 and lk.plant.autopilot.armed and not lk.plant.autopilot.mode.name.endswith("LAND")))
@@ -503,3 +508,45 @@ def test_a_command_whose_acks_are_all_lost_counts_when_the_heartbeat_shows_it_do
     assert any("no ACK for MAV_CMD_COMPONENT_ARM_DISARM" in e and "heartbeat shows it done" in e for e in events), events
     tries = [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and m.param1 == 1]
     assert len(tries) == FlightConfig().command_attempts  # it did retry first
+
+
+def test_stream_commands_lost_on_the_way_are_sent_again_until_acknowledged():
+    """Issue 16: the unread streams go off in one burst; a lossy link that loses some of it (and the
+    first retries) gets each sent alone and retried as every command, and the streams do stop."""
+    from offboard import codec
+
+    link = PlantLink(make_plant(), FakeClock())
+    lost: dict[int, int] = {}
+
+    def lossy(msg) -> bool:  # the first three tries of two streams' commands are lost
+        if msg.get_type() == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and int(msg.param1) in (
+                mavlink.MAVLINK_MSG_ID_ODOMETRY, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED):  # fmt: skip
+            lost[int(msg.param1)] = lost.get(int(msg.param1), 0) + 1
+            return lost[int(msg.param1)] <= 3
+        return False
+
+    link.drop = lossy
+    events: list[str] = []
+    flight, _ = make_flight(link)
+    flight._event = events.append
+    result = flight.run()
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    assert lost == {mavlink.MAVLINK_MSG_ID_ODOMETRY: 4, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4}
+    schedule = link.plant.streams[API].interval_us
+    assert all(schedule[mid] == -1 for mid in codec.UNREAD_STREAMS)
+    assert schedule[mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED] == 50_000  # 1/To in lockstep
+    assert not [e for e in events if "refused" in e]
+
+
+def test_a_vehicle_without_a_stream_is_one_note_naming_it():
+    link = PlantLink(make_plant(), FakeClock())
+    # a vehicle that refuses one of them (PX4 without that stream): the rest still go off
+    real = link.plant.streams[API].set_interval
+    link.plant.streams[API].set_interval = lambda mid, us, now: False if mid == mavlink.MAVLINK_MSG_ID_VIBRATION else real(mid, us, now)
+    events: list[str] = []
+    flight, _ = make_flight(link)
+    flight._event = events.append
+    assert flight.run().status is FlightStatus.COMPLETE
+    notes = [e for e in events if "SET_MESSAGE_INTERVAL refused" in e]
+    assert len(notes) == 1 and "VIBRATION off: DENIED" in notes[0] and "1 stream" in notes[0], notes
+    assert link.plant.streams[API].interval_us[mavlink.MAVLINK_MSG_ID_ODOMETRY] == -1
