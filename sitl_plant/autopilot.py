@@ -333,7 +333,9 @@ class PositionTask:
     ``vel_ned_m_s`` is a velocity feed-forward, or the velocity setpoint of an axis whose
     position is None (offboard position/velocity setpoints, the sticks of Position mode).
     ``acc_ne_m_s2``: the horizontal acceleration wanted instead of any horizontal control
-    (Altitude mode's tilt sticks)."""
+    (Altitude mode's tilt sticks). ``acc_ff_ne_m_s2``: a horizontal acceleration feed-forward
+    added to the velocity loop's output, as PX4's PositionControl adds the flight task's
+    acceleration setpoint (Orbit's centripetal acceleration)."""
 
     pos_ned_m: tuple[float | None, float | None, float | None]
     yaw_rad: float
@@ -341,6 +343,7 @@ class PositionTask:
     max_climb_m_s: float | None = None
     vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     acc_ne_m_s2: tuple[float, float] | None = None
+    acc_ff_ne_m_s2: tuple[float, float] = (0.0, 0.0)
 
 
 Task = Union[IdleTask, OffboardTask, PositionTask]
@@ -605,7 +608,9 @@ class Autopilot:
                 climb = self._takeoff_climb_limit(now, speed_m_s=climb, approach_down_m=nav.pos_ned_m[2] if nav.takeoff else None)
                 if climb is None:
                     return IdleTask()  # spooling up
-            return PositionTask(nav.pos_ned_m, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s)
+            pos = nav.pos_ned_m if nav.hold_xy else (None, None, nav.pos_ned_m[2])
+            return PositionTask(pos, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s,
+                                acc_ff_ne_m_s2=nav.acc_ff_ne_m_s2)  # fmt: skip
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
