@@ -70,6 +70,7 @@ MAV_STATE_UNINIT = 0
 MAV_STATE_STANDBY = 3
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
+MAV_STATE_FLIGHT_TERMINATION = 8
 
 MAV_LANDED_STATE_ON_GROUND = 1
 MAV_LANDED_STATE_IN_AIR = 2
@@ -116,6 +117,7 @@ class Mode(Enum):
     ACRO = (M.MAIN_ACRO, 0)
     OFFBOARD = (M.MAIN_OFFBOARD, 0)
     STABILIZED = (M.MAIN_STABILIZED, 0)
+    TERMINATION = (M.MAIN_TERMINATION, 0)  # flight termination (PX4 v1.15+), not a mode to choose
 
     @property
     def custom_mode(self) -> int:
@@ -148,7 +150,10 @@ _NAVIGATED = (Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.ORBIT)
 _AUTO = (Mode.AUTO_READY, Mode.AUTO_TAKEOFF, Mode.AUTO_LOITER, Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.AUTO_LAND)
 
 #: COM_OBL_RC_ACT (PX4's offboard_loss_failsafe_mode) -> the mode the failsafe switches to; 6 is
-#: flight termination, 7 disarm (failsafe.cpp, fromOffboardLossActParam).
+#: flight termination, 7 disarm (failsafe.cpp, fromOffboardLossActParam). Flown on PX4 v1.16 SITL
+#: without manual control input (docs/parity/commander.md): every value ends in the mode named
+#: here, none falls back for the missing sticks; Altitude descends at MPC_LAND_SPEED as Position
+#: does, Stabilized holds level at the hover thrust (``_manual_task``).
 OBL_ACTIONS = {0: Mode.POSCTL, 1: Mode.ALTCTL, 2: Mode.STABILIZED, 3: Mode.AUTO_RTL, 4: Mode.AUTO_LAND, 5: Mode.AUTO_LOITER}
 OBL_TERMINATE, OBL_DISARM = 6, 7
 #: NAV_RCL_ACT (manual control loss, after COM_FAIL_ACT_T of Hold): 1 Hold, 2 Return, 3 Land,
@@ -163,10 +168,15 @@ def base_mode_flags(mode: Mode, armed: bool, offboard_signal: bool) -> int:
     """The heartbeat's ``base_mode`` as PX4 v1.16 sends it (measured): CUSTOM_MODE_ENABLED, plus
     STABILIZE|GUIDED|AUTO in the auto modes (29, armed 157), MANUAL_INPUT|STABILIZE in Position,
     Altitude, Stabilized and Manual (81 / 209), MANUAL_INPUT in Acro, and in Offboard STABILIZE
-    only while setpoints arrive (1 without, 17 / 145 with); SAFETY_ARMED when armed."""
+    once setpoints have come (1 before, 17 / 145 after: PX4 keeps the last offboard control mode,
+    so a vehicle disarmed by the offboard-loss failsafe reports 17); SAFETY_ARMED when armed.
+    Flight termination: CUSTOM_MODE_ENABLED and SAFETY_ARMED only (129). ``offboard_signal``:
+    whether setpoints have ever come."""
     flags = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     if armed:
         flags |= MAV_MODE_FLAG_SAFETY_ARMED
+    if mode is Mode.TERMINATION:
+        return flags
     if mode in _AUTO:
         flags |= MAV_MODE_FLAG_STABILIZE_ENABLED | MAV_MODE_FLAG_GUIDED_ENABLED | MAV_MODE_FLAG_AUTO_ENABLED
     elif mode is Mode.ACRO:
@@ -307,7 +317,9 @@ class PositionTask:
     ``vel_ned_m_s`` is a velocity feed-forward, or the velocity setpoint of an axis whose
     position is None (offboard position/velocity setpoints, the sticks of Position mode).
     ``acc_ne_m_s2``: the horizontal acceleration wanted instead of any horizontal control
-    (Altitude mode's tilt sticks)."""
+    (Altitude mode's tilt sticks). ``acc_ff_ne_m_s2``: a horizontal acceleration feed-forward
+    added to the velocity loop's output, as PX4's PositionControl adds the flight task's
+    acceleration setpoint (Orbit's centripetal acceleration)."""
 
     pos_ned_m: tuple[float | None, float | None, float | None]
     yaw_rad: float
@@ -315,6 +327,7 @@ class PositionTask:
     max_climb_m_s: float | None = None
     vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     acc_ne_m_s2: tuple[float, float] | None = None
+    acc_ff_ne_m_s2: tuple[float, float] = (0.0, 0.0)
 
 
 Task = Union[IdleTask, OffboardTask, PositionTask]
@@ -402,7 +415,9 @@ class Autopilot:
 
     def status(self) -> Status:
         now = self._now
-        if self.failsafe:
+        if self._m.terminated:
+            system_status = MAV_STATE_FLIGHT_TERMINATION
+        elif self.failsafe:
             system_status = MAV_STATE_CRITICAL
         elif self.armed:
             system_status = MAV_STATE_ACTIVE
@@ -417,7 +432,7 @@ class Autopilot:
             failsafe=self.failsafe,
             failures=frozenset(self.failures),
             prearm_ok=not self.failures,
-            base_mode=base_mode_flags(self.mode, self.armed, self.offboard_signal_ok(now)),
+            base_mode=base_mode_flags(self.mode, self.armed, self._m.last_setpoint_s is not None),
         )
 
     def set_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
@@ -513,8 +528,10 @@ class Autopilot:
         PX4 accepts every mode while disarmed (arming then says whether it can fly it); armed, a
         mode that cannot run is refused."""
         self._now = max(self._now, now_s)
-        if mode is None:
+        if mode is None or mode is Mode.TERMINATION:
             return Reply(MAV_RESULT_DENIED, (StatusText(MAV_SEVERITY_CRITICAL, "Unknown mode"),))
+        if self._m.terminated:
+            return _refuse("Flight termination active")
         if mode is self.mode and not self.failsafe:
             return Reply(MAV_RESULT_ACCEPTED)
         if self.armed and not self.mode_can_run(mode, now_s):
@@ -575,7 +592,9 @@ class Autopilot:
                 climb = self._takeoff_climb_limit(now, speed_m_s=climb, approach_down_m=nav.pos_ned_m[2] if nav.takeoff else None)
                 if climb is None:
                     return IdleTask()  # spooling up
-            return PositionTask(nav.pos_ned_m, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s)
+            pos = nav.pos_ned_m if nav.hold_xy else (None, None, nav.pos_ned_m[2])
+            return PositionTask(pos, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s,
+                                acc_ff_ne_m_s2=nav.acc_ff_ne_m_s2)  # fmt: skip
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
@@ -669,13 +688,20 @@ class Autopilot:
     def _manual_task(self, now_s: float) -> Task:
         """Position / Altitude (and the other manual modes, flown as Altitude) from the sticks
         (``_integrate_sticks``); without stick input PX4's failsafe flight task: hold the
-        horizontal position, descend at MPC_LAND_SPEED."""
+        horizontal position, descend at MPC_LAND_SPEED. Stabilized without stick input (the
+        offboard-loss fallback COM_OBL_RC_ACT 2) is PX4's attitude control of a manual control
+        setpoint of zeros: level, the yaw held, thrust MPC_THR_HOVER (the throttle curve's centre);
+        PX4 SIH sank 0.07 m/s so (measured, docs/parity/commander.md)."""
         m, p = self._m, self.params
         sticks = self._sticks_now(now_s)
         vz = m.manual_vz
         if sticks is None or vz is None:
             if self._landed:
                 return IdleTask()
+            if self.mode is Mode.STABILIZED:
+                half = 0.5 * m.hold_yaw
+                level = (math.cos(half), 0.0, 0.0, math.sin(half))
+                return OffboardTask(AttitudeSetpoint(0, level, (None, None, 0.0), p["MPC_THR_HOVER"]))
             return PositionTask((m.hold_pos[0], m.hold_pos[1], None), m.hold_yaw, descend_m_s=p["MPC_LAND_SPEED"])
         if self._landed and vz >= 0.0:
             return IdleTask()
@@ -863,12 +889,12 @@ class Autopilot:
         texts = [StatusText(MAV_SEVERITY_CRITICAL, "Failsafe activated")]
         if action == OBL_DISARM:
             self._disarm()
-            return texts
+            return [*texts, StatusText(MAV_SEVERITY_INFO, "Disarmed by failsafe")]
         self.failsafe = True
-        m.fallback_of_offboard = True
         if action == OBL_TERMINATE:
             self._terminate()
         else:
+            m.fallback_of_offboard = True
             self._enter(OBL_ACTIONS.get(action, Mode.POSCTL), now_s)
         return texts
 
@@ -898,9 +924,11 @@ class Autopilot:
         return [StatusText(MAV_SEVERITY_CRITICAL, f"Failsafe activated: entering Hold for {p['COM_FAIL_ACT_T']:g} seconds")]
 
     def _terminate(self) -> None:
-        """Flight termination: the motors stop (the vehicle falls); disarmed once on the ground."""
+        """Flight termination: the motors stop (the vehicle falls). PX4 v1.16 (measured) reports
+        custom main mode 10 (TERMINATION), base_mode 129, system status FLIGHT_TERMINATION, and
+        stays so, armed, on the ground: only a reboot ends it."""
         self._m.terminated = True
-        self.mode = Mode.MANUAL  # PX4 reports NAVIGATION_STATE_TERMINATION as custom mode MANUAL
+        self.mode = Mode.TERMINATION
 
     # -- internals -------------------------------------------------------------------------------
 
@@ -989,7 +1017,9 @@ class Autopilot:
             if m.landed_since_s is None:
                 m.landed_since_s = now_s
             delay = p["COM_DISARM_LAND"]
-            if (delay > 0 and now_s - m.landed_since_s >= delay - EPS_S) or m.terminated:
+            if m.terminated:
+                return []  # PX4: flight termination is not ended by landing
+            if delay > 0 and now_s - m.landed_since_s >= delay - EPS_S:
                 self._disarm()
                 return [StatusText(MAV_SEVERITY_INFO, "Disarmed by landing")]
             return []

@@ -318,7 +318,7 @@ class Px4Loop:
                 self._vel_int[i] = 0.0
                 continue
             err = vsp[i] - float(vel[i])
-            acc[i] = kp[i] * err + self._vel_int[i]
+            acc[i] = kp[i] * err + self._vel_int[i] + (task.acc_ff_ne_m_s2[i] if i < 2 else 0.0)
             if not self.landed:
                 self._vel_int[i] = min(max(self._vel_int[i] + ki[i] * err * dt, -g), g)
         hover = p["MPC_THR_HOVER"]

@@ -35,7 +35,13 @@ Return (RTL_TYPE 0, ``rtl_direct.cpp``): climb over the current point to the ret
 RTL_MIN_DIST of home), fly home, descend to ``RTL_DESCEND_ALT``, wait ``RTL_LAND_DELAY`` (< 0: for ever), land.
 Reposition (MAV_CMD_DO_REPOSITION): fly to the point at param1 m/s (else the cruise speed, which
 MAV_CMD_DO_CHANGE_SPEED sets) and hold there; from the ground it takes off on the way. Orbit (MAV_CMD_DO_ORBIT): circle the centre at radius |param1| (> 0 clockwise) at
-param2 m/s tangential speed (NaN: 1 m/s), the nose to the centre.
+param2 m/s tangential speed (NaN: 1 m/s), the nose to the centre, as PX4's FlightTaskOrbit does:
+the radius within [1 m, MC_ORBIT_RAD_MAX], the speed within MPC_XY_VEL_MAX and lowered to
+sqrt(a r) when v^2 >= a r (``ORBIT_ACC_MAX_M_S2``, its ``_acceleration_max``: the radius is kept,
+the speed given up); it approaches the circle first, then flies a velocity setpoint only (no
+horizontal position): tangential v plus (r - distance) towards the circle, with the centripetal
+v^2 / r as acceleration feed-forward. A vehicle with drag (PX4's SIH) therefore circles slower
+than asked: PX4 v1.16 SIH flew 1.37 m/s when asked 2 m/s on 5 m (docs/parity/mission.md).
 """
 
 from __future__ import annotations
@@ -60,6 +66,21 @@ EARTH_RADIUS_M = 6_371_000.0  # PX4's CONSTANTS_RADIUS_OF_EARTH (the plant's cod
 _POSITION_COMMANDS = (NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LOITER_UNLIM, NAV_TAKEOFF, NAV_LAND)
 DEFAULT_ORBIT_SPEED_M_S = 1.0  # DO_ORBIT param2 NaN or 0 (PX4's orbit default; not measured)
 DEFAULT_ORBIT_RADIUS_M = 10.0  # DO_ORBIT param1 NaN or 0 (not measured)
+ORBIT_ACC_MAX_M_S2 = 2.0  # FlightTaskOrbit.hpp _acceleration_max: v^2 < a r, else v = sqrt(a r)
+ORBIT_RADIUS_MIN_M = 1.0  # FlightTaskOrbit.hpp _radius_min
+ORBIT_ON_CIRCLE_M = 1.0  # the approach ends within this of the circle (FlightTaskOrbit's _horizontal_acceptance_radius)
+
+
+def orbit_limits(radius_m: float, speed_m_s: float, radius_max_m: float, speed_max_m_s: float) -> tuple[float, float]:
+    """PX4's ``FlightTaskOrbit::_sanitizeParams``: |radius| within [1, MC_ORBIT_RAD_MAX], |speed|
+    within MPC_XY_VEL_MAX, and where v^2 >= a r the speed lowered to sqrt(a r) (a small radius is
+    safer than a high speed). Signs (the direction) are kept."""
+    sign = -1.0 if radius_m < 0 else 1.0
+    r = min(max(abs(radius_m), ORBIT_RADIUS_MIN_M), radius_max_m)
+    v = min(abs(speed_m_s), speed_max_m_s)
+    if v * v >= ORBIT_ACC_MAX_M_S2 * r:
+        v = math.sqrt(ORBIT_ACC_MAX_M_S2 * r)
+    return sign * r, v
 
 
 def geodetic_to_ned(lat_deg: float, lon_deg: float, origin_lat_deg: float, origin_lon_deg: float) -> tuple[float, float]:
@@ -108,6 +129,10 @@ class NavSetpoint:
     max_climb_m_s: float | None = None
     takeoff: bool = False
     landing: bool = False
+    #: False: the horizontal position is not held, ``vel_ned_m_s`` is the horizontal velocity
+    #: setpoint (Orbit, as PX4's); ``pos_ned_m`` then says where a vehicle keeping the speed is
+    hold_xy: bool = True
+    acc_ff_ne_m_s2: tuple[float, float] = (0.0, 0.0)  # acceleration feed-forward (Orbit's centripetal)
 
 
 @dataclass
@@ -199,6 +224,7 @@ class Navigator:
     _orbit: tuple[float, float, float, float, float] | None = None  # centre n, e, down, radius (signed), speed
     _goto: tuple[tuple[float, float, float], float, float | None] | None = None
     _orbit_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    _orbit_acc: tuple[float, float] = (0.0, 0.0)
     _from_ground: bool = False
     wants_rtl: bool = False
 
@@ -259,7 +285,10 @@ class Navigator:
             self._cruise = None
 
     def orbit(self, centre: tuple[float, float, float], radius_m: float, speed_m_s: float, now_s: float) -> None:
+        """Circle ``centre`` at ``radius_m`` (> 0 clockwise) and ``speed_m_s``, after PX4's limits
+        (``orbit_limits``)."""
         self.start("orbit", now_s)
+        radius_m, speed_m_s = orbit_limits(radius_m, speed_m_s, self._p("MC_ORBIT_RAD_MAX"), self._p("MPC_XY_VEL_MAX"))
         self._orbit = (centre[0], centre[1], centre[2], radius_m, speed_m_s)
         self.update(now_s)
 
@@ -291,7 +320,9 @@ class Navigator:
         if not self._activity:
             return None
         if self._activity == "orbit" and self._orbit is not None and r.target is not None:
-            return NavSetpoint(r.target, self._yaw_sp, self._orbit_vel)
+            if r.phase == "approach":
+                return NavSetpoint(r.target, self._yaw_sp)
+            return NavSetpoint(r.target, self._yaw_sp, self._orbit_vel, hold_xy=False, acc_ff_ne_m_s2=self._orbit_acc)
         if r.phase == "land":
             return NavSetpoint((r.target[0], r.target[1], self._pos[2]), self._yaw_sp, descend_m_s=self._land_speed(), landing=True)  # type: ignore[index]
         if r.phase == "takeoff":
@@ -480,15 +511,28 @@ class Navigator:
         cn, ce, cd, radius, speed = self._orbit
         rad = max(abs(radius), 1.0)
         direction = 1.0 if radius >= 0 else -1.0  # > 0: clockwise seen from above (north to east)
+        dn, de = self._pos[0] - cn, self._pos[1] - ce
+        dist = math.hypot(dn, de)
+        here = math.atan2(de, dn) if dist > 1e-9 else 0.0
         if not r.started:
-            r.started, r.phase = True, "orbit"
-            r.hold_until_s = math.atan2(self._pos[1] - ce, self._pos[0] - cn)  # the angle (rad), kept here
+            r.started, r.phase = True, "approach"
+            r.hold_until_s = here  # the angle (rad) of a vehicle keeping the speed, kept here
+        if r.phase == "approach":
+            # PX4 flies to the nearest point of the circle first (a line at MPC_XY_CRUISE)
+            r.target = (cn + rad * math.cos(here), ce + rad * math.sin(here), cd)
+            r.yaw = math.atan2(-de, -dn)
+            if abs(dist - rad) >= ORBIT_ON_CIRCLE_M or abs(self._pos[2] - cd) >= self._p("NAV_MC_ALT_RAD"):
+                return
+            r.phase, r.hold_until_s = "orbit", here
         theta = (r.hold_until_s or 0.0) + direction * speed / rad * dt
         r.hold_until_s = theta
         r.target = (cn + rad * math.cos(theta), ce + rad * math.sin(theta), cd)
-        tangent = (-math.sin(theta) * direction * speed, math.cos(theta) * direction * speed, 0.0)
-        self._orbit_vel = tangent
-        r.yaw = math.atan2(ce - self._pos[1], cn - self._pos[0])
+        # FlightTaskOrbit's circle setpoints, from where the vehicle is: the tangent at its angle,
+        # the radial error closed at 1/s, and the centripetal acceleration as feed-forward
+        un, ue = (math.cos(here), math.sin(here))
+        self._orbit_vel = (-ue * direction * speed + (rad - dist) * un, un * direction * speed + (rad - dist) * ue, 0.0)
+        self._orbit_acc = (-un * speed * speed / rad, -ue * speed * speed / rad)
+        r.yaw = math.atan2(-de, -dn)
 
     # -- yaw, landing speed ----------------------------------------------------------------------
 

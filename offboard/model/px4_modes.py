@@ -15,6 +15,7 @@ MAIN_ACRO = 5
 MAIN_OFFBOARD = 6
 MAIN_STABILIZED = 7
 MAIN_RATTITUDE = 8
+MAIN_TERMINATION = 10  # PX4 v1.15+: flight termination
 #: PX4_CUSTOM_SUB_MODE_AUTO_*
 SUB_AUTO_READY = 1
 SUB_AUTO_TAKEOFF = 2
@@ -30,7 +31,8 @@ SUB_POSCTL_ORBIT = 1
 #: Names of PX4's main modes, and of the sub modes that name a mode of their own (as QGroundControl
 #: shows them).
 MAIN_MODE_NAMES = {MAIN_MANUAL: "Manual", MAIN_ALTCTL: "Altitude", MAIN_POSCTL: "Position", MAIN_AUTO: "Auto",
-                   MAIN_ACRO: "Acro", MAIN_OFFBOARD: "Offboard", MAIN_STABILIZED: "Stabilized", MAIN_RATTITUDE: "Rattitude"}  # fmt: skip
+                   MAIN_ACRO: "Acro", MAIN_OFFBOARD: "Offboard", MAIN_STABILIZED: "Stabilized", MAIN_RATTITUDE: "Rattitude",
+                   MAIN_TERMINATION: "Termination"}  # fmt: skip
 AUTO_SUB_MODE_NAMES = {SUB_AUTO_READY: "Ready", SUB_AUTO_TAKEOFF: "Takeoff", SUB_AUTO_LOITER: "Hold", SUB_AUTO_MISSION: "Mission",
                        SUB_AUTO_RTL: "Return", SUB_AUTO_LAND: "Land", SUB_AUTO_FOLLOW_TARGET: "Follow",
                        SUB_AUTO_PRECLAND: "Precland"}  # fmt: skip

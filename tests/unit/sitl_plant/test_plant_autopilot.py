@@ -268,18 +268,49 @@ def test_offboard_loss_failsafe_table(ap, action, mode):
 
 
 def test_offboard_loss_terminate_and_disarm(ap):
+    """As PX4 v1.16 SITL did (flown, docs/parity/commander.md): Terminate stops the motors and
+    stays, armed, in custom main mode 10 with base_mode 129 and status FLIGHT_TERMINATION, on the
+    ground too (the plant used to disarm once landed: PX4 does not); Disarm disarms at once, with
+    "Disarmed by failsafe", and the heartbeat keeps Offboard's STABILIZE flag (17)."""
     ap.params.set("COM_OBL_RC_ACT", 6)
     _flying_offboard(ap)
     ap.update(1.5)
     assert isinstance(ap.task(), IdleTask) and ap.armed and ap.failsafe  # motors stopped: it falls
     ap.observe(state(0.0))
     ap.update(1.6)
-    ap.update(1.6 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S)
-    assert not ap.armed
+    ap.update(1.6 + ap.params["LNDMC_TRIG_TIME"] + LAND_DETECT_WINDDOWN_S + ap.params["COM_DISARM_LAND"] + 1.0)
+    status = ap.status()
+    assert ap.armed and status.mode is Mode.TERMINATION and status.mode.custom_mode == 10 << 16
+    assert (status.base_mode, status.system_status) == (129, 8)
+    ap.on_setpoint(SETPOINT, 20.0)
+    assert ap.set_mode(Mode.AUTO_LOITER, 20.0).result == MAV_RESULT_TEMPORARILY_REJECTED
+    assert ap.mode is Mode.TERMINATION and isinstance(ap.task(), IdleTask)
+    assert ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196), 20.0).result == MAV_RESULT_ACCEPTED
     ap.params.set("COM_OBL_RC_ACT", 7)
+    ap.observe(state(0.0))
     _flying_offboard(ap)
-    ap.update(6.0)
-    assert not ap.armed
+    texts = ap.update(26.0)
+    assert not ap.armed and [t.text for t in texts] == ["Failsafe activated", "Disarmed by failsafe"]
+    assert ap.mode is Mode.OFFBOARD and (ap.status().base_mode, ap.status().system_status) == (17, 0)
+
+
+def test_offboard_loss_stabilized_without_sticks_holds_level_at_hover_thrust(ap):
+    """COM_OBL_RC_ACT 2: PX4 v1.16 SITL stayed in Stabilized and sank 0.07 m/s (its attitude
+    control of an all-zero manual setpoint: level, MPC_THR_HOVER); Altitude descends at
+    MPC_LAND_SPEED as Position does."""
+    ap.params.set("COM_OBL_RC_ACT", 2)
+    _flying_offboard(ap)
+    ap.update(1.5)
+    task = ap.task()
+    assert ap.mode is Mode.STABILIZED and isinstance(task, OffboardTask)
+    assert task.setpoint.q_wxyz == pytest.approx((1.0, 0.0, 0.0, 0.0))
+    assert task.setpoint.thrust_norm == ap.params["MPC_THR_HOVER"]
+    ap.params.set("COM_OBL_RC_ACT", 1)
+    ap.on_setpoint(SETPOINT, 2.0)
+    ap.update(2.0)
+    ap.update(3.5)
+    task = ap.task()
+    assert ap.mode is Mode.ALTCTL and isinstance(task, PositionTask) and task.descend_m_s == ap.params["MPC_LAND_SPEED"]
 
 
 def test_offboard_loss_default_is_position(ap):

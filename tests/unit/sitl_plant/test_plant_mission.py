@@ -16,7 +16,7 @@ from offboard.missions import MISSIONS_DIR
 from sitl_plant import codec
 from sitl_plant.autopilot import Autopilot, Command, IdleTask, Mode
 from sitl_plant.mission import RETRY_S, TIMEOUT_S, MissionManager, TransferState
-from sitl_plant.navigator import Frame, Navigator, geodetic_to_ned
+from sitl_plant.navigator import Frame, Navigator, geodetic_to_ned, orbit_limits
 from sitl_plant.params import plant_params
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
@@ -560,3 +560,25 @@ def test_a_clear_during_an_upload_is_ignored_and_the_upload_goes_on():
     outs = mm.handle(wire(mavlink.MAVLink_mission_clear_all_message(1, 1, 0)), 1.1)
     assert [o.kind for o in outs] == ["STATUSTEXT"] and "Busy" in str(outs[0].fields)
     assert mm.state is TransferState.GETLIST and len(mm.mission) == len(BOX)  # nothing cleared
+
+
+def test_orbit_speed_follows_px4s_acceleration_limit():
+    """FlightTaskOrbit::_sanitizeParams: v^2 >= 2 m/s^2 r lowers the speed to sqrt(2 r), the radius
+    is kept (within [1, MC_ORBIT_RAD_MAX]) and the speed within MPC_XY_VEL_MAX. PX4 v1.16 SIH asked
+    3 m/s on 2 m flew 1.22 m/s (below sqrt(4) = 2 by its drag lag), 2 m/s on 5 m 1.37 m/s."""
+    assert orbit_limits(5.0, 2.0, 1000.0, 12.0) == (5.0, 2.0)  # 4 < 10: kept
+    assert orbit_limits(2.0, 3.0, 1000.0, 12.0) == (2.0, pytest.approx(2.0))
+    assert orbit_limits(-10.0, 5.0, 1000.0, 12.0) == (-10.0, pytest.approx(math.sqrt(20.0)))
+    assert orbit_limits(0.2, 0.5, 1000.0, 12.0) == (1.0, 0.5)
+    assert orbit_limits(5000.0, 30.0, 1000.0, 12.0) == (1000.0, 12.0)
+    nav = Navigator(plant_params(VehicleParams()), frame=HOME)
+    nav.observe((2.0, 0.0, -8.0), 0.0, False)
+    nav.orbit((0.0, 0.0, -8.0), 2.0, 3.0, 0.0)
+    nav.update(0.05)
+    sp = nav.setpoint()
+    # on the circle: velocity only, tangential (clockwise: east at the north point), the centripetal feed-forward
+    assert not sp.hold_xy and sp.vel_ned_m_s[:2] == pytest.approx((0.0, 2.0), abs=1e-9)
+    assert sp.acc_ff_ne_m_s2 == pytest.approx((-2.0, 0.0))
+    nav.observe((2.5, 0.0, -8.0), 0.0, False)  # 0.5 m outside: pulled back at 1/s
+    nav.update(0.1)
+    assert nav.setpoint().vel_ned_m_s[:2] == pytest.approx((-0.5, 2.0), abs=1e-9)

@@ -1,0 +1,168 @@
+"""Every offboard-loss action (COM_OBL_RC_ACT 1..7) flown on the real PX4 v1.16 SITL and on
+``sitl-plant``, side by side, with no manual control input.
+
+One PX4 (``--speed 4``) and one plant serve the module; the same client script
+(tests/helpers/commander.py) runs against both at once. For each value of COM_OBL_RC_ACT it
+climbs to 10 m in Offboard (taking off again first when the last action left the vehicle on the
+ground), sets the parameter, stops the setpoints and records, on the vehicle's clock: the heartbeat
+(base_mode, custom mode, system status) after "Failsafe activated", the STATUSTEXTs, the vertical
+speed between 1.5 and 5.5 s after the failsafe, and the heartbeat at the end. The default (0,
+Position) is compared in test_px4_parity_commander.py. Terminate (6) is flown last: PX4 stays in
+flight termination until rebooted.
+
+Figures measured while this was written are in docs/parity/commander.md.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import pytest
+from pymavlink import mavutil
+
+from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from helpers.commander import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_RTL, OFFBOARD, Client, PlantProcess, free_port, mode_of
+
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
+              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+
+mavlink = mavutil.mavlink
+SPEED = 4.0
+NAN = math.nan
+HEIGHT_M = 10.0
+STABILIZED, TERMINATION = (7, 0), (10, 0)
+ACTIONS = (1, 2, 3, 4, 5, 7, 6)  # Terminate last: only a reboot ends it
+
+
+@dataclass
+class Loss:
+    """What one vehicle did when the setpoints stopped under one COM_OBL_RC_ACT."""
+
+    heartbeat: tuple[int, tuple[int, int], int] = (0, (0, 0), 0)
+    final: tuple[int, tuple[int, int], int] = (0, (0, 0), 0)
+    texts: list[str] = field(default_factory=list)
+    sink_m_s: float = NAN  # mean descent speed 1.5-5.5 s after the failsafe (down +)
+    height_at_end_m: float = NAN
+
+
+def _hb(c: Client) -> tuple[int, tuple[int, int], int]:
+    h = c.heartbeat
+    return (int(h.base_mode), mode_of(h.custom_mode), int(h.system_status))
+
+
+def _settle_heartbeat(c: Client) -> None:
+    t0 = c.t_s
+    c.pump(6.0, lambda: bool(c.heartbeats) and c.heartbeats[-1][0] >= t0 + 0.3)
+
+
+def _airborne_in_offboard(c: Client, ground_down_m: float) -> None:
+    if not c.armed:
+        c.setpoint = None
+        c.set_mode(AUTO_LOITER)
+        c.pump(0.3)
+        assert c.arm()[-1:] == [mavlink.MAV_RESULT_ACCEPTED]
+        c.command(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
+        assert c.wait(lambda: c.mode == AUTO_LOITER and c.down_m < ground_down_m - 1.5, 30.0, SPEED), "no takeoff"
+    c.setpoint = (0.0, 0.0, ground_down_m - HEIGHT_M)
+    c.pump(0.3)
+    assert c.set_mode(OFFBOARD)[-1:] == [mavlink.MAV_RESULT_ACCEPTED]
+    assert c.wait(lambda: abs(c.down_m - (ground_down_m - HEIGHT_M)) < 0.3, 40.0, SPEED), "no climb in Offboard"
+    c.wait_sim(1.0)
+
+
+def fly_script(c: Client) -> dict[int, Loss]:
+    out: dict[int, Loss] = {}
+    c.connect()
+    c.pump(1.0)
+    ground = c.down_m
+    for action in ACTIONS:
+        _airborne_in_offboard(c, ground)
+        c.set_param("COM_OBL_RC_ACT", action, integer=True)
+        assert c.get_param("COM_OBL_RC_ACT") == action
+        loss = out[action] = Loss()
+        c.setpoint = None
+        t_stop = c.t_s
+        assert c.wait(lambda: any("Failsafe activated" in x for x in c.texts_since(t_stop)), 15.0, SPEED), "no failsafe"
+        t_fs = c.t_s
+        _settle_heartbeat(c)
+        loss.heartbeat = _hb(c)
+        c.wait_sim(max(0.0, t_fs + 8.0 - c.t_s))
+        window = [s for s in c.samples if t_fs + 1.5 <= s.t_s <= t_fs + 5.5]
+        loss.sink_m_s = (window[-1].pos_ned_m[2] - window[0].pos_ned_m[2]) / (window[-1].t_s - window[0].t_s)
+        loss.height_at_end_m = ground - c.down_m
+        loss.final = _hb(c)
+        loss.texts = [x.strip() for x in c.texts_since(t_stop)]
+        if not c.armed:
+            c.wait_sim(2.0)
+    return out
+
+
+def _run(c: Client) -> dict[int, Loss]:
+    try:
+        return fly_script(c)
+    finally:
+        c.close()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """(PX4, plant): every action flown on both, side by side."""
+    with running_px4(tmp_path_factory.mktemp("px4"), speed=SPEED) as px4:
+        px4_client = Client(px4.api_listen_port)
+        px4_client.connect()
+        loss_t = px4_client.get_param("COM_OF_LOSS_T")
+        rc_loss_t = px4_client.get_param("COM_RC_LOSS_T")
+        assert loss_t is not None and rc_loss_t is not None
+        port = free_port()
+        plant = PlantProcess(port, SPEED)
+        try:
+            plant_client = Client(port)
+            plant_client.connect()
+            plant_client.set_param("COM_OF_LOSS_T", loss_t, integer=False)
+            plant_client.set_param("COM_RC_LOSS_T", rc_loss_t, integer=False)
+            with ThreadPoolExecutor(2) as pool:
+                px4_run, plant_run = pool.submit(_run, px4_client), pool.submit(_run, plant_client)
+                result = px4_run.result(), plant_run.result()
+        finally:
+            plant.stop()
+    for action in ACTIONS:
+        a, b = result[0][action], result[1][action]
+        print(f"COM_OBL_RC_ACT {action}: PX4 {a.heartbeat} -> {a.final}, sink {a.sink_m_s:5.2f} m/s, {a.texts}")
+        print(f"{'':18} plant {b.heartbeat} -> {b.final}, sink {b.sink_m_s:5.2f} m/s, {b.texts}")
+    return result
+
+
+def test_every_offboard_loss_action_ends_in_px4s_mode_and_heartbeat(runs):
+    px4, plant = runs
+    # measured: none of them falls back for the missing sticks
+    expected = {1: (209, ALTCTL, 5), 2: (209, STABILIZED, 5), 3: (157, AUTO_RTL, 5), 4: (157, AUTO_LAND, 5),
+                5: (157, AUTO_LOITER, 5), 7: (17, OFFBOARD, 0), 6: (129, TERMINATION, 8)}  # fmt: skip
+    for action in ACTIONS:
+        assert px4[action].heartbeat == expected[action], action
+        assert plant[action].heartbeat == px4[action].heartbeat, action
+        assert "Failsafe activated" in plant[action].texts, action
+
+
+def test_the_actions_fly_as_px4s(runs):
+    """Descend or hold, as PX4: Altitude at MPC_LAND_SPEED (PX4 0.70 m/s), Stabilized level at the
+    hover thrust (PX4 sank 0.07-0.15 m/s, the plant 0.0), Land and Return (from above home) down
+    (PX4 1.03-1.04 m/s between 1.5 and 5.5 s, the plant 0.92-0.93), Hold held."""
+    px4, plant = runs
+    for action in (1, 4):
+        assert plant[action].sink_m_s == pytest.approx(px4[action].sink_m_s, rel=0.35), action
+    for action in (2, 5):
+        assert abs(px4[action].sink_m_s) < 0.35 and abs(plant[action].sink_m_s) < 0.35, action
+    assert px4[3].sink_m_s > 0.4 and plant[3].sink_m_s > 0.4
+
+
+def test_disarm_and_terminate_as_px4(runs):
+    px4, plant = runs
+    for obs in runs:
+        assert "Disarmed by failsafe" in obs[7].texts
+        assert obs[7].height_at_end_m < 1.0  # it fell
+        # flight termination: the motors stop, and PX4 stays armed in it on the ground
+        assert obs[6].height_at_end_m < 1.0
+        assert obs[6].final == (129, TERMINATION, 8)
+    assert plant[7].final == px4[7].final
