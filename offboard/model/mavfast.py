@@ -20,6 +20,7 @@ from __future__ import annotations
 import binascii
 import hashlib
 import struct
+from typing import Any
 from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -46,7 +47,7 @@ class _Packer:
 
     __slots__ = ("msg_id", "crc_extra", "payload", "values", "id_bytes")
 
-    def __init__(self, cls: type) -> None:
+    def __init__(self, cls: Any) -> None:  # a pymavlink message class (untyped)
         self.msg_id = cls.id
         self.crc_extra = cls.crc_extra
         self.payload = cls.unpacker
@@ -116,7 +117,7 @@ class _Unpacker:
 
     __slots__ = ("cls", "crc_extra", "size", "unpack", "plan")
 
-    def __init__(self, cls: type) -> None:
+    def __init__(self, cls: Any) -> None:  # a pymavlink message class (untyped)
         self.cls = cls
         self.crc_extra = bytes((cls.crc_extra,))
         self.size = cls.unpacker.size
