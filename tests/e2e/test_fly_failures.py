@@ -34,7 +34,8 @@ def test_plant_killed_ends_link_lost_with_a_readable_log(tmp_path):
         time.sleep(0.5)
         ctx.plant.kill()
 
-    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 30.0), fly_args=("--reconnect-timeout", "1.0"),
+    # a hover far longer than the test: a lockstep flight runs many times faster than real time
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 600.0), fly_args=("--reconnect-timeout", "1.0"),
                 during=kill_plant)
     assert flown.returncode == 5, flown.stderr
     assert flown.status == "link_lost"
@@ -110,7 +111,8 @@ def test_ground_station_taking_the_vehicle_out_of_offboard(tmp_path):
         finally:
             gcs.close()
 
-    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 30.0), gcs=True, during=take_over)
+    # a hover far longer than the test: a lockstep flight runs many times faster than real time
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 600.0), gcs=True, during=take_over)
     assert results["ack"] == mavutil.mavlink.MAV_RESULT_ACCEPTED
     assert flown.returncode == 7, flown.stderr
     assert flown.status == "mode_changed" and "Hold" in flown.summary["detail"]
@@ -133,7 +135,9 @@ def test_ctrl_c_lands_disarms_and_exits_130(tmp_path):
     def interrupt(ctx):
         ctx.wait_for(ARMED)
         ctx.wait_for("mission started")
-        time.sleep(1.0)
+        # soon: a lockstep flight runs many times faster than real time (with the unread streams
+        # off, a second of wall time is 80 s of the vehicle's, past the 60 s hover)
+        time.sleep(0.1)
         ctx.fly.send_signal(signal.SIGINT)
 
     flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 60.0), during=interrupt)

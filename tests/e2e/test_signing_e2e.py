@@ -74,7 +74,7 @@ def intrude(ctx, offboard_frames: list[bytes] = (), vehicle_frames: list[bytes] 
                     mav.seq = (mav.seq + 1) & 0xFF
             for frame in vehicle_frames:
                 sock.sendto(frame, ("127.0.0.1", ctx.offboard_port))
-            time.sleep(0.05)
+            time.sleep(0.01)  # all rounds within the short lockstep flight
     finally:
         sock.close()
 
