@@ -14,13 +14,12 @@ Figures measured while this was written are in docs/parity/commander.md.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import pytest
 from pymavlink import mavutil
 
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import SKIP_REASON, px4_launcher
 from helpers.commander import (
     AUTO_LAND,
     AUTO_LOITER,
@@ -28,8 +27,7 @@ from helpers.commander import (
     OFFBOARD,
     POSCTL,
     Client,
-    PlantProcess,
-    free_port,
+    fly_side_by_side,
     mode_of,
 )
 
@@ -177,37 +175,14 @@ def fly_script(c: Client, obs: Observed) -> None:
 
 def _run(c: Client) -> Observed:
     obs = Observed()
-    try:
-        fly_script(c, obs)
-    finally:
-        c.close()
+    fly_script(c, obs)
     return obs
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """(PX4, plant): the script flown on both, side by side."""
-    with running_px4(tmp_path_factory.mktemp("px4"), speed=SPEED) as px4:
-        px4_client = Client(px4.api_listen_port)
-        px4_client.connect()
-        loss_t = px4_client.get_param("COM_OF_LOSS_T")
-        rc_loss_t = px4_client.get_param("COM_RC_LOSS_T")
-        assert loss_t is not None and rc_loss_t is not None
-        port = free_port()
-        plant = PlantProcess(port, SPEED)
-        try:
-            plant_client = Client(port)
-            plant_client.connect()
-            plant_client.set_param("COM_OF_LOSS_T", loss_t, integer=False)
-            plant_client.set_param("COM_RC_LOSS_T", rc_loss_t, integer=False)
-            assert plant_client.get_param("COM_OF_LOSS_T") == pytest.approx(loss_t)
-            for c in (px4_client, plant_client):
-                c.of_loss_t = loss_t
-            with ThreadPoolExecutor(2) as pool:
-                px4_run, plant_run = pool.submit(_run, px4_client), pool.submit(_run, plant_client)
-                result = px4_run.result(), plant_run.result()
-        finally:
-            plant.stop()
+    result = fly_side_by_side(tmp_path_factory.mktemp("px4"), SPEED, _run)
     for name in result[0].figures:
         print(f"{name:<75} PX4 {result[0].figures[name]:7.2f}   plant {result[1].figures.get(name, math.nan):7.2f}")
     return result

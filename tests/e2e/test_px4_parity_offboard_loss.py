@@ -16,14 +16,13 @@ Figures measured while this was written are in docs/parity/commander.md.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import pytest
 from pymavlink import mavutil
 
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
-from helpers.commander import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_RTL, OFFBOARD, Client, PlantProcess, free_port, mode_of
+from bench.px4sitl import SKIP_REASON, px4_launcher
+from helpers.commander import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_RTL, OFFBOARD, Client, fly_side_by_side, mode_of
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
               pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
@@ -92,7 +91,8 @@ def fly_script(c: Client) -> dict[int, Loss]:
         loss = out[action] = Loss()
         c.setpoint = None
         t_stop = c.t_s
-        assert c.wait(lambda: any("Failsafe activated" in x for x in c.texts_since(t_stop)), 15.0, SPEED), "no failsafe"
+        assert c.wait(lambda: any("Failsafe activated" in x for x in c.texts_since(t_stop)), 15.0, SPEED), \
+            f"no failsafe (COM_OBL_RC_ACT {action}, client on {c.port}, mode {c.mode}, texts {c.texts_since(t_stop)})"
         t_fs = c.t_s
         _settle_heartbeat(c)
         loss.heartbeat = _hb(c)
@@ -107,34 +107,10 @@ def fly_script(c: Client) -> dict[int, Loss]:
     return out
 
 
-def _run(c: Client) -> dict[int, Loss]:
-    try:
-        return fly_script(c)
-    finally:
-        c.close()
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """(PX4, plant): every action flown on both, side by side."""
-    with running_px4(tmp_path_factory.mktemp("px4"), speed=SPEED) as px4:
-        px4_client = Client(px4.api_listen_port)
-        px4_client.connect()
-        loss_t = px4_client.get_param("COM_OF_LOSS_T")
-        rc_loss_t = px4_client.get_param("COM_RC_LOSS_T")
-        assert loss_t is not None and rc_loss_t is not None
-        port = free_port()
-        plant = PlantProcess(port, SPEED)
-        try:
-            plant_client = Client(port)
-            plant_client.connect()
-            plant_client.set_param("COM_OF_LOSS_T", loss_t, integer=False)
-            plant_client.set_param("COM_RC_LOSS_T", rc_loss_t, integer=False)
-            with ThreadPoolExecutor(2) as pool:
-                px4_run, plant_run = pool.submit(_run, px4_client), pool.submit(_run, plant_client)
-                result = px4_run.result(), plant_run.result()
-        finally:
-            plant.stop()
+    result = fly_side_by_side(tmp_path_factory.mktemp("px4"), SPEED, fly_script)
     for action in ACTIONS:
         a, b = result[0][action], result[1][action]
         print(f"COM_OBL_RC_ACT {action}: PX4 {a.heartbeat} -> {a.final}, sink {a.sink_m_s:5.2f} m/s, {a.texts}")

@@ -10,14 +10,18 @@ waits it keeps sending what it was told to: a GCS heartbeat every wall second, p
 
 from __future__ import annotations
 
+import fcntl
 import os
 import struct
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 from pymavlink import mavutil
 
@@ -235,3 +239,53 @@ class PlantProcess:
 
 def free_port() -> int:
     return free_udp_ports(1)[0]
+
+
+T = TypeVar("T")
+
+
+def fly_side_by_side(folder: Path, speed: float, script: Callable[[Client], T]) -> tuple[T, T]:
+    """(PX4's, the plant's): ``script`` run on a real PX4 SITL and on ``sitl-plant``, both at
+    ``speed``, at the same time (a thread each). The plant is given PX4's COM_OF_LOSS_T and
+    COM_RC_LOSS_T (PX4's start-up script multiplies them by the speed factor), so both run the same
+    timeouts. ``script`` gets a connected client and closes nothing: the client is closed after.
+
+    One such comparison at a time across the test workers (a lock file): two PX4s at speed 4 on
+    two cores ran late enough to miss their failsafe and termination timings."""
+    from bench.px4sitl import running_px4
+
+    with open(Path(tempfile.gettempdir()) / "px4-side-by-side.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        return _fly_side_by_side(folder, speed, script, running_px4)
+
+
+def _fly_side_by_side(folder: Path, speed: float, script: Callable[[Client], T], running_px4) -> tuple[T, T]:  # noqa: ANN001
+    with running_px4(folder, speed=speed) as px4:
+        px4_client = Client(px4.api_listen_port)
+        px4_client.connect()
+        loss_t = px4_client.get_param("COM_OF_LOSS_T")
+        rc_loss_t = px4_client.get_param("COM_RC_LOSS_T")
+        assert loss_t is not None and rc_loss_t is not None
+        port = free_port()
+        plant = PlantProcess(port, speed)
+        try:
+            plant_client = Client(port)
+            plant_client.connect()
+            plant_client.set_param("COM_OF_LOSS_T", loss_t, integer=False)
+            plant_client.set_param("COM_RC_LOSS_T", rc_loss_t, integer=False)
+            got = plant_client.get_param("COM_OF_LOSS_T")
+            assert got is not None and abs(got - loss_t) < 1e-6, (got, loss_t)
+            for c in (px4_client, plant_client):
+                c.of_loss_t = loss_t
+
+            def run(c: Client) -> T:
+                try:
+                    return script(c)
+                finally:
+                    c.close()
+
+            with ThreadPoolExecutor(2) as pool:
+                px4_run, plant_run = pool.submit(run, px4_client), pool.submit(run, plant_client)
+                return px4_run.result(), plant_run.result()
+        finally:
+            plant.stop()
