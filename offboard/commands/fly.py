@@ -414,24 +414,38 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
 
 def _report(result: FlightResult, link_stats: dict, wall_s: float, run_dir: Path, tlog: Path,
             meta: dict, no_plots: bool) -> tuple[dict, str]:
+    """Write series.csv, summary.txt and summary.json, then the figures (and summary.json again,
+    naming them): a Ctrl-C while the figures are drawn costs only the figures."""
     record = result.record
     # the flight resolves the sample clock (--clock auto) and measures the vehicle's rate
     meta = {**meta, **{k: record.meta[k] for k in ("clock", "clock_rate") if k in record.meta}}
     extra = fly_summary(result, link_stats, wall_s)
-    table = ""
     payload: dict = {**meta, "run_dir": str(run_dir), "log": str(tlog)}
+    table = format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
     if len(record):
         summary = summarize(record)
-        table = format_table(summary) + "\n" + format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
+        table = format_table(summary) + "\n" + table
         payload.update(summary.to_dict())
         record.write_csv(run_dir / "series.csv")
-        if not no_plots:
-            from offboard.plots import write_figures
-
-            payload["figures"] = [str(p) for p in write_figures(record, run_dir, title=f"{meta['mission']} over MAVLink ({meta['output']})")]
-    else:
-        table = format_fly_lines(extra, bool(meta["lockstep"]), meta.get("clock") == "vehicle")
     payload.update(extra)
     (run_dir / "summary.txt").write_text(table + "\n")
-    (run_dir / "summary.json").write_text(jsonout.dumps(payload, indent=2) + "\n")
+    _write_summary_json(run_dir, payload)
+    if len(record) and not no_plots:
+        try:
+            from offboard.plots import write_figures  # matplotlib: a second or more
+
+            figures = write_figures(record, run_dir, title=f"{meta['mission']} over MAVLink ({meta['output']})")
+        except KeyboardInterrupt:
+            print(f"offboard fly: interrupted while drawing the figures; the log, series.csv and the summaries "
+                  f"are in {run_dir}", file=sys.stderr)
+            raise
+        payload["figures"] = [str(p) for p in figures]
+        _write_summary_json(run_dir, payload)
     return payload, table
+
+
+def _write_summary_json(run_dir: Path, payload: dict) -> None:
+    """summary.json whole or not at all: written aside, then renamed over the old one."""
+    partial = run_dir / "summary.json.partial"
+    partial.write_text(jsonout.dumps(payload, indent=2) + "\n")
+    partial.replace(run_dir / "summary.json")

@@ -64,7 +64,9 @@ def test_demo_flies_the_paper_helix_and_leaves_the_run_folder(tmp_path):
 
 def test_ctrl_c_on_the_demo_lands_and_leaves_no_process(tmp_path):
     run_dir = tmp_path / "demo"
-    mission = hover_mission(tmp_path / "hover.toml", 2.0, 60.0)
+    # 600 s: lockstep flies ~80x real time, and the interrupt must come before the hover ends
+    # (with 60 s it once came after: the flight was over and offboard fly was drawing its figures)
+    mission = hover_mission(tmp_path / "hover.toml", 2.0, 600.0)
     err_path = tmp_path / "demo.stderr"
     with err_path.open("w") as err:
         proc = subprocess.Popen([PY, "-m", "offboard.demo", "--run-dir", str(run_dir), "--lockstep", "--mission", str(mission)],

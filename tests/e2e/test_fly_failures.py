@@ -136,11 +136,11 @@ def test_ctrl_c_lands_disarms_and_exits_130(tmp_path):
         ctx.wait_for(ARMED)
         ctx.wait_for("mission started")
         # soon: a lockstep flight runs many times faster than real time (with the unread streams
-        # off, a second of wall time is 80 s of the vehicle's, past the 60 s hover)
+        # off, a second of wall time is 80 s of the vehicle's; the hover lasts 600 s)
         time.sleep(0.1)
         ctx.fly.send_signal(signal.SIGINT)
 
-    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 60.0), during=interrupt)
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 600.0), during=interrupt)
     assert flown.returncode == 130, flown.stderr
     assert flown.status == "interrupted"
     assert flown.summary["landed"] and flown.summary["disarmed"]
@@ -152,6 +152,27 @@ def test_ctrl_c_lands_disarms_and_exits_130(tmp_path):
     assert disarms and acks(msgs, arm)[-1] == mavutil.mavlink.MAV_RESULT_ACCEPTED
     assert msgs[-1].get_type() == "COMMAND_ACK" or any(m.get_type() == "COMMAND_ACK" for m in msgs[-20:])
     assert 0 < len(flown.summary["phases"]) and flown.summary["duration_s"] < 60.0
+
+
+def test_ctrl_c_while_the_figures_are_drawn_keeps_the_summary(tmp_path):
+    """The flight is over and summary.json written; the figures take seconds to draw, and a
+    Ctrl-C then costs only them (it used to cost summary.json too: it was written last)."""
+    summary = tmp_path / "run" / "summary.json"
+
+    def interrupt(ctx):
+        deadline = time.monotonic() + 120
+        while not summary.is_file() and ctx.fly.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        ctx.fly.send_signal(signal.SIGINT)
+
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 2.0), during=interrupt, plots=True)
+    assert flown.returncode == 130, flown.stderr
+    assert "interrupted while drawing the figures" in flown.stderr and "Traceback" not in flown.stderr
+    assert flown.status == "complete" and flown.summary["landed"] and flown.summary["disarmed"]
+    assert "figures" not in flown.summary and (flown.run_dir / "series.csv").stat().st_size > 0
+    assert "whole flight" in (flown.run_dir / "summary.txt").read_text()
+    assert not list(flown.run_dir.glob("*.partial"))
+    assert read_tlog(flown.tlog)
 
 
 def test_a_hover_completes_over_a_lossy_delayed_link(tmp_path):

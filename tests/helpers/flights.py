@@ -134,17 +134,18 @@ def fly(
     timeout_s: float = 240.0,
     name: str = "run",
     quiet_plant: bool = True,
+    plots: bool = False,
 ) -> Flown:
     """Fly ``mission`` with ``offboard fly`` against ``sitl-plant``, both real processes
     (``quiet_plant=False``: the plant's banner, status line and exit summary kept in
-    ``Flown.plant_stderr``)."""
+    ``Flown.plant_stderr``; ``plots=True``: the figures drawn too)."""
     run_dir = tmp_path / name
     run_dir.mkdir(parents=True, exist_ok=True)
     plant_port, offboard_port, gcs_port = free_udp_ports(3)
     stderr_path, plant_stderr_path = run_dir / "offboard.stderr", run_dir / "plant.stderr"
     tlog, plant_tlog = run_dir / "flight.tlog", run_dir / "plant.tlog"
     fly_cmd = [PY, "-m", "offboard.cli", "fly", str(mission), "--connect", f"udpin:127.0.0.1:{offboard_port}",
-               "--run-dir", str(run_dir), "--log", str(tlog), "--no-plots", "--json", *fly_args]
+               "--run-dir", str(run_dir), "--log", str(tlog), *([] if plots else ["--no-plots"]), "--json", *fly_args]
     if lockstep:
         fly_cmd.append("--lockstep")
     # the flights here are the paper's (its quad, Table I or designed gains, figures from its runs):
