@@ -579,6 +579,7 @@ class Flight:
         self._tick = 0
         self._next_tick_s: float | None = None
         self._next_tick_ms: float | None = None  # on the vehicle's clock
+        self._sample_late_s = 0.0  # on the vehicle's clock: how long after its tick the sampled position came
         self._prev_sample_ms: int | None = None
         self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
@@ -1240,6 +1241,11 @@ class Flight:
             self._next_tick_ms += skipped * period_ms
             if self._mission_tick0 is not None:
                 self.loop.overruns += skipped
+        # the position came this long after the tick: the references are taken at its instant, so
+        # that state and reference are of one time (the streams' stamps need not fall on the ticks:
+        # sitl-plant's 100 Hz on its 4 ms steps are 8 and 12 ms apart, and the samples then fell
+        # 40 and 60 ms apart, reading 2 m/s of helix as a 2 cm ripple of the error)
+        self._sample_late_s = (t_ms - self._next_tick_ms) / 1000.0
         if not self._sample(self.clock()) and self._mission_tick0 is not None and not self._mission_done:
             self.loop.missed += 1
         self._tick += 1
@@ -1300,7 +1306,7 @@ class Flight:
             self._say_start(measured)
         n = self._tick - self._mission_tick0
         recording = not self._mission_done and n <= self._mission_samples
-        t = n * self.to
+        t = n * self.to + (self._sample_late_s if self._on_vehicle_clock else 0.0)
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
         command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
