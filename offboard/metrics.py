@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from offboard.controller.law import SETTLED_M, STEP_M
 from offboard.record import FlightRecord, FlightStatus
 from offboard.trajectory.base import Phase
 
@@ -28,14 +29,10 @@ STEADY_FRACTION = 0.25  # steady-state error: mean over the last quarter of a ho
 #: did not follow that step at all is off.
 LOST_TRACK_M = 10.0
 LOST_TRACK_WINDOW_S = 1.0
-#: A reference step: the reference moves more than this between two samples (m). 1 m a sample is
-#: 20 m/s at To = 50 ms, faster than any mission flies (PX4's MPC_XY_VEL_MAX is 12 m/s); the paper's
-#: steps are 2 m and 12 m. A flight starting farther than this from its reference starts with one.
-STEP_M = 1.0
-#: After a step, the transient lasts until the 3D error first falls below SETTLED_M (m): ten times
-#: the demo helix's settled error (0.011-0.013 m RMS, docs/controller-design.md), far below any
-#: deliberate step. What follows, to the next step, is tracking.
-SETTLED_M = 0.1
+#: A reference step: the reference moves more than STEP_M between two samples (m); after one, the
+#: transient lasts until the 3D error first falls below SETTLED_M (m). What follows, to the next
+#: step, is tracking. The law's velocity integral holds over the same transients: one definition,
+#: the controller's (``offboard.controller.law``).
 
 
 @dataclass(frozen=True)

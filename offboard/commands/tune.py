@@ -62,6 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--phase-margin-deg", type=float, default=MarginSpec.phase_margin_deg, help="at least this")
     parser.add_argument("--delay-margin", type=float, default=MarginSpec.delay_margin_s, metavar="S",
                         help="extra latency the loop must tolerate")
+    parser.add_argument("--sensitivity-peak", type=float, default=MarginSpec.sensitivity_peak, metavar="MS",
+                        help="at most this max |1/(1+L)| (> 1; 'inf' for no bound)")
     parser.add_argument("--no-integral", action="store_true",
                         help="design without the law's velocity integral (docs/controller-design.md)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE", help="controller file to write (default: stdout)")
@@ -158,6 +160,8 @@ def _check(args: argparse.Namespace) -> None:
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
             raise TuneArgumentError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+    if not (args.sensitivity_peak > 1.0):  # inf allowed: no bound; NaN refused
+        raise TuneArgumentError(f"--sensitivity-peak must be > 1, got {args.sensitivity_peak}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
     for option, path in (("--output", args.output), ("--plot", args.plot)):
@@ -178,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     values = vehicle_values(raw)
     if "SIM_THR_MAX" not in values:
         raise TuneArgumentError(f"{source}: no SIM_THR_MAX or SIH_T_MAX (the vehicle's thrust at normalised 1)")
-    spec = MarginSpec(args.gain_margin, args.phase_margin_deg, args.delay_margin)
+    spec = MarginSpec(args.gain_margin, args.phase_margin_deg, args.delay_margin, args.sensitivity_peak)
     try:
         design = design_for_vehicle(values, sample_time_s=args.sample_time, latency_s=args.latency, spec=spec,
                                     velocity_integral=not args.no_integral)

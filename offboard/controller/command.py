@@ -58,7 +58,8 @@ class StateEstimate(Protocol):
     """What a controller reads of the vehicle: its estimate, NED/FRD.
 
     ``offboard.codec.MeasuredState`` (from ATTITUDE and LOCAL_POSITION_NED) and the simulator's
-    ``VehicleState`` both are one.
+    ``VehicleState`` both are one. An estimate may also carry ``position_time_boot_ms``, its
+    position's own stamp (MeasuredState does): the paper's velocity filter then uses it.
     """
 
     @property

@@ -10,18 +10,23 @@ hover, one axis at a time, and designs the law's per-sample gains for it:
       omega_sp = P_att (theta_sp - theta)                       (MC_ROLL_P)
       tau_c    = T1 (Kp (omega_sp - omega) + Ki int(omega_sp - omega) - Kd omega_dot)
       tau_dot  = (tau_c - tau) / tau_m                          (motor lag, SIM_MOT_TAU / SIH_T_TAU)
-      omega_dot = tau / I,  theta_dot = omega,  v_dot = g theta, p_dot = v
+      omega_dot = tau / I,  theta_dot = omega,  v_dot = g theta - delta v, p_dot = v
 
-  with T1 the body torque at normalised torque 1; the vertical axis is ``a_dot = (a_c - a) /
-  tau_m``, ``v_dot = a``, ``p_dot = v``. The law's acceleration command ``dv / To`` (eq. 34,
+  with T1 the body torque at normalised torque 1 and delta = d / m the vehicle's linear drag per
+  unit mass (SIM_KDV / SIH_KDV over the mass; 0 without); the vertical axis is ``a_dot = (a_c -
+  a) / tau_m``, ``v_dot = a - delta v``, ``p_dot = v``. The law's acceleration command ``dv / To`` (eq. 34,
   with tan(theta) = dv / (dv6 + g To) of eq. 28-29, ~ a_c / g) is held for a sample
   (zero-order hold) and applied ``latency_s`` after the measurement it was computed from.
 - **The law on one axis** (eq. 32-34), linear: with memory ``vd(n)`` (x2d of the last sample)::
 
       vd(n+1) = (r(n+1) - k_pos r(n)) / To + (k_pos - 1) / To  p(n)          (eq. 32)
-      a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To             (eq. 33-34)
+      a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To + delta v(n)  (eq. 33-34)
 
-  (k_pos, k_vel) are (kx1, kx2) for north, (kx3, kx4) for east, (kx5, kx6) for up.
+  (k_pos, k_vel) are (kx1, kx2) for north, (kx3, kx4) for east, (kx5, kx6) for up; ``delta v(n)``
+  is the believed drag the law makes up (``[model] linear_drag_n_s_m``). It makes up the drag of
+  the measured speed through the lagged loop, so the drag acts on v(t) and its compensation on
+  v(t - lag): on a circle a force of about delta lag a outwards, which the reference lead below
+  then cancels with the rest (PX4 SIH's SIH_KDV 1 N s/m: 0.2 m/s^2 at the helix's 2 m/s^2).
 - **The closed loop** is then one linear discrete system: its poles (``spectral_radius``), the
   loop's gain, phase and delay margins broken at the plant input, and the transfer from the
   reference to the position: the law's eq. 32 hands the reference's velocity on exactly, so at
@@ -99,6 +104,9 @@ class InnerLoopModel:
         link and processing.
     source : str
         Where the numbers came from, for the controller file's comments.
+    drag_per_s : float
+        delta = d / m, the vehicle's linear drag per unit mass (1/s), which the law makes up
+        (``[model] linear_drag_n_s_m``); 0 for none.
     """
 
     roll: TiltLoop
@@ -106,9 +114,10 @@ class InnerLoopModel:
     thrust_time_constant_s: float = 0.02
     latency_s: float = 0.0
     source: str = ""
+    drag_per_s: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("thrust_time_constant_s", "latency_s"):
+        for name in ("thrust_time_constant_s", "latency_s", "drag_per_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
@@ -165,16 +174,20 @@ def inner_loop_from_params(params: Mapping[str, float], latency_s: float = 0.0) 
     roll = axis("ROLL", "ROLL", ("SIM_IXX", "SIH_IXX"), "SIH_L_ROLL")
     pitch = axis("PITCH", "PITCH", ("SIM_IYY", "SIH_IYY"), "SIH_L_PITCH")
     source = "sitl-plant SIM_*" if "SIM_TQ_RP_MAX" in params else "PX4 SIH_*"
-    return InnerLoopModel(roll, pitch, roll.motor_time_constant_s, latency_s, f"{source} and MC_* parameters")
+    drag = _param(params, "SIM_KDV", "SIH_KDV", default=0.0)
+    mass = _param(params, "SIM_MASS", "SIH_MASS", default=0.0)
+    return InnerLoopModel(roll, pitch, roll.motor_time_constant_s, latency_s, f"{source} and MC_* parameters",
+                          drag / mass if drag > 0 and mass > 0 else 0.0)  # fmt: skip
 
 
 # --- linear models -------------------------------------------------------------------------------
 
 
-def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2) -> tuple[np.ndarray, np.ndarray]:
+def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of one horizontal axis, states (p, v, theta, omega, rate integral, torque).
 
-    Input: the acceleration command a_c (m/s^2), flown as the tilt setpoint a_c / g.
+    Input: the acceleration command a_c (m/s^2), flown as the tilt setpoint a_c / g; the vehicle's
+    linear drag ``drag_per_s`` (delta = d / m) slows v.
     """
     g = gravity_m_s2
     tm = max(loop.motor_time_constant_s, 1e-4)  # no lag: a lag far above every other pole
@@ -184,6 +197,7 @@ def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2) -> tuple
     a = np.zeros((6, 6))
     b = np.zeros((6, 1))
     a[0, 1] = 1.0
+    a[1, 1] = -drag_per_s
     a[1, 2] = g
     a[2, 3] = 1.0
     a[3, 5] = 1.0 / i
@@ -198,10 +212,10 @@ def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2) -> tuple
     return a, b
 
 
-def vertical_plant(thrust_time_constant_s: float) -> tuple[np.ndarray, np.ndarray]:
+def vertical_plant(thrust_time_constant_s: float, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of the vertical axis, states (p, v, a); input the acceleration command (m/s^2)."""
     tm = max(thrust_time_constant_s, 1e-4)
-    a = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tm]])
+    a = np.array([[0.0, 1.0, 0.0], [0.0, -drag_per_s, 1.0], [0.0, 0.0, -1.0 / tm]])
     b = np.array([[0.0], [0.0], [1.0 / tm]])
     return a, b
 
@@ -234,14 +248,17 @@ def _zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
 class DiscretePlant:
     """x(n+1) = phi x(n) + gamma u(n), y(n) = (p(n), v(n), tilt(n)) = c x(n); the delay line is in x.
 
-    The vertical axis has no tilt: its third row is zero."""
+    The vertical axis has no tilt: its third row is zero. ``drag_per_s``: the plant's linear drag
+    (delta), which the law makes up with ``delta v(n)``."""
 
     phi: np.ndarray
     gamma: np.ndarray
     c: np.ndarray
+    drag_per_s: float = 0.0
 
 
-def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, tilt_state: int | None = None) -> DiscretePlant:
+def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, tilt_state: int | None = None,
+               drag_per_s: float = 0.0) -> DiscretePlant:  # fmt: skip
     """Zero-order hold at ``sample_time_s`` with the input acting ``latency_s`` after the sample.
 
     With latency ``d = m To + delta`` the input over [n To, n To + delta) is u(n - m - 1) and
@@ -275,7 +292,7 @@ def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: fl
     c[0, 0] = c[1, 1] = 1.0
     if tilt_state is not None:
         c[2, tilt_state] = 1.0
-    return DiscretePlant(big_phi, big_gamma, c)
+    return DiscretePlant(big_phi, big_gamma, c, drag_per_s)
 
 
 # --- the law on one axis, closed loop --------------------------------------------------------------
@@ -311,7 +328,8 @@ class AxisGains:
                                            self.velocity_integral_per_s2))))  # type: ignore[return-value]
 
 
-def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float = GRAVITY_M_S2) -> dict[str, np.ndarray]:
+def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float = GRAVITY_M_S2,
+                    drag_per_s: float = 0.0) -> dict[str, np.ndarray]:  # fmt: skip
     """The law on one axis as a discrete state space (module docstring), batch axes first.
 
     States (vd(n), and the integral i(n) when ``integral_per_s`` > 0 or the velocity integral
@@ -322,7 +340,8 @@ def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float 
         i(n+1)  = i(n) + ki To (r(n) - p(n))                         (optional integral action)
         iv(n+1) = iv(n) + kiv To (vd(n) - v(n))                      (optional velocity integral)
         vd(n+1) = w + (k_pos - 1) / To p(n) + i(n+1)                 (eq. 32)
-        a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To + iv(n+1)   (eq. 33-34)
+        a_c(n)  = (vd(n+1) - k_vel vd(n) + (k_vel - 1) v(n)) / To + iv(n+1) + delta v(n)
+                                                                     (eq. 33-34, believed drag)
 
     Returns a dict of ``a`` (.., nk, nk), ``b`` (.., nk, 3), ``br`` (.., nk, 2), ``c`` (.., 1, nk),
     ``d`` (.., 1, 3), ``dr`` (.., 1, 2).
@@ -360,7 +379,7 @@ def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float 
         b[..., 1, 1] = -kvt
         c[..., 0, 0] += f * kvt
         c[..., 0, 1] = f
-    d = np.stack([f * cp / to, f * ((kv - 1.0) / to - kvt), -lead * g + zero], axis=-1)[..., None, :]
+    d = np.stack([f * cp / to, f * ((kv - 1.0) / to - kvt + drag_per_s), -lead * g + zero], axis=-1)[..., None, :]
     dr = np.stack([f / to + zero, f * kit / to], axis=-1)[..., None, :]
     return {"a": a, "b": b, "br": br, "c": c, "d": d, "dr": dr}
 
@@ -368,7 +387,7 @@ def law_state_space(gains: AxisGains, sample_time_s: float, gravity_m_s2: float 
 def closed_loop(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(M, Br): the closed loop's state matrix (plant states, then the law's) and its reference
     input matrix for (w, r), batch axes first."""
-    law = law_state_space(gains, sample_time_s)
+    law = law_state_space(gains, sample_time_s, drag_per_s=plant.drag_per_s)
     n = plant.phi.shape[0]
     nk = law["a"].shape[-1]
     shape = law["a"].shape[:-2]
@@ -397,12 +416,12 @@ def _plant_response(plant: DiscretePlant, z: np.ndarray) -> np.ndarray:
     return x @ plant.c.T
 
 
-def _law_response(gains: AxisGains, z: np.ndarray, to: float) -> np.ndarray:
+def _law_response(gains: AxisGains, z: np.ndarray, to: float, drag_per_s: float = 0.0) -> np.ndarray:
     """K(z) = C (zI - A)^-1 B + D from (p, v, tilt) to the setpoint: shape (..., len(z), 3).
 
     In closed form: (zI - A)^-1 is 1/z for vd alone, and the 2 x 2 inverse with an integral
     (``law_state_space``)."""
-    law = law_state_space(gains, to)
+    law = law_state_space(gains, to, drag_per_s=drag_per_s)
     a_nk = law["a"].shape[-1]
     zz = z.reshape((1,) * (law["a"].ndim - 2) + (-1, 1))  # (..., len(z), 1)
     b = law["b"][..., None, :, :]  # (..., 1, nk, 3)
@@ -442,6 +461,9 @@ class AxisAnalysis:
         c2 of the reference response (``tracking_lead_s2``).
     poles : ndarray
         Every closed-loop pole (z-plane).
+    sensitivity_peak : float
+        Ms = max |1 / (1 + L)|: how much the loop amplifies a disturbance (or an estimate's
+        error) at its worst frequency; 1 / Ms is the loop's shortest distance to -1.
     """
 
     gains: AxisGains
@@ -452,10 +474,20 @@ class AxisAnalysis:
     delay_margin_s: float
     reference_lead_s2: float
     poles: np.ndarray
+    sensitivity_peak: float = 1.0
 
     def meets(self, spec: MarginSpec) -> bool:
         return (self.spectral_radius < 1.0 and self.gain_margin >= spec.gain_margin
-                and self.phase_margin_deg >= spec.phase_margin_deg and self.delay_margin_s >= spec.delay_margin_s)  # fmt: skip
+                and self.phase_margin_deg >= spec.phase_margin_deg and self.delay_margin_s >= spec.delay_margin_s
+                and self.sensitivity_peak <= spec.sensitivity_peak)  # fmt: skip
+
+
+#: The design's bound on the sensitivity peak Ms (``MarginSpec.sensitivity_peak``): 1.6, inside
+#: the range Astrom and Hagglund give for robust loops (1.2-2.0) and what Skogestad's SIMC rules
+#: give. Gain margin 2 and phase margin 45 deg alone allowed Ms 2.02 on PX4 SIH's loop (+6 dB at
+#: 8 rad/s), and the PX4 hold rang there at 5-7 deg of tilt on the estimator's errors
+#: (docs/controller-design.md, "The sensitivity peak").
+SENSITIVITY_PEAK = 1.6
 
 
 @dataclass(frozen=True)
@@ -469,11 +501,19 @@ class MarginSpec:
     phase_margin_deg : float
     delay_margin_s : float
         Extra latency the loop must tolerate on top of the modelled one (s).
+    sensitivity_peak : float
+        At most this Ms = max |1 / (1 + L)| (docs/controller-design.md, "The sensitivity peak").
     """
 
     gain_margin: float = 2.0
     phase_margin_deg: float = 45.0
     delay_margin_s: float = 0.05
+    sensitivity_peak: float = SENSITIVITY_PEAK
+
+
+def _sensitivity_peak(loop: np.ndarray) -> np.ndarray:
+    """Ms = max |1 / (1 + L)| along the last axis (L in the negative feedback form)."""
+    return np.max(1.0 / np.maximum(np.abs(1.0 + loop), 1e-300), axis=-1)
 
 
 def _frequencies(to: float, count: int = 1500) -> np.ndarray:
@@ -506,7 +546,7 @@ def loop_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) 
     """(w rad/s, L(e^{jw To})): the loop broken at the plant input (negative feedback form)."""
     w = _frequencies(sample_time_s)
     z = np.exp(1j * w * sample_time_s)
-    return w, -np.sum(_law_response(gains, z, sample_time_s) * _plant_response(plant, z), axis=-1)
+    return w, -np.sum(_law_response(gains, z, sample_time_s, plant.drag_per_s) * _plant_response(plant, z), axis=-1)
 
 
 def reference_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float, w: np.ndarray) -> np.ndarray:
@@ -526,14 +566,22 @@ def reference_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: fl
 
 
 def tracking_lead_s2(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> float:
-    """c2 of the reference response T = 1 + c2 s^2 + ... at low frequency (s^2).
+    """c2 of the reference response T = 1 + c2 s^2 + ... of the proportional loop (s^2).
 
     The law's eq. 32 hands the velocity on exactly (T'(0) = 0), so what is left of a smooth,
     slow reference's tracking error is c2 times its acceleration: handing the law
     ``r - c2 r''`` instead of ``r`` cancels it to second order (``[law] reference_lead_s2``).
+
+    c2 is the loop's *without* its integral: an integral's zero sits a fraction q of the loop's
+    rate below it, and the Taylor series of T about 0 then holds only below that zero, where
+    c2 s^2 is negligible anyway; above it the loop is the proportional one. On PX4 SIH's loop the
+    integral loop's own c2 (-0.012 s^2) left |T| at 1.04 at 1 rad/s (the helix flew a 2.08 m circle
+    for 2 m) and 1.10 at 1.5 rad/s; the proportional loop's (-0.049 s^2) keeps it within 1 % up to
+    2 rad/s (docs/controller-design.md, "The reference lead").
     """
+    proportional = AxisGains(gains.k_pos, gains.k_vel, gains.lead)
     w = 0.01
-    t = reference_response(plant, gains, sample_time_s, np.array([w]))[0]
+    t = reference_response(plant, proportional, sample_time_s, np.array([w]))[0]
     return float(((t - 1.0) / (1j * w) ** 2).real)
 
 
@@ -546,7 +594,7 @@ def analyse_axis(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -
     w, loop = loop_response(plant, gains, to)
     gm, pm, dm = _margins(loop[None], w)
     return AxisAnalysis(gains, rho, settle, float(gm[0]), float(pm[0]), float(dm[0]),
-                        tracking_lead_s2(plant, gains, to), poles)  # fmt: skip
+                        tracking_lead_s2(plant, gains, to), poles, float(_sensitivity_peak(loop)))  # fmt: skip
 
 
 def pd_analysis(plant: DiscretePlant, k_pos_s2: float, k_vel_s: float, sample_time_s: float) -> tuple[float, float, float, float]:
@@ -598,9 +646,10 @@ class Design:
 
 def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant, DiscretePlant]:
     """(north, east, up) discrete plants of a model at a sample time."""
-    north = discretise(*tilt_axis_plant(model.pitch), sample_time_s, model.latency_s, tilt_state=2)
-    east = discretise(*tilt_axis_plant(model.roll), sample_time_s, model.latency_s, tilt_state=2)
-    up = discretise(*vertical_plant(model.thrust_time_constant_s), sample_time_s, model.latency_s)
+    drag = model.drag_per_s
+    north = discretise(*tilt_axis_plant(model.pitch, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
+    east = discretise(*tilt_axis_plant(model.roll, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
+    up = discretise(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s, drag_per_s=drag)
     return north, east, up
 
 
@@ -617,10 +666,14 @@ def _search(plants: tuple[DiscretePlant, ...], gains: AxisGains, to: float, spec
     ok = np.ones(kp.shape, dtype=bool)
     rho = np.zeros(kp.shape)
     law = _law_response(gains, z, to)  # (candidates, w, 3)
+    f = 1.0 + lead[:, None]  # the believed drag's delta v(n) is a static term of K (law_state_space's d)
     for plant in plants:
-        loop = -np.sum(law * _plant_response(plant, z)[None], axis=-1)
+        with_drag = law.copy()
+        with_drag[..., 1] += f * plant.drag_per_s
+        loop = -np.sum(with_drag * _plant_response(plant, z)[None], axis=-1)
         gm, pm, dm = _margins(loop, w)
         ok &= (gm >= spec.gain_margin) & (pm >= spec.phase_margin_deg) & (dm >= spec.delay_margin_s)
+        ok &= _sensitivity_peak(loop) <= spec.sensitivity_peak
         rho = np.maximum(rho, np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(plant, gains, to))), axis=-1))
     return np.where(ok & (rho < 1.0), rho, np.inf)
 
@@ -638,7 +691,8 @@ INTEGRAL_FRACTIONS = (0.1, 0.2, 0.3)
 #: The velocity integral gains searched (``[law] velocity_integral_gain_per_s2``, 1/s^2), as
 #: ``q rv^2`` with rv = (1 - k_vel) / To the velocity loop's own rate: the PI zero at q rv, a
 #: fraction q of the loop's bandwidth (the usual placement for a PI speed loop, which leaves
-#: its phase nearly as it was at the crossover).
+#: its phase nearly as it was at the crossover). The largest the margins allow is taken; the
+#: law holds the integral over a step's transient (``law_step``), where it would wind up.
 VELOCITY_INTEGRAL_FRACTIONS = (0.05, 0.1, 0.2, 0.3)
 
 
@@ -697,7 +751,8 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
     if coarse is None:
         raise ValueError(
             f"no gains with closed-loop rates in ({rates[0]:g}, {rates[-1]:g}) /s keep gain margin {spec.gain_margin:g}, "
-            f"phase margin {spec.phase_margin_deg:g} deg and delay margin {spec.delay_margin_s:g} s at To {to:g} s"
+            f"phase margin {spec.phase_margin_deg:g} deg, delay margin {spec.delay_margin_s:g} s and sensitivity peak "
+            f"{spec.sensitivity_peak:g} at To {to:g} s"
         )
     step = float(np.log(rates[1] / rates[0]))
     fine = np.exp(np.linspace(-step, step, 7))
@@ -731,6 +786,17 @@ def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: Margi
     north, east, up = analyse_axis(north_plant, h, to), analyse_axis(east_plant, h, to), analyse_axis(up_plant, v, to)
     reference_lead = (0.5 * (north.reference_lead_s2 + east.reference_lead_s2), up.reference_lead_s2)
     return Design(to, north, east, up, reference_lead, spec, model)
+
+
+def step_hold_s(design: Design) -> float:
+    """How long the velocity integral holds after a reference step at most (``[law]
+    velocity_integral_hold_s``): the slowest axis's 2 % settling time without the integral (the
+    proportional loop a step's transient is flown by), rounded up to the sample time."""
+    to = design.sample_time_s
+    north, _, up = axis_plants(design.model, to)
+    times = [analyse_axis(plant, AxisGains(a.gains.k_pos, a.gains.k_vel, a.gains.lead), to).settling_time_s
+             for plant, a in ((north, design.north), (up, design.up))]  # fmt: skip
+    return math.ceil(max(times) / to) * to
 
 
 def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float, kiv: float = 0.0,

@@ -3,7 +3,8 @@
 ``PaperController`` is ``RosalesController`` (the law of eq. 28-42 and the real torques of eq.
 16, in the paper's z-up frame) with the conversions at its edges:
 
-- in: the measured Euler rates from the body rates by eq. 3 (``W_eta`` of the controller's form),
+- in: the velocity made consistent with the position (``[law] velocity_from_position_s``,
+  ``offboard.controller.velocity``) when it is set; the measured Euler rates from the body rates by eq. 3 (``W_eta`` of the controller's form),
   the 12-state of eq. 22 and the references in the paper's frame (``offboard.frames``), led by
   ``[law] reference_lead_s2`` when it is set;
 - out (``paper_command``): the attitude target (the law's thrust axis at the heading x11d(n+1)
@@ -23,6 +24,7 @@ import numpy as np
 from offboard.controller.command import VEHICLE_MODELS, Command, StateEstimate
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
+from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import body_rates_from_euler_rates, paper_state, setpoint_attitude, tracking_reference
 from offboard.model.euler_lagrange import body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
@@ -31,11 +33,13 @@ def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def paper_state_of(state: StateEstimate, euler_rate_form: str) -> tuple[float, ...]:
+def paper_state_of(state: StateEstimate, euler_rate_form: str, vel_ned_m_s: np.ndarray | None = None) -> tuple[float, ...]:
     """The 12-state of eq. 22 (paper frame) of a NED/FRD estimate: Euler rates from the body rates
-    by eq. 3 with ``euler_rate_form``'s W_eta."""
+    by eq. 3 with ``euler_rate_form``'s W_eta (``vel_ned_m_s``: a velocity in place of the
+    estimate's own)."""
     rates = euler_rates_from_body_rates(state.euler_rad, state.body_rate_frd_rad_s, euler_rate_form)
-    return paper_state(state.pos_ned_m, state.vel_ned_m_s, state.euler_rad, rates)
+    vel = state.vel_ned_m_s if vel_ned_m_s is None else vel_ned_m_s
+    return paper_state(state.pos_ned_m, vel, state.euler_rad, rates)
 
 
 def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: str) -> Command:
@@ -100,13 +104,21 @@ class PaperController:
         self.vehicle_model = vehicle_model
         self.sample_time_s = params.sample_time_s
         self.law = RosalesController(params)
+        self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s)
+                         if params.velocity_from_position_s > 0 else None)  # fmt: skip
 
     def reset(self) -> None:
         self.law.reset()
+        if self.velocity is not None:
+            self.velocity.reset()
 
     def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
         p = self.params
-        x = paper_state_of(state, p.euler_rate_form)
+        vel = None
+        if self.velocity is not None:
+            stamp = getattr(state, "position_time_boot_ms", None)  # a MAVLink estimate's own stamp
+            vel = self.velocity.update(state.pos_ned_m, state.vel_ned_m_s, None if stamp is None else stamp / 1000.0)
+        x = paper_state_of(state, p.euler_rate_form, vel)
         lead = p.reference_lead_s2
         out = self.law.step(x, tracking_reference(ref_n, lead), tracking_reference(ref_n1, lead))
         return paper_command(out, state.euler_rad, p, self.vehicle_model)

@@ -144,6 +144,17 @@ class ControllerParams:
         A linear aerodynamic drag ``-d v`` (N) the controller believes (PX4 SIH's SIH_KDV):
         the law's eq. 27 then asks the thrust to make it up too. 0, the default, is the paper's
         model (eq. 18 has no drag).
+    velocity_integral_hold_s : float
+        After a reference step (the 3D position error jumps by more than ``law.STEP_M`` in a
+        sample, the flight's start included) the velocity integral holds until the error is
+        below ``law.SETTLED_M`` or for at most this long (s): a step's transient is not a
+        disturbance to learn. The design sets it to its loop's settling time; 0 (the default)
+        holds only on the bounds.
+    velocity_from_position_s : float
+        T of the complementary filter that makes the velocity the law reads consistent with the
+        position it tracks (``offboard.controller.velocity``): below 1/T the derivative of the
+        position estimate, above it the vehicle's velocity estimate. 0, the default, reads the
+        velocity as measured: the paper's law.
     """
 
     sample_time_s: float = 0.05
@@ -163,6 +174,8 @@ class ControllerParams:
     reference_lead_s2: tuple[float, float] = (0.0, 0.0)
     tilt_lead: float = 0.0
     linear_drag_n_s_m: float = 0.0
+    velocity_integral_hold_s: float = 0.0
+    velocity_from_position_s: float = 0.0
 
     def __post_init__(self) -> None:
         for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
@@ -181,6 +194,10 @@ class ControllerParams:
             raise ValueError(f"velocity_integral_limit_m_s2 must be > 0, got {self.velocity_integral_limit_m_s2}")
         if not (math.isfinite(self.linear_drag_n_s_m) and self.linear_drag_n_s_m >= 0):
             raise ValueError(f"linear_drag_n_s_m must be >= 0, got {self.linear_drag_n_s_m}")
+        if not (math.isfinite(self.velocity_integral_hold_s) and self.velocity_integral_hold_s >= 0):
+            raise ValueError(f"velocity_integral_hold_s must be >= 0, got {self.velocity_integral_hold_s}")
+        if not (math.isfinite(self.velocity_from_position_s) and self.velocity_from_position_s >= 0):
+            raise ValueError(f"velocity_from_position_s must be >= 0, got {self.velocity_from_position_s}")
         if not (math.isfinite(self.tilt_lead) and self.tilt_lead >= 0):
             raise ValueError(f"tilt_lead must be >= 0, got {self.tilt_lead}")
         if len(self.reference_lead_s2) != 2 or not all(math.isfinite(v) for v in self.reference_lead_s2):
@@ -220,6 +237,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
         velocity_integral_limit_m_s2=law.number("velocity_integral_limit_m_s2", 4.9, gt=0),
         reference_lead_s2=law.vector("reference_lead_s2", 2, default=(0.0, 0.0)),  # type: ignore[arg-type]
         tilt_lead=law.number("tilt_lead", 0.0, ge=0),
+        velocity_integral_hold_s=law.number("velocity_integral_hold_s", 0.0, ge=0),
+        velocity_from_position_s=law.number("velocity_from_position_s", 0.0, ge=0),
         mass_kg=model.number("mass_kg", gt=0),
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]

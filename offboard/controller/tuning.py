@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import replace
 
-from offboard.controller.design import Design, InnerLoopModel, MarginSpec, design_gains, inner_loop_from_params
+from offboard.controller.design import Design, InnerLoopModel, MarginSpec, design_gains, inner_loop_from_params, step_hold_s
 from offboard.controller.params import ControllerParams
 
 #: PX4's attitude/rate gains and speed limits the design reads (PX4's defaults where missing).
@@ -28,6 +28,13 @@ PLANT_PARAMS = ("SIM_THR_MAX", "SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX", "SIM_MASS", "SIM
 #: PX4 SIH's (its README: SIH_T_MAX is per rotor, CA_ROTOR_COUNT rotors).
 SIH_PARAMS = ("SIH_MASS", "SIH_T_MAX", "SIH_Q_MAX", "SIH_IXX", "SIH_IYY", "SIH_IZZ", "SIH_L_ROLL", "SIH_L_PITCH",
               "SIH_T_TAU", "SIH_KDV", "CA_ROTOR_COUNT")  # fmt: skip
+
+#: T of the designed controller's velocity filter (``[law] velocity_from_position_s``,
+#: ``offboard.controller.velocity``), s. Measured on PX4 SIH's EKF2 (docs/controller-design.md):
+#: its velocity departs from its position's derivative by 0.12-0.20 m/s RMS with a correlation
+#: time of 1.5-2 s; T a quarter of that removes the slow part, and spans 10 samples at 20 Hz, so
+#: the derivative's sample noise is averaged over them. Where the two agree it changes nothing.
+VELOCITY_FROM_POSITION_S = 0.5
 
 #: PX4's defaults of the speed limits (mc_pos_control params).
 PX4_SPEED_DEFAULTS = {"MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5, "MPC_YAWRAUTO_MAX": 45.0}
@@ -94,7 +101,9 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
     return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
                              integral_gain_per_s=float(h.integral_per_s),
                              velocity_integral_gain_per_s2=float(h.velocity_integral_per_s2),
-                             reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2))
+                             reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2),
+                             velocity_integral_hold_s=round(step_hold_s(design), 4) if h.velocity_integral_per_s2 else 0.0,
+                             velocity_from_position_s=VELOCITY_FROM_POSITION_S)
 
 
 def design_summary(design: Design) -> list[str]:
@@ -106,7 +115,7 @@ def design_summary(design: Design) -> list[str]:
             f"{name:14s} k_pos {float(g.k_pos):.4g} k_vel {float(g.k_vel):.4g} tilt lead {float(g.lead):g} velocity "
             f"integral {float(g.velocity_integral_per_s2):.3g}/s^2: |pole| max {a.spectral_radius:.3f} "
             f"(2 % in {a.settling_time_s:.2f} s), gain margin {a.gain_margin:.2f}, phase margin "
-            f"{a.phase_margin_deg:.1f} deg, delay margin {a.delay_margin_s * 1000:.0f} ms"
+            f"{a.phase_margin_deg:.1f} deg, delay margin {a.delay_margin_s * 1000:.0f} ms, sensitivity peak {a.sensitivity_peak:.2f}"
         )
     return lines
 
@@ -155,7 +164,7 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"{m.roll.rate_p:g}/{m.roll.rate_i:g}/{m.roll.rate_d:g}, {m.roll.torque_per_unit_nm:.4g} N m at torque 1, "
         f"Ixx {m.roll.inertia_kg_m2:.4g} kg m^2, motor lag {m.roll.motor_time_constant_s * 1000:.0f} ms.",
         f"# Required: gain margin {design.spec.gain_margin:g}, phase margin {design.spec.phase_margin_deg:g} deg, "
-        f"delay margin {design.spec.delay_margin_s * 1000:.0f} ms. Achieved:",
+        f"delay margin {design.spec.delay_margin_s * 1000:.0f} ms, sensitivity peak {design.spec.sensitivity_peak:g}. Achieved:",
         *(f"#   {line}" for line in design_summary(design)),
         "",
         "[law]",
@@ -165,10 +174,14 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"integral_limit_m_s = {_fmt(params.integral_limit_m_s)}",
         f"velocity_integral_gain_per_s2 = {_fmt(params.velocity_integral_gain_per_s2)}",
         f"velocity_integral_limit_m_s2 = {_fmt(params.velocity_integral_limit_m_s2)}",
+        "# after a reference step the velocity integral holds until settled, at most this long (s)",
+        f"velocity_integral_hold_s = {_fmt(params.velocity_integral_hold_s)}",
         "# the attitude setpoint is x7ez, x9ez led past the measured angles by this factor",
         f"tilt_lead = {_fmt(params.tilt_lead)}",
         "# c2 of the closed loop's reference response T = 1 + c2 s^2: the law is handed r - c2 r''",
         f"reference_lead_s2 = [{_fmt(params.reference_lead_s2[0])}, {_fmt(params.reference_lead_s2[1])}]",
+        "# T of the filter that makes the velocity read consistent with the position tracked (0: as measured)",
+        f"velocity_from_position_s = {_fmt(params.velocity_from_position_s)}",
         "",
         "[model]                # the vehicle as the controller believes it",
         f"mass_kg = {_fmt(params.mass_kg)}",

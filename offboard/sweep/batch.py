@@ -36,6 +36,7 @@ import numpy as np
 
 from offboard.controller.law import NUMPY_OPS, LawMemory, law_step
 from offboard.controller.params import GAIN_NAMES, ControllerGains
+from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import tracking_reference
 from offboard.record import FlightStatus
 from offboard.sweep.flight import Series, fly_one, row_of
@@ -142,6 +143,8 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
     believed = np.ascontiguousarray([b.inertia_kg_m2 for b in beliefs], dtype=float)
     form = ctl.euler_rate_form
     lead = ctl.reference_lead_s2
+    # [law] velocity_from_position_s: PaperController's filter, elementwise over the batch
+    consistent = ConsistentVelocity(ctl.velocity_from_position_s, to) if ctl.velocity_from_position_s > 0 else None
 
     # the vehicles
     x = np.empty((n, STATE_SIZE))
@@ -223,6 +226,8 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
                 previous_vel, previous_time = vel.copy(), time_s
                 pos = np.where(noisy[:, None], pos + pos_error, pos)
                 vel = np.where(noisy[:, None], vel + vel_error, vel)
+            if consistent is not None:
+                vel = consistent.update(pos, vel)
             state = (pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1], -pos[:, 2], -vel[:, 2], euler[0], rates[0], euler[1],
                      rates[1], euler[2], rates[2])  # fmt: skip
             if memory is None:

@@ -75,6 +75,10 @@ PARAMETERS: dict[str, Parameter] = {
     "controller.integral_gain_per_s": Parameter("integral action ki (1/s; 0 = the paper's law)", ge=0),
     "controller.velocity_integral_gain_per_s2": Parameter("velocity integral ki (1/s^2; 0 = the paper's law)", ge=0),
     "controller.tilt_lead": Parameter("lead on the attitude handed to an autopilot (px4 drive)", ge=0),
+    "controller.velocity_integral_hold_s": Parameter("the velocity integral's hold after a reference step (s; 0 = "
+                                                     "on the bounds only)", ge=0),
+    "controller.velocity_from_position_s": Parameter("T of the filter making the velocity read consistent with the "
+                                                     "position (s; 0 = as measured, the paper's law)", ge=0),
     "controller.sample_time_s": Parameter("To (s): a whole number of physics steps", gt=0),
     "wind.north_m_s": Parameter("steady wind towards north (m/s)", base=False),
     "wind.east_m_s": Parameter("steady wind towards east (m/s)", base=False),

@@ -351,3 +351,99 @@ def test_euler_rates_from_body_rates_inverts_w_eta(form):
         eta_dot = euler_rates_from_body_rates(eta, omega, form)
         np.testing.assert_allclose(euler_rate_matrix(eta, form) @ eta_dot, omega, atol=1e-9)
         np.testing.assert_allclose(body_rates_from_euler_rates(eta, eta_dot, form), omega, atol=1e-9)
+
+
+# --- [law] velocity_from_position_s: the velocity read, consistent with the position ------------
+
+
+def _kinematic(t: float) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth 3-D motion and its exact velocity."""
+    pos = np.array([2 * math.cos(t), 2 * math.sin(t), -0.8 * t])
+    vel = np.array([-2 * math.sin(t), 2 * math.cos(t), -0.8])
+    return pos, vel
+
+
+def test_consistent_estimates_pass_the_velocity_filter_unchanged():
+    from offboard.controller.velocity import ConsistentVelocity
+
+    f = ConsistentVelocity(0.5, 0.05)
+    for n in range(200):
+        pos, vel = _kinematic(n * 0.05)
+        out = f.update(pos, vel)
+        assert_allclose(out, vel, atol=5e-4)  # the trapezoidal rule's error: h^2/12 |v''| = 4e-4 m/s
+
+
+def test_the_velocity_filter_removes_a_bias_the_position_does_not_show():
+    """PX4 SIH's EKF2: a velocity 0.3 m/s off while the position stands still (docs/controller-design.md)."""
+    from offboard.controller.velocity import ConsistentVelocity
+
+    t_const, h = 0.5, 0.05
+    f = ConsistentVelocity(t_const, h)
+    bias = np.array([0.3, -0.2, 0.25])
+    outs = []
+    for n in range(100):
+        pos, vel = _kinematic(n * h)
+        outs.append(f.update(pos, vel + bias) - vel)
+    outs = np.array(outs)
+    assert_allclose(outs[0], bias)  # the first sample is handed on as measured
+    k = int(round(3 * t_const / h))  # three time constants: e^-3 of the bias left
+    assert np.all(np.abs(outs[k]) <= np.abs(bias) * 0.06)
+    assert np.all(np.abs(outs[-1]) < 1e-3)
+    f.reset()
+    assert_allclose(f.update(*_kinematic(0.0)), _kinematic(0.0)[1])
+
+
+def test_the_paper_law_reads_the_filtered_velocity_only_when_asked():
+    from offboard.controller.paper import PaperController
+    from offboard.trajectory.base import Reference
+
+    params = load_controller(PAPER_CONTROLLER_FILE)
+    assert params.velocity_from_position_s == 0.0  # the paper's law: as measured
+
+    class Estimate:
+        def __init__(self, pos, vel):
+            self.pos_ned_m, self.vel_ned_m_s = np.asarray(pos, float), np.asarray(vel, float)
+            self.euler_rad = np.zeros(3)
+            self.body_rate_frd_rad_s = np.zeros(3)
+            self.quat_wxyz = np.array([1.0, 0.0, 0.0, 0.0])
+
+    ref = Reference(np.array([0.0, 0.0, -1.0]), np.zeros(3), np.zeros(3), 0.0, 0.0)
+    bias = np.array([0.3, 0.0, 0.0])
+    plain, filtered, truth = (PaperController(params), PaperController(params.with_changes(velocity_from_position_s=0.5)),
+                              PaperController(params))  # fmt: skip
+    for _ in range(80):  # standing still at 1 m, the velocity estimate 0.3 m/s north
+        a = plain.step(Estimate([0, 0, -1], bias), ref, ref)
+        b = filtered.step(Estimate([0, 0, -1], bias), ref, ref)
+        c = truth.step(Estimate([0, 0, -1], np.zeros(3)), ref, ref)
+    assert abs(a.attitude_ref_euler_rad[1] - c.attitude_ref_euler_rad[1]) > 1e-2  # the bias tilts the plain law
+    assert_allclose(b.attitude_ref_euler_rad, c.attitude_ref_euler_rad, atol=1e-3)  # the filtered one ignores it (its transient: e^-8)
+    assert_allclose(b.thrust_n, c.thrust_n, atol=1e-3)
+
+
+def test_the_velocity_filter_is_read_from_a_controller_file_and_checked(tmp_path):
+    text = PAPER_CONTROLLER_FILE.read_text().replace("[law]\n", "[law]\nvelocity_from_position_s = 0.5\n", 1)
+    (tmp_path / "c.toml").write_text(text)
+    assert load_controller(tmp_path / "c.toml").velocity_from_position_s == 0.5
+    (tmp_path / "bad.toml").write_text(text.replace("velocity_from_position_s = 0.5", "velocity_from_position_s = -1"))
+    with pytest.raises(ParameterFileError, match="velocity_from_position_s"):
+        load_controller(tmp_path / "bad.toml")
+
+
+def test_the_velocity_filter_reads_the_positions_own_stamps():
+    """Over MAVLink a sample reads the latest position, whose age varies (and which may be the
+    last sample's): with the stamps, consistent estimates still pass unchanged."""
+    from offboard.controller.velocity import ConsistentVelocity
+
+    rng = np.random.default_rng(4)
+    stamped, nominal = ConsistentVelocity(0.5, 0.05), ConsistentVelocity(0.5, 0.05)
+    worst_stamped = worst_nominal = 0.0
+    for n in range(200):
+        t = n * 0.05 - rng.uniform(0.0, 0.02)  # the position message 0-20 ms old
+        if n % 7 == 3:
+            t = last  # noqa: F821  (no newer position this sample)
+        pos, vel = _kinematic(t)
+        worst_stamped = max(worst_stamped, float(np.max(np.abs(stamped.update(pos, vel, t) - vel))))
+        worst_nominal = max(worst_nominal, float(np.max(np.abs(nominal.update(pos, vel) - vel))))
+        last = t  # noqa: F841  (read by the next turn)
+    assert worst_stamped < 2e-3  # the trapezoidal rule's error, whatever the ages
+    assert worst_nominal > 0.05  # taking To for the interval reads the age jitter as velocity

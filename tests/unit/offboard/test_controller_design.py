@@ -83,6 +83,57 @@ def test_discretisation_with_latency_matches_a_fine_simulation(latency):
     assert_allclose(plant.c @ x, fine[-1][[0, 1, 2]], rtol=1e-6, atol=1e-9)
 
 
+def test_the_drag_slows_the_modelled_axis_as_a_fine_simulation_does():
+    """v_dot = g theta - delta v (PX4 SIH's -SIH_KDV v / SIH_MASS), discretised with latency."""
+    a, b = tilt_axis_plant(TiltLoop(torque_per_unit_nm=2.83, inertia_kg_m2=0.025, motor_time_constant_s=0.05), drag_per_s=1.0)
+    assert a[1, 1] == -1.0
+    plant = discretise(a, b, TO, 0.03, tilt_state=2, drag_per_s=1.0)
+    assert plant.drag_per_s == 1.0
+    u = np.random.default_rng(5).normal(size=10)
+    fine = simulate(a, b, u, TO, 0.03, steps=200)
+    x = np.zeros(plant.phi.shape[0])
+    for n in range(len(u)):
+        x = plant.phi @ x + plant.gamma[:, 0] * u[n]
+    assert_allclose(x[:6], fine[-1], rtol=1e-6, atol=1e-9)
+    av, _ = vertical_plant(0.05, 1.0)
+    assert av[1, 1] == -1.0
+
+
+def test_the_model_takes_the_vehicles_drag_from_its_parameters():
+    """SIH_KDV over SIH_MASS (under the plant's names too); none published: none modelled."""
+    from offboard.controller.tuning import vehicle_values
+
+    sih = {**sih_params(), "SIH_KDV": 1.0, "SIH_MASS": 1.0}
+    assert inner_loop_from_params(vehicle_values(sih)).drag_per_s == 1.0
+    assert inner_loop_from_params(vehicle_values({**sih, "SIH_MASS": 2.0})).drag_per_s == 0.5
+    assert inner_loop_from_params(plant_vehicle_params()).drag_per_s == 0.0  # the paper's quad: no drag
+    north, east, up = axis_plants(inner_loop_from_params(vehicle_values(sih)), TO)
+    assert north.drag_per_s == east.drag_per_s == up.drag_per_s == 1.0
+
+
+def test_the_reference_lead_flattens_the_designed_loops_response_where_references_live():
+    """With the velocity integral, the Taylor c2 of T about 0 holds only below the integral's
+    zero; the lead is the proportional loop's (``tracking_lead_s2``), which keeps |T (1 + c2 w^2)|
+    (a circle's radius flown over its radius) within 1 % up to 1 rad/s (the helix's rate) on PX4
+    SIH's loop with its drag, where the integral loop's own c2 leaves 3 % or more at 1 rad/s;
+    what remains is a phase lag of under 3 deg (along the track)."""
+    from offboard.controller.tuning import vehicle_values
+
+    sih = {**sih_params(), "SIH_KDV": 1.0, "SIH_MASS": 1.0}
+    design = design_gains(inner_loop_from_params(vehicle_values(sih), 0.03), TO, velocity_integral=True)
+    north, _, up = axis_plants(design.model, TO)
+    w = np.linspace(0.05, 1.0, 20)
+    for plant, analysis, c2 in ((north, design.north, design.reference_lead_s2[0]), (up, design.up, design.reference_lead_s2[1])):
+        assert float(np.asarray(analysis.gains.velocity_integral_per_s2)) > 0
+        led = reference_response(plant, analysis.gains, TO, w) * (1 + c2 * w**2)
+        assert np.max(np.abs(np.abs(led) - 1.0)) < 0.01
+        assert np.max(np.abs(np.degrees(np.angle(led)))) < 3.0
+    # the integral loop's own low-frequency c2, for contrast
+    t = reference_response(north, design.north.gains, TO, np.array([0.01, 1.0]))
+    c2_integral = float(((t[0] - 1.0) / (1j * 0.01) ** 2).real)
+    assert abs(t[1] * (1 + c2_integral)) - 1.0 > 0.03
+
+
 def test_vertical_plant_is_a_double_integrator_behind_the_motor_lag():
     plant = discretise(*vertical_plant(1e-6), TO, 0.0)  # no lag: the exact ZOH double integrator
     assert_allclose(plant.phi[:2, :2], [[1.0, TO], [0.0, 1.0]], atol=1e-9)
@@ -90,10 +141,11 @@ def test_vertical_plant_is_a_double_integrator_behind_the_motor_lag():
     assert_allclose(x[:2], [TO**2 / 2, TO], rtol=5e-3)  # the model floors the lag at 0.1 ms
 
 
-@pytest.mark.parametrize("lead", [0.0, 0.75])
-def test_the_state_space_is_the_law_itself_on_one_axis(lead):
-    """law_state_space (linear, one axis) gives the acceleration law_step asks for (small signals)."""
-    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(tilt_lead=lead)
+@pytest.mark.parametrize("lead,drag", [(0.0, 0.0), (0.75, 0.0), (0.75, 0.4)])
+def test_the_state_space_is_the_law_itself_on_one_axis(lead, drag):
+    """law_state_space (linear, one axis) gives the acceleration law_step asks for (small signals),
+    with the believed linear drag the law makes up (delta = d / m)."""
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(tilt_lead=lead, linear_drag_n_s_m=drag)
     g, to = params.gravity_m_s2, params.sample_time_s
     p, v, vd_prev, pitch = 1e-3, -2e-3, 5e-4, 1e-4  # north position, speed, memory x2d(n), pitch
     x = (p, v, 0, 0, 0, 0, 0, 0, pitch, 0, 0, 0)
@@ -102,7 +154,7 @@ def test_the_state_space_is_the_law_itself_on_one_axis(lead):
     out, mem = law_step(params, memory, x, ref, ref)
     # paper pitch accelerates towards -x: a = -g tan(pitch); the model's tilt is v_dot / g = -pitch
     a_law = -g * math.tan(out.pitch_setpoint_rad)
-    ss = law_state_space(AxisGains(params.gains.kx1, params.gains.kx2, lead), to, g)
+    ss = law_state_space(AxisGains(params.gains.kx1, params.gains.kx2, lead), to, g, drag_per_s=drag / params.mass_kg)
     y = np.array([p, v, -pitch])
     a_ss = float(ss["c"][0] @ np.array([vd_prev]) + ss["d"][0] @ y)
     vd_next = float(ss["a"][0] @ np.array([vd_prev]) + ss["b"][0] @ y)
@@ -135,6 +187,24 @@ def test_designed_gains_keep_the_stated_margins(params, to, latency):
         assert 0.0 < float(g.k_pos) < 1.0 and 0.0 < float(g.k_vel) < 1.0  # Appendix A's range
     # the same gains a second time (a pure function of the model)
     assert design_gains(inner_loop_from_params(values, latency), to, spec).horizontal == design.horizontal
+
+
+def test_the_sensitivity_peak_bounds_the_design():
+    """Ms = max |1/(1+L)| <= 1.6 by default; gain margin 2 and phase margin 45 deg alone let PX4
+    SIH's loop with its drag reach Ms 2.0 (+6 dB near 8 rad/s, where the PX4 hold rang)."""
+    from offboard.controller.design import SENSITIVITY_PEAK, loop_response
+    from offboard.controller.tuning import vehicle_values
+
+    assert SENSITIVITY_PEAK == MarginSpec().sensitivity_peak == 1.6
+    model = inner_loop_from_params(vehicle_values({**sih_params(), "SIH_KDV": 1.0, "SIH_MASS": 1.0}), 0.02)
+    bounded = design_gains(model, TO, velocity_integral=True)
+    free = design_gains(model, TO, MarginSpec(sensitivity_peak=math.inf), velocity_integral=True)
+    north, _, _ = axis_plants(model, TO)
+    for design, low, high in ((bounded, 1.0, 1.6), (free, 1.9, math.inf)):
+        w, loop = loop_response(north, design.north.gains, TO)
+        ms = float(np.max(np.abs(1.0 / (1.0 + loop))))
+        assert low < ms <= high and design.north.sensitivity_peak == pytest.approx(ms)
+    assert float(bounded.north.gains.k_pos) > float(free.north.gains.k_pos)  # the bound slows the loop
 
 
 def test_a_margin_the_loop_cannot_keep_is_one_clear_error():
@@ -359,3 +429,35 @@ def test_the_velocity_integral_holds_while_the_tilt_or_thrust_is_bounded():
     # the paper's law (no integral) keeps it at zero whatever the bounds
     _, mem = law_step(load_controller(PAPER_CONTROLLER_FILE), LawMemory.from_state(x), x, far, far)
     assert mem.a1 == 0.0
+
+
+def test_the_velocity_integral_holds_over_a_steps_transient():
+    """After a reference step (the error jumps by more than STEP_M) the integral holds until the
+    error is below SETTLED_M, or for velocity_integral_hold_s at most; without a step, or with no
+    hold time, it integrates."""
+    from offboard.controller.law import SETTLED_M, STEP_M
+
+    params = load_controller(PAPER_CONTROLLER_FILE).with_changes(velocity_integral_gain_per_s2=1.3,
+                                                                  velocity_integral_hold_s=0.2)  # fmt: skip
+    x = hover_state(x5=5.0, x2=-0.1)
+    memory = LawMemory.from_state(x)._replace(x2d=0.0)
+    step = TrackingReference(STEP_M + 0.5, 0.0, 5.0, 0.0)  # 1.5 m away at the first sample: a step
+    a1 = []
+    for _ in range(6):
+        _, memory = law_step(params, memory, x, step, step)
+        a1.append(memory.a1)
+    # held for 0.2 s (4 samples: 0.2, 0.15, 0.1, 0.05 s left), then integrating though still 1.5 m off
+    assert a1[:4] == [0.0] * 4 and a1[4] > 0.0 and a1[5] > a1[4]
+    assert memory.error_m == pytest.approx(STEP_M + 0.5) and memory.settling == 0.0
+    # settled: the hold ends at once (0.05 m off, within SETTLED_M)
+    near = TrackingReference(0.5 * SETTLED_M, 0.0, 5.0, 0.0)
+    m0 = LawMemory.from_state(x)._replace(x2d=0.0, settling=1.0, error_m=0.06)
+    _, m1 = law_step(params, m0, x, near, near)
+    assert m1.settling == 0.0 and m1.a1 != 0.0
+    # no step (the error moves by less than STEP_M): integrating from the first sample
+    small = TrackingReference(0.5, 0.0, 5.0, 0.0)
+    _, m2 = law_step(params, LawMemory.from_state(x)._replace(x2d=0.0), x, small, small)
+    assert m2.settling == 0.0 and m2.a1 != 0.0
+    # velocity_integral_hold_s = 0: the hold of earlier controller files (the bounds only)
+    _, m3 = law_step(params.with_changes(velocity_integral_hold_s=0.0), LawMemory.from_state(x)._replace(x2d=0.0), x, step, step)
+    assert m3.a1 != 0.0

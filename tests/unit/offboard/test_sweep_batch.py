@@ -52,6 +52,30 @@ def test_batched_flights_equal_simulate_per_flight(tmp_path):
         _close_rows(row, fly_one(spec, fl)[0])
 
 
+def test_the_velocity_filter_is_batched_as_simulate_flies_it(tmp_path):
+    """[law] velocity_from_position_s over the batch: with the paper's accelerometer noise the
+    velocity read departs from the position's derivative, and the filter acts. With the velocity
+    integral and its hold over the start's step (the helix starts 2.8 m away)."""
+    noisy = MIXED.replace('"sensors.paper_fraction" = { choice = [0.0, 0.05] }', '"sensors.paper_fraction" = 0.05')
+    noisy = noisy.replace('latency_s = { choice = [0.0, 0.01] }', "latency_s = 0.0")
+    runs = {}
+    for t in (0.0, 0.5):
+        body = noisy.replace("[parameters.controller]\n", f"[parameters.controller]\nvelocity_from_position_s = {t}\n"
+                             "velocity_integral_gain_per_s2 = 1.3\nvelocity_integral_hold_s = 0.2\n")
+        spec = load_sweep(write_sweep(tmp_path, body, flights=4, duration_s=0.6, name=f"t{t:g}".replace(".", "")))
+        fls = flights(spec)
+        setups = [scenario_of(spec, f) for f in fls]
+        assert {s.scenario.controller.velocity_from_position_s for s in setups} == {t}
+        assert {s.scenario.sensors for s in setups} == {"paper:0.05"}
+        runs[t] = fly_group(setups)
+        if t:
+            for k, fl in enumerate(fls):
+                rec = fly_one(spec, fl)[1].record
+                np.testing.assert_allclose(runs[t][k].pos_ned_m, rec["pos_ned_m"], rtol=0, atol=TOL_M)
+                np.testing.assert_allclose(runs[t][k].thrust_n, rec["thrust_n"], rtol=0, atol=1e-8)
+    assert max(float(np.max(np.abs(a.thrust_n - b.thrust_n))) for a, b in zip(runs[0.0], runs[0.5])) > 1e-3  # it acted
+
+
 def test_a_diverging_flight_ends_where_simulate_ends_it(tmp_path):
     gains = "kx2 = 0.64\nkx3 = 0.74\nkx4 = 0.85\nkx5 = 0.78\nkx6 = 0.70\n"  # a draw of sweep-gains.toml that is lost
     spec = load_sweep(write_sweep(tmp_path, f"[parameters.controller]\nintegral_gain_per_s = 0.5\n[parameters.controller.gains]\n"

@@ -81,6 +81,9 @@ def test_tune_to_stdout_and_a_margin_figure(tmp_path, capsys):
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--sample-time", "0"), "--sample-time must be > 0"),
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--plot", "x.txt"), "--plot x.txt: expected a .png"),
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--gain-margin", "40"), "no gains with closed-loop rates"),
+    (("--vehicle", str(PAPER_VEHICLE_FILE), "--sensitivity-peak", "1"), "--sensitivity-peak must be > 1, got 1.0"),
+    (("--vehicle", str(PAPER_VEHICLE_FILE), "--sensitivity-peak", "nan"), "--sensitivity-peak must be > 1, got nan"),
+    (("--vehicle", str(PAPER_VEHICLE_FILE), "--sensitivity-peak", "1.05"), "sensitivity peak 1.05"),
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--output", "/nonexistent/dir/x.toml"), "--output /nonexistent/dir/x.toml"),
 ])  # fmt: skip
 def test_bad_input_is_one_line(args, message, capsys):
