@@ -574,10 +574,10 @@ def tracking_lead_s2(plant: DiscretePlant, gains: AxisGains, sample_time_s: floa
 
     c2 is the loop's *without* its integral: an integral's zero sits a fraction q of the loop's
     rate below it, and the Taylor series of T about 0 then holds only below that zero, where
-    c2 s^2 is negligible anyway; above it the loop is the proportional one. On PX4 SIH's loop the
-    integral loop's own c2 (-0.012 s^2) left |T| at 1.04 at 1 rad/s (the helix flew a 2.08 m circle
-    for 2 m) and 1.10 at 1.5 rad/s; the proportional loop's (-0.049 s^2) keeps it within 1 % up to
-    2 rad/s (docs/controller-design.md, "The reference lead").
+    c2 s^2 is negligible anyway; above it the loop is the proportional one. On PX4 SIH's designed
+    loop (10 ms latency) the integral loop's own c2 (-0.015 s^2) leaves |T| at 1.055 at 1 rad/s (a
+    2 m helix flown 0.11 m wide) and 1.12 at 1.5 rad/s; the proportional loop's (-0.067 s^2) keeps
+    it within 1 % up to 1 rad/s (docs/controller-design.md, "Reference lead").
     """
     proportional = AxisGains(gains.k_pos, gains.k_vel, gains.lead)
     w = 0.01
