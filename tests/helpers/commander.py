@@ -166,14 +166,18 @@ class Client:
 
     # -- commands --------------------------------------------------------------------------------
 
-    def command(self, command: int, *params: float, settle_s: float = 0.3) -> list[int]:
+    def command(self, command: int, *params: float, settle_s: float = 0.3, attempts: int = 3) -> list[int]:
         """Send a COMMAND_LONG; the results of every ACK for it within ``settle_s`` of wall time
-        after the first one (at most 2 s for the first)."""
+        after the first one. A try waits 2 s for its ACK and is repeated (with the confirmation
+        field counting up) when none came, as MAVSDK and QGroundControl do: on a loaded machine a
+        PX4 at ``--speed 4`` can answer later than that. A refusal is an answer, never retried."""
         p = list(params) + [0.0] * (7 - len(params))
         first = len(self.acks)
         c = self.conn
-        c.mav.command_long_send(c.target_system, c.target_component, command, 0, *p)
-        self.pump(2.0, lambda: any(a.command == command for a in self.acks[first:]))
+        for confirmation in range(attempts):
+            c.mav.command_long_send(c.target_system, c.target_component, command, confirmation, *p)
+            if self.pump(2.0, lambda: any(a.command == command for a in self.acks[first:])):
+                break
         self.pump(settle_s)
         return [a.result for a in self.acks[first:] if a.command == command]
 
