@@ -38,7 +38,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     add_version(parser, "offboard")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    modules = COMMAND_MODULES
+    modules: tuple[str, ...] = COMMAND_MODULES
     if only is not None and f"offboard.commands.{only}" in COMMAND_MODULES:
         modules = (f"offboard.commands.{only}",)
     for name in modules:

@@ -45,9 +45,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import VEHICLE_MODELS, Command, require
 from offboard.model import px4_modes
+from offboard.model.messages import MAVLinkMessage
 from offboard.model.rotations import quat_from_euler
-
-MAVLinkMessage = mavlink.MAVLink_message
 
 #: PX4's custom main modes (px4_custom_mode.h) the offboard process cares about (offboard.model.px4_modes).
 PX4_MAIN_MODE_OFFBOARD = px4_modes.MAIN_OFFBOARD

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import csv
 import enum
+import io
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
@@ -71,9 +72,12 @@ class StateSample(Protocol):
     """What a record row takes of a vehicle state: ``offboard.codec.MeasuredState`` (a MAVLink
     flight, a re-run) or the simulator's truth (``run_scenario``)."""
 
-    pos_ned_m: np.ndarray
-    vel_ned_m_s: np.ndarray
-    euler_rad: np.ndarray
+    @property
+    def pos_ned_m(self) -> np.ndarray: ...
+    @property
+    def vel_ned_m_s(self) -> np.ndarray: ...
+    @property
+    def euler_rad(self) -> np.ndarray: ...
 
 
 _NAN3 = (float("nan"),) * 3
@@ -209,7 +213,7 @@ class RecordBuilder:
         self._block_rows = block_rows
         self._block: np.ndarray | None = None  # allocated at the first row
         self._filled = 0  # rows in the block
-        self._spool: IO[bytes] | None = None
+        self._spool: io.RawIOBase | None = None  # unbuffered (buffering=0): a FileIO
         self._spooled = 0  # rows in the spool file
         self._kept: list[np.ndarray] = []  # full blocks kept in memory when the spool failed
         self.spool_error: str | None = None
@@ -251,8 +255,8 @@ class RecordBuilder:
         if self.spool_error is None:
             try:
                 if self._spool is None:
-                    self._spool = tempfile.TemporaryFile(prefix="offboard-record-", buffering=0)
-                data = memoryview(self._block).cast("B")
+                    self._spool = cast(io.RawIOBase, tempfile.TemporaryFile(prefix="offboard-record-", buffering=0))
+                data = self._block.data.cast("B")
                 while data:  # unbuffered: a write may take part of the block
                     data = data[self._spool.write(data) :]
                 self._spooled += self._block_rows
@@ -283,7 +287,7 @@ class RecordBuilder:
             while left:
                 rows = min(left, self._block_rows)
                 view = chunk[:rows]
-                data = memoryview(view).cast("B")
+                data = view.data.cast("B")
                 while data:  # unbuffered: a read may return part of the block
                     got = self._spool.readinto(data)
                     if not got:

@@ -17,10 +17,14 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from offboard.model.messages import MAVLinkMessage
+from offboard.model.rotations import rotation_matrix
+from offboard.model.state import VehicleState
 from sitl_plant.autopilot import (
     ActuatorSetpoint,
     AttitudeSetpoint,
@@ -29,11 +33,8 @@ from sitl_plant.autopilot import (
     PositionSetpoint,
     Status,
 )
-from offboard.model.rotations import rotation_matrix
-from offboard.model.state import VehicleState
 
-MAVLink = mavlink.MAVLink
-MAVLinkMessage = mavlink.MAVLink_message
+MAVLink: TypeAlias = mavlink.MAVLink
 
 EARTH_RADIUS_M = 6371000.0  # PX4 CONSTANTS_RADIUS_OF_EARTH
 # Earth's magnetic field near PX4 SITL's default home (Zurich), gauss, NED

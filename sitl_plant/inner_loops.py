@@ -39,6 +39,14 @@ from typing import Callable
 
 import numpy as np
 
+from offboard.model.attitude import Quat, Vec3, bodyz_to_attitude
+from offboard.model.attitude import dcm_z as _dcm_z
+from offboard.model.attitude import qinv as _qinv
+from offboard.model.attitude import qmul as _qmul
+from offboard.model.attitude import qnormalize as _qnormalize
+from offboard.model.attitude import quat_between as _quat_between
+from offboard.model.attitude import quat_from_euler as _quat_from_euler
+from offboard.model.euler_lagrange import euler_rate_matrix
 from sitl_plant.autopilot import (
     ActuatorSetpoint,
     AttitudeSetpoint,
@@ -48,17 +56,8 @@ from sitl_plant.autopilot import (
     PositionTask,
     Task,
 )
-from offboard.model.attitude import Quat, Vec3, bodyz_to_attitude
-from offboard.model.attitude import dcm_z as _dcm_z
-from offboard.model.attitude import qinv as _qinv
-from offboard.model.attitude import qmul as _qmul
-from offboard.model.attitude import qnormalize as _qnormalize
-from offboard.model.attitude import quat_between as _quat_between
-from offboard.model.attitude import quat_from_euler as _quat_from_euler
-from offboard.model.euler_lagrange import euler_rate_matrix
 from sitl_plant.params import ParamTable
 from sitl_plant.simulation import IDLE, EulerAccelActuation, HeldActuation, Model, PaperModel
-
 
 POSITION_LOOP_DT_S = 0.02  # PX4 runs mc_pos_control at 50 Hz
 _I_FACTOR_RATE = math.radians(400.0)  # PX4 RateControl: integrator fades for errors near 400 deg/s
@@ -445,7 +444,7 @@ def paper_actuation(
     form = model_euler_form(model)
     eta, eta_dot = model.euler(x)
     if setpoint.flies_attitude and rates_from_attitude is not None:
-        omega_ref = np.array(rates_from_attitude(setpoint.q_wxyz))  # type: ignore[arg-type]
+        omega_ref: np.ndarray = np.array(rates_from_attitude(setpoint.q_wxyz))  # type: ignore[arg-type]
     else:
         omega_ref = np.array([0.0 if r is None else r for r in setpoint.body_rates_frd_rad_s])
     eta_dot_ref = np.linalg.solve(euler_rate_matrix(eta, form), omega_ref)

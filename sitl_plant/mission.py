@@ -41,6 +41,8 @@ import zlib
 from dataclasses import dataclass, field
 from enum import Enum
 
+from offboard.model.messages import MAVLinkMessage
+
 # MAVLink values (common.xml), spelled out to keep the module free of pymavlink.
 MAV_MISSION_TYPE_MISSION, MAV_MISSION_TYPE_FENCE, MAV_MISSION_TYPE_RALLY, MAV_MISSION_TYPE_ALL = 0, 1, 2, 255
 MAV_MISSION_ACCEPTED = 0
@@ -224,16 +226,16 @@ class MissionManager:
     # -- incoming --------------------------------------------------------------------------------
 
     @staticmethod
-    def addressed_to_us(msg: object, sysid: int, compid: int) -> bool:
+    def addressed_to_us(msg: MAVLinkMessage, sysid: int, compid: int) -> bool:
         """PX4's CHECK_SYSID_COMPID_MISSION: our system and our component, the mission planner's
         (190) or all (0)."""
         ts, tc = getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)
         return ts == sysid and tc in (compid, MAV_COMP_ID_MISSIONPLANNER, 0)
 
-    def handle(self, msg: object, now_s: float, link: int = 0) -> list[Out]:
+    def handle(self, msg: MAVLinkMessage, now_s: float, link: int = 0) -> list[Out]:
         """Answer one MISSION_* message (a pymavlink message; others give [])."""
-        kind = msg.get_type()  # type: ignore[attr-defined]
-        src = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
+        kind = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
         handler = {
             "MISSION_COUNT": self._on_count,
             "MISSION_ITEM_INT": self._on_item,
@@ -272,10 +274,10 @@ class MissionManager:
 
     # -- upload ----------------------------------------------------------------------------------
 
-    def _on_count(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_count(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         t = self._t
-        mtype = int(msg.mission_type)  # type: ignore[attr-defined]
-        count = int(msg.count)  # type: ignore[attr-defined]
+        mtype = int(msg.mission_type)
+        count = int(msg.count)
         if self.state is TransferState.GETLIST:
             t.last_recv_s = now_s
             if src != t.partner:
@@ -303,9 +305,9 @@ class MissionManager:
         kind = "MISSION_REQUEST_INT" if self.int_mode else "MISSION_REQUEST"
         return [Out(kind, t.partner, (t.seq, t.mission_type))]
 
-    def _on_item(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_item(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         t = self._t
-        seq, mtype = int(msg.seq), int(msg.mission_type)  # type: ignore[attr-defined]
+        seq, mtype = int(msg.seq), int(msg.mission_type)
         if src != t.partner and self.state is not TransferState.IDLE:
             return [_text("REJ. MIS ITEM: partner id mismatch")]
         if self.state is TransferState.IDLE:
@@ -344,9 +346,9 @@ class MissionManager:
 
     # -- download --------------------------------------------------------------------------------
 
-    def _on_request_list(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_request_list(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         t = self._t
-        mtype = int(msg.mission_type)  # type: ignore[attr-defined]
+        mtype = int(msg.mission_type)
         if self.state is TransferState.SENDLIST and t.seq == t.count:
             self.state = TransferState.IDLE  # all sent, the ACK was lost: start again
         if self.state is TransferState.IDLE or (self.state is TransferState.SENDLIST and t.mission_type == mtype and src == t.partner):
@@ -357,9 +359,9 @@ class MissionManager:
             return [Out("MISSION_COUNT", src, (len(items), mtype))]
         return [_text("Mission download request ignored, already active", MAV_SEVERITY_INFO)]
 
-    def _on_request(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_request(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         t = self._t
-        seq, mtype = int(msg.seq), int(msg.mission_type)  # type: ignore[attr-defined]
+        seq, mtype = int(msg.seq), int(msg.mission_type)
         if self.state is TransferState.IDLE:
             return []  # PX4 ignores requests outside a transfer silently (buggy OSDs)
         if src != t.partner:
@@ -380,14 +382,14 @@ class MissionManager:
             return [_ack(t.partner, MAV_MISSION_ERROR, t.mission_type), _text("WPM: REJ. CMD: Req. WP was unexpected")]
         return [item_out(stored[seq], t.partner, self.int_mode, current=seq == self.current_seq)]
 
-    def _on_ack(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_ack(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         t = self._t
         if src != t.partner:
             return [_text("REJ. WP CMD: partner id mismatch")] if self.state is not TransferState.IDLE else []
-        if self.state is TransferState.SENDLIST and int(msg.mission_type) == t.mission_type:  # type: ignore[attr-defined]
+        if self.state is TransferState.SENDLIST and int(msg.mission_type) == t.mission_type:
             self.state = TransferState.IDLE
         elif self.state is TransferState.GETLIST:
-            result = int(msg.type)  # type: ignore[attr-defined]
+            result = int(msg.type)
             if result == MAV_MISSION_UNSUPPORTED:  # the partner does not speak this mode: switch
                 self.int_mode = not self.int_mode
                 return self._request(now_s)
@@ -397,18 +399,18 @@ class MissionManager:
 
     # -- clear, current --------------------------------------------------------------------------
 
-    def _on_clear_all(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
-        mtype = int(msg.mission_type)  # type: ignore[attr-defined]
+    def _on_clear_all(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+        mtype = int(msg.mission_type)
         if self.state is not TransferState.IDLE:
             return [_text("WPM: IGN CLEAR CMD: Busy")]
         for t in (MAX_COUNT if mtype == MAV_MISSION_TYPE_ALL else (mtype,) if mtype in MAX_COUNT else ()):
             self._store(t, [], 0, 0)
         return [_ack(src, MAV_MISSION_ACCEPTED, mtype)]
 
-    def _on_set_current(self, msg: object, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
+    def _on_set_current(self, msg: MAVLinkMessage, src: tuple[int, int], now_s: float, link: int) -> list[Out]:
         if self.state is not TransferState.IDLE:
             return [_text("WPM: IGN WP CURR CMD: Busy")]
-        if not self.set_current(int(msg.seq)):  # type: ignore[attr-defined]
+        if not self.set_current(int(msg.seq)):
             return [_text("WPM: WP CURR CMD: Not in list")]
         return []
 
@@ -451,13 +453,13 @@ class Reporter:
 # --- items -----------------------------------------------------------------------------------
 
 
-def parse_item(msg: object, int_mode: bool, mission_type: int) -> tuple[MissionItem | None, int]:
+def parse_item(msg: MAVLinkMessage, int_mode: bool, mission_type: int) -> tuple[MissionItem | None, int]:
     """A received MISSION_ITEM(_INT) as PX4 stores it, or (None, the MAV_MISSION_RESULT why not)
     (``parse_mavlink_mission_item`` and the checks of ``handle_mission_item_both``)."""
     m = msg
-    frame, command = int(m.frame), int(m.command)  # type: ignore[attr-defined]
-    raw = (float(m.param1), float(m.param2), float(m.param3), float(m.param4))  # type: ignore[attr-defined]
-    x, y, z = m.x, m.y, float(m.z)  # type: ignore[attr-defined]
+    frame, command = int(m.frame), int(m.command)
+    raw = (float(m.param1), float(m.param2), float(m.param3), float(m.param4))
+    x, y, z = m.x, m.y, float(m.z)
     int_frames = (FRAME_GLOBAL_INT, FRAME_GLOBAL_RELATIVE_ALT_INT)
     if frame in (FRAME_GLOBAL, FRAME_GLOBAL_RELATIVE_ALT) or (int_mode and frame in int_frames):
         keeps = _GLOBAL_KEEPS.get(command)
@@ -476,14 +478,14 @@ def parse_item(msg: object, int_mode: bool, mission_type: int) -> tuple[MissionI
             lat_e7, lon_e7 = int(round(float(x) * 1e7)), int(round(float(y) * 1e7))
         relative = frame in (FRAME_GLOBAL_RELATIVE_ALT, FRAME_GLOBAL_RELATIVE_ALT_INT)
         stored_frame = FRAME_GLOBAL_RELATIVE_ALT_INT if relative else FRAME_GLOBAL_INT
-        autocontinue = int(m.autocontinue)  # type: ignore[attr-defined]
-        item = MissionItem(int(m.seq), stored_frame, command, params, lat_e7, lon_e7, _f32(z), autocontinue, mission_type)  # type: ignore[attr-defined]
+        autocontinue = int(m.autocontinue)
+        item = MissionItem(int(m.seq), stored_frame, command, params, lat_e7, lon_e7, _f32(z), autocontinue, mission_type)
     elif frame == FRAME_MISSION:
         if command not in _MISSION_FRAME_COMMANDS:
             return None, MAV_MISSION_UNSUPPORTED
         if command in (NAV_ROI, DO_SET_ROI) and int(raw[0]) not in (0, 1, 2):  # NONE, WPNEXT, WPINDEX
             return None, MAV_MISSION_INVALID_PARAM1
-        item = MissionItem(int(m.seq), FRAME_MISSION, command, tuple(_f32(p) for p in raw), float(x), float(y), _f32(z), int(m.autocontinue), mission_type)  # type: ignore[arg-type, attr-defined]
+        item = MissionItem(int(m.seq), FRAME_MISSION, command, tuple(_f32(p) for p in raw), float(x), float(y), _f32(z), int(m.autocontinue), mission_type)  # type: ignore[arg-type]
     else:
         return None, MAV_MISSION_UNSUPPORTED_FRAME
     if mission_type == MAV_MISSION_TYPE_MISSION and command in FENCE_AND_RALLY:

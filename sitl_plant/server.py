@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from offboard.model.state import VehicleState
+from offboard.model.vehicle import VehicleParams
 from offboard.signing import SigningKey
 from sitl_plant import calibration, codec, shell
 from sitl_plant.autopilot import (
@@ -47,8 +49,6 @@ from sitl_plant.mission import MissionManager, Reporter
 from sitl_plant.navigator import DEFAULT_ORBIT_RADIUS_M, DEFAULT_ORBIT_SPEED_M_S
 from sitl_plant.params import PHYSICAL, ParamTable, refresh_derived, vehicle_from_params
 from sitl_plant.simulation import Model, PaperModel, VehicleSim, make_model
-from offboard.model.state import VehicleState
-from offboard.model.vehicle import VehicleParams
 
 TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied within 4 ms
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers
@@ -135,8 +135,7 @@ class StreamSchedule:
     """Per-link message intervals (microseconds) and when each stream is next due."""
 
     def __init__(self, link_index: int) -> None:
-        column = 1 if link_index == API else 2
-        self.defaults = {mid: _interval_us(spec[column]) for mid, spec in STREAMS.items()}
+        self.defaults = {mid: _interval_us(api_hz if link_index == API else gcs_hz) for mid, (_, api_hz, gcs_hz) in STREAMS.items()}
         self.interval_us = dict(self.defaults)
         self.next_us = {mid: 0 for mid in STREAMS}
 

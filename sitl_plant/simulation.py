@@ -20,12 +20,12 @@ from typing import Protocol
 
 import numpy as np
 
-from sitl_plant.dynamics import paper_model
 from offboard.model.euler_lagrange import euler_rate_matrix, real_torques
-from sitl_plant.dynamics.integrate import rk4_step
 from offboard.model.rotations import quat_from_euler
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
+from sitl_plant.dynamics import paper_model
+from sitl_plant.dynamics.integrate import rk4_step
 
 __all__ = ["VehicleState", "VehicleSim", "PaperModel", "HeldActuation", "EulerAccelActuation", "Model"]
 
@@ -211,6 +211,15 @@ class VehicleSim:
         self._last_xdot = model.derivative(self.x, 0.0, np.zeros(3), self._wind_now)
         if self.on_ground:
             self._last_xdot = np.zeros_like(self._last_xdot)
+
+    @property
+    def model(self) -> Model:
+        """The true vehicle (the plant replaces it when a SIM_* parameter changes)."""
+        return self._model
+
+    @model.setter
+    def model(self, model: Model) -> None:
+        self._model = model
 
     def step(self, n_steps: int = 1) -> None:
         """Advance ``n_steps`` physics steps with the current actuation."""

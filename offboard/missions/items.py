@@ -35,12 +35,12 @@ from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
 
 import numpy as np
+from pymavlink import mavutil
 
 from offboard.errors import MissionFormatError
 from offboard.missions.geo import LocalProjection
 from offboard.trajectory.sequence import Sequence
 from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, VerticalMove, Waypoint, WaypointLegs
-from pymavlink import mavutil
 
 _MAV = mavutil.mavlink
 
@@ -424,7 +424,7 @@ def items_from_waypoints(
         The speed in force at the start (stored as the mission's cruise speed).
     """
     proj = LocalProjection(*home) if home is not None else None
-    if proj is not None:
+    if home is not None:
         home_item = MissionItem(NAV_WAYPOINT, FRAME_GLOBAL, (0.0, 0.0, 0.0, 0.0), home[0], home[1], home[2])
     else:
         home_item = MissionItem(NAV_WAYPOINT, FRAME_LOCAL_NED, (0.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0)

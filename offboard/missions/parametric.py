@@ -35,6 +35,7 @@ import numpy as np
 from offboard.errors import MissionFormatError
 from offboard.frames import ned_from_paper_position
 from offboard.missions.fields import MissionFields
+from offboard.model.tomlfile import near_name
 from offboard.trajectory import (
     Helix,
     Hold,
@@ -49,8 +50,8 @@ from offboard.trajectory import (
     square,
 )
 from offboard.trajectory.sampling import sample
+from offboard.trajectory.segment import Segment
 from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S
-from offboard.model.tomlfile import near_name
 
 FRAMES = ("ned", "paper-zup")
 ANGLE_UNITS = ("rad", "deg")
@@ -405,6 +406,7 @@ def parse_mission_table(table: Any, source: str, prefix: str = "mission.", defau
         names.add(seg_name)
         sf = MissionFields(raw, source, f"{prefix}segment #{i} ({seg_name}): ")
         sf.raw("type"), sf.raw("name", None)
+        segment: Segment
         try:
             if kind == "land":
                 segment = _vertical(ctx, sf, seg_name, climb=False, ground_down_m=ground_down)

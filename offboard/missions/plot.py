@@ -50,7 +50,7 @@ def plot_path(
     else:
         parts = [(0.0, trajectory)]
     if len(parts) <= 10:
-        colours = [f"C{k}" for k in range(len(parts))]
+        colours: list[str | tuple[float, float, float, float]] = [f"C{k}" for k in range(len(parts))]
     else:  # distinct colours for up to 20 segments, then they repeat
         palette = matplotlib.colormaps["tab20"]
         colours = [palette(k % 20) for k in range(len(parts))]

@@ -32,6 +32,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from offboard.errors import LogFormatError
+from offboard.model.messages import MAVLinkMessage
 
 MAX_TIMESTAMP_JUMP_US = 3 * 24 * 3600 * 1_000_000  # pymavlink's bound for a plausible tlog stamp
 _STAMP = struct.Struct(">Q")
@@ -70,7 +71,7 @@ class LoggedMessage:
 
     time_s: float
     offset: int
-    msg: object
+    msg: MAVLinkMessage
 
 
 def _packet_length(data: bytes | memoryview, i: int) -> int | None:

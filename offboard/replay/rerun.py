@@ -202,13 +202,13 @@ def format_rerun(result: RerunResult, label: str) -> str:
 
 def flight_controller(
     vehicle_params: dict[str, float],
-    scaling: object,
+    scaling: codec.Scaling,
     *,
     model: str = "rigid-body",
     output: str = "attitude",
     controller_file: Path | None = None,
     summary: dict | None = None,
-) -> tuple[object, str]:
+) -> tuple[ControllerParams, str]:
     """The controller to re-run, and where it came from (docs/replay.md).
 
     - ``controller_file`` given: that file as ``offboard fly --controller FILE`` would fly it on

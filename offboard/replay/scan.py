@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
 from offboard.model import px4_modes
+from offboard.model.messages import MAVLinkMessage
 from offboard.replay.reader import TlogReader
 
 # MAVLink enum values used below (common.xml)
@@ -169,7 +170,7 @@ class LogScan:
     _status: dict[int, codec.VehicleStatus] = field(default_factory=dict)  # sysid -> latest heartbeat
     _text_chunks: dict[tuple[int, int], list[str]] = field(default_factory=dict)
 
-    def add(self, t_s: float, msg: object) -> None:
+    def add(self, t_s: float, msg: MAVLinkMessage) -> None:
         """Take one message (pymavlink object) logged at tlog time ``t_s``."""
         kind = msg.get_type()
         if self.messages == 0:

@@ -37,7 +37,7 @@ def stream_log(
 
     clock = time.monotonic if clock is None else clock
     sleep = time.sleep if sleep is None else sleep
-    packers: dict[tuple[int, int], object] = {}
+    packers: dict[tuple[int, int], mavutil.mavlink.MAVLink] = {}
     sent_now: set[tuple[int, int, int, bytes]] = set()
     now_stamp = math.nan
     t_first = math.nan

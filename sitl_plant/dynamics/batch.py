@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import math
 import os
+
 import numpy as np
 
-from sitl_plant.dynamics import rigid_body
-from sitl_plant.dynamics.rigid_body import QUAT, STATE_SIZE, RigidBodyModel
-from sitl_plant.simulation import EulerAccelActuation, HeldActuation, VehicleSim
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
+from sitl_plant.dynamics import rigid_body
+from sitl_plant.dynamics.rigid_body import QUAT, STATE_SIZE, RigidBodyModel
+from sitl_plant.simulation import EulerAccelActuation, HeldActuation, Model, VehicleSim
 
 __all__ = [
     "NUMBA",
@@ -888,12 +889,14 @@ class FastRigidBodySim(VehicleSim):
         self._no_wind: np.ndarray = np.zeros((0, 3))
         self._zeros3 = np.zeros(3)
 
+    _model: RigidBodyModel
+
     @property
-    def model(self) -> RigidBodyModel:
+    def model(self) -> Model:
         return self._model
 
     @model.setter
-    def model(self, model: RigidBodyModel) -> None:
+    def model(self, model: Model) -> None:
         """A new vehicle (the plant rebuilds it when a SIM_* parameter changes): new kernel parameters."""
         if not isinstance(model, RigidBodyModel):
             raise TypeError("FastRigidBodySim steps a RigidBodyModel")
@@ -932,7 +935,7 @@ class FastRigidBodySim(VehicleSim):
                 _advance(self.x, n_steps, self.physics_dt_s, 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),
                          believed, index, sign, self._p, winds, self.ground, self._last_xdot, self._cmd)  # fmt: skip
             )
-        elif getattr(act, "advance_rigid_body", None) is not None and act.advance_rigid_body(self, n_steps, winds):
+        elif (advance := getattr(act, "advance_rigid_body", None)) is not None and advance(self, n_steps, winds):
             pass  # the actuation flew the steps itself, in one compiled call (Px4Loop)
         else:
             held = getattr(act, "held", None)

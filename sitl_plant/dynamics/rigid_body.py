@@ -115,7 +115,8 @@ def mix_rotor_forces(thrust_n: float, torque_nm: np.ndarray, params: VehiclePara
     ndarray, shape (4,)
         f1..f4 in ``[f_min, f_max]``, N.
     """
-    return np.array(_mix(float(thrust_n), *_as_list(torque_nm), params))
+    tau_x, tau_y, tau_z = _as_list(torque_nm)
+    return np.array(_mix(float(thrust_n), tau_x, tau_y, tau_z, params))
 
 
 def _mix(thrust_n: float, tau_x: float, tau_y: float, tau_z: float, params: VehicleParams) -> tuple[float, ...]:
@@ -197,7 +198,8 @@ def rotor_speeds_for(thrust_n: float, torque_frd_nm: np.ndarray, params: Vehicle
     ``w_i = sqrt(f_i / k)`` of the forces of ``mix_rotor_forces``, so within the speed limits.
     """
     k = params.thrust_coeff_n_s2
-    return np.array([math.sqrt(f / k) for f in _mix(float(thrust_n), *_as_list(torque_frd_nm), params)])
+    tau_x, tau_y, tau_z = _as_list(torque_frd_nm)
+    return np.array([math.sqrt(f / k) for f in _mix(float(thrust_n), tau_x, tau_y, tau_z, params)])
 
 
 def hover_rotor_speed(params: VehicleParams) -> float:
@@ -272,10 +274,10 @@ def derivative(
         s = x.tolist()
         cmd = [lo if c < lo else hi if c > hi else c for c in _as_list(rotor_speed_cmd_rad_s)]
         speeds = cmd if tau_motor == 0.0 else s[13:17]
-        acc = _rates(
+        acc = _rates(*(
             *s[3:13], *[k * w * w for w in speeds], *_as_list(wind_ned_m_s),
             p.mass_kg, p.gravity_m_s2, p.arm_length_m, p.drag_to_thrust_m, ixx, iyy, izz, dx, dy, dz,
-        )  # fmt: skip
+        ))  # fmt: skip
         if tau_motor == 0.0:
             return np.array([s[3], s[4], s[5], *acc, 0.0, 0.0, 0.0, 0.0])
         rate = 1.0 / tau_motor
@@ -286,10 +288,10 @@ def derivative(
     speeds = cmd if tau_motor == 0.0 else xs[:, ROTORS]
     wind = np.broadcast_to(np.asarray(wind_ned_m_s, dtype=float), (xs.shape[0], 3))
     forces = k * speeds * speeds
-    acc = _rates(
+    acc = _rates(*(
         *xs[:, 3:13].T, *forces.T, *wind.T,
         p.mass_kg, p.gravity_m_s2, p.arm_length_m, p.drag_to_thrust_m, ixx, iyy, izz, dx, dy, dz,
-    )  # fmt: skip
+    ))  # fmt: skip
     out = np.empty_like(xs)
     out[:, POS] = xs[:, VEL]
     out[:, 3:13] = np.stack(acc, axis=-1)
@@ -345,7 +347,7 @@ class RigidBodyModel:
         """The mixer's rotor speed commands (rad/s, f1..f4) for a thrust and body torque."""
         inputs = (float(thrust_n), float(torque_nm[0]), float(torque_nm[1]), float(torque_nm[2]))
         if inputs != self._inputs:
-            self._cmd = rotor_speeds_for(inputs[0], inputs[1:], self.params)
+            self._cmd = rotor_speeds_for(inputs[0], np.array(inputs[1:]), self.params)
             self._inputs = inputs
         return self._cmd
 
