@@ -1,0 +1,41 @@
+"""A mission flown over MAVLink (``offboard fly``): the flight sequence and the control loop, with no sockets.
+
+``offboard/commands/fly.py`` is the argv edge. The names below are the public API
+(``from offboard.flight import Flight``).
+"""
+
+from offboard.flight.mission import (
+    AUTO_TELEMETRY_RATE,
+    FLIGHT_COLUMNS,
+    OUTPUTS,
+    VEHICLE_PARAMS,
+    ControllerChoice,
+    Flight,
+    FlightConfig,
+    FlightResult,
+    Link,
+    LogClock,
+    LoopStats,
+    Progress,
+    SampleClock,
+    params_to_read,
+    resolve_controller,
+)
+
+__all__ = [
+    "AUTO_TELEMETRY_RATE",
+    "FLIGHT_COLUMNS",
+    "OUTPUTS",
+    "VEHICLE_PARAMS",
+    "ControllerChoice",
+    "Flight",
+    "FlightConfig",
+    "FlightResult",
+    "Link",
+    "LogClock",
+    "LoopStats",
+    "Progress",
+    "SampleClock",
+    "params_to_read",
+    "resolve_controller",
+]
