@@ -38,22 +38,22 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
-from typing import Protocol
 
 import numpy as np
 
 from offboard import codec
 from offboard.clockrate import STALLED_RATE, ClockRateMeter
 from offboard.codec import MeasuredState, Scaling, VehicleStatus
-from offboard.controller import ActionLimits, ControllerParams
+from offboard.controller import ControllerParams
 from offboard.controller.command import Controller
-from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
+from offboard.controller.tuning import vehicle_values
 from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
+from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
+from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.model.tlog import LOCKSTEP_EPOCH_S
@@ -61,321 +61,12 @@ from offboard.trajectory.base import Trajectory
 from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
-OUTPUTS = codec.OUTPUTS
-#: tlog and TIMESYNC origin in lockstep (the plant uses the same: 2020-01-01T00:00:00Z).
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
-DEFAULT_TILT_MAX_DEG = 35.0
-#: Default lower bound of u on a rigid body, as a fraction of SIM_THR_MAX: PX4's MPC_THR_MIN.
-#: With rotors, zero thrust means zero torque authority; at the paper's descent step the law asks
-#: for u < 0 and a vehicle at u = 0 tumbles (docs/offboard.md). The paper's model has no rotors: 0.
-RIGID_BODY_THRUST_MIN_FRACTION = 0.12
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
 MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second (the commander's)
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
-#: ``FlightConfig.telemetry_rate_hz`` that follows the sample rate (``telemetry_rate_for``).
-AUTO_TELEMETRY_RATE = "auto"
-#: In real time the telemetry comes at a whole multiple of the sample rate at or above this:
-#: sampled on our own clock, the freshest ATTITUDE is then at most ~10 ms old.
-REAL_TIME_TELEMETRY_MIN_HZ = 100.0
-
-
-class SampleClock(StrEnum):
-    """What paces the real-time samples: our clock, the vehicle's, or the one that runs at its rate."""
-
-    WALL = "wall"
-    VEHICLE = "vehicle"
-    AUTO = "auto"
-
-
-class Link(Protocol):
-    """What a flight needs of a MAVLink link (``offboard.link.MavLink`` or a test double)."""
-
-    def send(self, msg: mavlink.MAVLink_message) -> None: ...
-
-    def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None: ...
-
-
-# --- configuration -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FlightConfig:
-    """How to fly (the command line's choices; defaults are ``offboard fly``'s).
-
-    Attributes
-    ----------
-    output : str
-        ``attitude`` (SET_ATTITUDE_TARGET) or ``actuator`` (SET_ACTUATOR_CONTROL_TARGET).
-    model : str
-        ``rigid-body`` or ``paper``: what the vehicle's ATTITUDE angles are (``codec``).
-    lockstep : bool
-        Sample on telemetry arrival instead of on our own clock.
-    clock : SampleClock
-        Real time: sample on our clock (``wall``), on the vehicle's ``time_boot_ms``
-        (``vehicle``), or on whichever runs at the vehicle's rate, measured before OFFBOARD
-        (``auto``; module docstring).
-    telemetry_timeout_s : float
-        Telemetry older than this (wall clock) stops the setpoints: LINK_LOST.
-    reconnect_timeout_s : float
-        How long to wait for telemetry to come back before giving up.
-    heartbeat_timeout_s : float
-        How long to wait for the vehicle's first HEARTBEAT.
-    command_timeout_s, command_attempts : float, int
-        COMMAND_ACK wait per attempt, and attempts (MAVLink's command protocol; MAVSDK waits
-        0.5 s). Six tries get a command through a link losing 20 % each way but 0.2 % of the
-        time (0.36^6), where three 1 s tries failed one flight in four; and before giving up the
-        vehicle's heartbeat is asked whether the command took effect (its ACKs lost).
-    param_timeout_s, param_attempts : float, int
-        PARAM_VALUE wait per attempt, and attempts (the same reasoning).
-    prestream_samples : int
-        Setpoints streamed before asking for OFFBOARD.
-    land_timeout_s : float
-        Wall-clock limit for the landing (then we report and stop waiting).
-    telemetry_rate_hz : float, "auto" or None
-        Rate asked for LOCAL_POSITION_NED and ATTITUDE (None: leave the vehicle's defaults;
-        ``"auto"``: the sample rate 1/To in lockstep, where the vehicle sends one of each a period
-        whatever the rate, and in real time the smallest whole multiple of it at or above
-        ``REAL_TIME_TELEMETRY_MIN_HZ``, so that a sample's telemetry is at most ~10 ms old). At
-        equal rates the vehicle stamps them alike, and a real-time sample uses the ATTITUDE of the
-        latest LOCAL_POSITION_NED's instant: PX4's defaults (30 and 100 Hz) leave the law
-        differencing positions and velocities up to 33 ms old against fresher angles, which
-        shows as jagged angle references and a lasting oscillation on the paper helix.
-    unread_streams_off : bool
-        Switch off (MAV_CMD_SET_MESSAGE_INTERVAL -1) PX4's default streams we never read
-        (``codec.UNREAD_STREAMS``), as PX4's clients do: the vehicle then neither builds nor sends
-        them, and we neither parse nor log them.
-    target_system : int or None
-        Fly this system id (None: the first autopilot heard).
-    connect : str
-        The address listened on / connected to (for messages only).
-    """
-
-    output: str = "attitude"
-    model: str = "rigid-body"
-    lockstep: bool = False
-    clock: SampleClock = SampleClock.WALL
-    telemetry_timeout_s: float = 0.5
-    reconnect_timeout_s: float = 5.0
-    heartbeat_timeout_s: float = 10.0
-    command_timeout_s: float = 0.5
-    command_attempts: int = 6
-    param_timeout_s: float = 0.3
-    param_attempts: int = 6
-    prestream_samples: int = 10
-    land_timeout_s: float = 60.0
-    telemetry_rate_hz: float | str | None = AUTO_TELEMETRY_RATE
-    unread_streams_off: bool = True
-    target_system: int | None = None
-    connect: str = ""
-
-    def __post_init__(self) -> None:
-        if self.output not in OUTPUTS:
-            raise ValueError(f"output must be one of {OUTPUTS}, got {self.output!r}")
-        if self.model not in codec.MODELS:
-            raise ValueError(f"model must be one of {codec.MODELS}, got {self.model!r}")
-        for name in ("telemetry_timeout_s", "reconnect_timeout_s", "heartbeat_timeout_s", "command_timeout_s",
-                     "param_timeout_s", "land_timeout_s"):  # fmt: skip
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be > 0, got {value}")
-        if self.command_attempts < 1 or self.param_attempts < 1 or self.prestream_samples < 1:
-            raise ValueError("attempts and prestream_samples must be >= 1")
-        rate = self.telemetry_rate_hz
-        if rate is not None and rate != AUTO_TELEMETRY_RATE and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
-            raise ValueError(f"telemetry_rate_hz must be > 0, {AUTO_TELEMETRY_RATE!r} or None, got {rate!r}")
-
-    def telemetry_rate_for(self, sample_time_s: float) -> float | None:
-        """The ATTITUDE and LOCAL_POSITION_NED rate to ask for at sample time To (None: the vehicle's)."""
-        rate = self.telemetry_rate_hz
-        if rate != AUTO_TELEMETRY_RATE:
-            return None if rate is None else float(rate)
-        sample_hz = 1.0 / sample_time_s
-        if self.lockstep:
-            return sample_hz
-        return sample_hz * max(1, math.ceil(REAL_TIME_TELEMETRY_MIN_HZ / sample_hz - 1e-9))
-
-
-@dataclass(frozen=True)
-class ControllerChoice:
-    """The controller as the user chose it, before the vehicle's parameters are known.
-
-    Attributes
-    ----------
-    base : ControllerParams
-        The controller file's parameters (``paper.toml`` when none was given).
-    from_file : bool
-        Whether the user gave ``--controller``: its mass, arm and inertia are then the
-        controller's belief (Table II makes them differ from the vehicle on purpose).
-    mass_from_vehicle : bool
-        Use SIM_MASS even with a controller file.
-    yaw_aware : bool or None
-        Explicit choice; None: the file's when given, else on for a rigid body, off for the
-        paper's model.
-    tilt_max_deg : float or None
-        Explicit tilt limit on x7ez, x9ez (>= 90: none); None: the file's, else 35 degrees.
-    thrust_min_fraction : float or None
-        Explicit lower bound of u as a fraction of SIM_THR_MAX; None: the file's, else 0.12 on a
-        rigid body (PX4's MPC_THR_MIN) and 0 on the paper's model.
-    sample_time_s : float or None
-        Explicit To; None: the file's.
-    tuned : bool
-        Design kx1..kx6 for the vehicle's inner loop from its parameters (``offboard fly``
-        without ``--controller``; docs/controller-design.md) instead of flying the base's gains.
-    latency_s : float or None
-        The latency the design assumes (s); None: measured at start-up, the TIMESYNC round trip
-        plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
-    velocity_integral : bool
-        With ``tuned``: design the law's velocity integral too (``--no-integral``: without).
-    kind : str
-        Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
-        gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
-    """
-
-    base: ControllerParams
-    kind: str = "paper"
-    from_file: bool = False
-    tuned: bool = False
-    latency_s: float | None = None
-    mass_from_vehicle: bool = False
-    yaw_aware: bool | None = None
-    tilt_max_deg: float | None = None
-    thrust_min_fraction: float | None = None
-    sample_time_s: float | None = None
-    velocity_integral: bool = True
-
-
-#: Parameters read from the vehicle: name -> why.
-VEHICLE_PARAMS = {
-    "SIM_THR_MAX": "thrust at normalised thrust 1 (N)",
-    "SIM_TQ_RP_MAX": "roll/pitch torque at normalised torque 1 (N m)",
-    "SIM_TQ_Y_MAX": "yaw torque at normalised torque 1 (N m)",
-    "SIM_MASS": "vehicle mass (kg)",
-    "SIM_ARM_LEN": "arm length (m)",
-    "SIM_IXX": "inertia (kg m^2)",
-    "SIM_IYY": "inertia (kg m^2)",
-    "SIM_IZZ": "inertia (kg m^2)",
-    "SIM_KM_KF": "rotor drag-to-thrust (m)",
-    "COM_OF_LOSS_T": "the vehicle's offboard-loss timeout (s)",
-    "PAP_TO": "the paper inner loop's To (s)",
-    "SIM_MOT_TAU": "motor time constant (s)",
-    "SIH_MASS": "PX4 SIH vehicle mass (kg)",
-    "SIH_T_MAX": "PX4 SIH thrust of one rotor at full throttle (N)",
-}
-VEHICLE_PARAMS.update({name: "PX4's inner loop and speed limits (the tuned design)" for name in AUTOPILOT_PARAMS})
-VEHICLE_PARAMS.update({name: "PX4 SIH's vehicle" for name in SIH_PARAMS if name not in VEHICLE_PARAMS})
-
-def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool,
-                   family: str = "SIM") -> tuple[list[str], list[str]]:  # fmt: skip
-    """(required, optional) parameter names for this flight, for a vehicle of ``family``."""
-    required: list[str] = []
-    optional = ["COM_OF_LOSS_T"] + (["PAP_TO"] if family == "SIM" else [])
-    if not thrust_max_given:
-        required.append("SIH_T_MAX" if family == "SIH" else "SIM_THR_MAX")
-    if config.output == "actuator":
-        required += ["SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX"]
-    mass = "SIH_MASS" if family == "SIH" else "SIM_MASS"
-    if not choice.from_file:
-        if family == "SIH":
-            optional = [n for n in SIH_PARAMS if n not in required] + optional
-        elif family == "SIM":
-            optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", *optional]
-    elif choice.mass_from_vehicle:
-        required.append(mass)
-    if choice.tuned:
-        if family == "SIM":
-            optional += ["SIM_TQ_RP_MAX", "SIM_MOT_TAU"]
-        optional += list(AUTOPILOT_PARAMS)
-    return required, [n for n in dict.fromkeys(optional) if n not in required]
-
-
-def resolve_controller(
-    choice: ControllerChoice, model: str, vehicle: Mapping[str, float], scaling: Scaling
-) -> tuple[ControllerParams, list[str]]:
-    """The controller flown, from the user's choice and the vehicle's parameters.
-
-    Precedence (docs/offboard.md): an explicit command-line option, then the controller file,
-    then the vehicle (without a controller file the controller believes the vehicle's SIM_*
-    values: Simulation 1), then the paper's values. Thrust is always bounded to what the vehicle
-    can do, ``[max(file's min, 0), min(file's max, SIM_THR_MAX)]``, so that the law and the
-    vehicle agree on u; without a file's minimum, a rigid body keeps 12 % of SIM_THR_MAX (PX4's
-    MPC_THR_MIN: torque authority) and the paper's model 0; the tilt limit defaults to 35 degrees.
-
-    With ``choice.tuned`` the gains kx1..kx6 are then designed for the vehicle's inner loop
-    (``offboard.controller.tuning``), with the tilt bounded as a cone and the desired speeds by
-    the vehicle's MPC_*_VEL_MAX.
-
-    Returns
-    -------
-    (ControllerParams, notes)
-        ``notes`` say, one line each, where the believed values came from.
-
-    Raises
-    ------
-    ValueError
-        ``choice.tuned`` and the vehicle publishes no model to design for (a real airframe).
-    """
-    vehicle = vehicle_values(vehicle)
-    base = choice.base
-    notes: list[str] = []
-    changes: dict[str, object] = {"euler_rate_form": codec.euler_rate_form_for(model, base.euler_rate_form)}
-    use_vehicle_model = not choice.from_file
-    if use_vehicle_model or choice.mass_from_vehicle:
-        if "SIM_MASS" in vehicle:
-            changes["mass_kg"] = float(vehicle["SIM_MASS"])
-            notes.append(f"mass {vehicle['SIM_MASS']:.4g} kg from the vehicle (SIM_MASS)")
-        else:
-            notes.append(f"the vehicle publishes no SIM_MASS: mass {base.mass_kg:.4g} kg from the controller file")
-    if use_vehicle_model:
-        if "SIM_ARM_LEN" in vehicle:
-            changes["arm_length_m"] = float(vehicle["SIM_ARM_LEN"])
-        if all(k in vehicle for k in ("SIM_IXX", "SIM_IYY", "SIM_IZZ")):
-            changes["inertia_kg_m2"] = (float(vehicle["SIM_IXX"]), float(vehicle["SIM_IYY"]), float(vehicle["SIM_IZZ"]))
-        if "SIM_KM_KF" in vehicle:
-            changes["drag_to_thrust_m"] = float(vehicle["SIM_KM_KF"])
-        if "SIM_KDV" in vehicle:  # PX4 SIH's linear drag (tuning.vehicle_values)
-            changes["linear_drag_n_s_m"] = float(vehicle["SIM_KDV"])
-    if choice.sample_time_s is not None:
-        changes["sample_time_s"] = float(choice.sample_time_s)
-    if choice.yaw_aware is not None:
-        changes["yaw_aware"] = choice.yaw_aware
-    elif not choice.from_file:
-        changes["yaw_aware"] = model == "rigid-body"
-    limits = base.limits
-    if choice.thrust_min_fraction is not None:
-        thrust_min = choice.thrust_min_fraction * scaling.thrust_max_n
-    elif limits.thrust_min_n is not None:
-        thrust_min = max(limits.thrust_min_n, 0.0)
-    else:
-        thrust_min = (RIGID_BODY_THRUST_MIN_FRACTION if model == "rigid-body" else 0.0) * scaling.thrust_max_n
-    thrust_max = scaling.thrust_max_n if limits.thrust_max_n is None else min(limits.thrust_max_n, scaling.thrust_max_n)
-    if choice.tilt_max_deg is not None:
-        tilt = None if choice.tilt_max_deg >= 90.0 else math.radians(choice.tilt_max_deg)
-    elif limits.tilt_max_rad is not None:
-        tilt = limits.tilt_max_rad
-    else:
-        tilt = math.radians(DEFAULT_TILT_MAX_DEG)
-    changes["limits"] = ActionLimits(thrust_min_n=thrust_min, thrust_max_n=thrust_max, tilt_max_rad=tilt)
-    params = base.with_changes(**changes)
-    if choice.tuned:
-        try:
-            design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
-                                        velocity_integral=choice.velocity_integral)
-        except KeyError as exc:
-            raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
-                             "--params FILE writes one) or --controller paper") from None
-        params = tuned_params(params, design, vehicle)
-        notes.append(f"gains designed for the vehicle's inner loop ({design.model.source}, latency "
-                     f"{(choice.latency_s or 0.0) * 1000:.0f} ms; docs/controller-design.md):")
-        notes.extend(f"  {line}" for line in design_summary(design))
-    tilt_text = "none" if tilt is None else f"{math.degrees(tilt):.0f} deg"
-    notes.append(
-        f"controller: To {params.sample_time_s:g} s, W_eta {params.euler_rate_form}, yaw-aware {'on' if params.yaw_aware else 'off'}, "
-        f"u in [{thrust_min:.3g}, {thrust_max:.4g}] N, tilt limit {tilt_text}"
-    )
-    return params, notes
-
 
 # --- results -------------------------------------------------------------------------------------
 
@@ -453,15 +144,6 @@ class Progress:
     t_s: float
     pos_ned_m: tuple[float, float, float]
     error_m: float
-
-
-class _End(Exception):
-    """Internal: the flight ends with this status (caught in ``Flight.run``)."""
-
-    def __init__(self, status: FlightStatus, detail: str) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
 
 
 @dataclass
@@ -633,7 +315,7 @@ class Flight:
                 self._fly_mission()
             except CommandRejected as exc:
                 status, detail = FlightStatus.REJECTED, str(exc)
-            except _End as end:
+            except FlightEnd as end:
                 status, detail = end.status, end.detail
             self._mission_done = True  # whatever happens next is not part of the mission's record
             if status in (FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED):
@@ -838,7 +520,7 @@ class Flight:
             return None, ""
         except CommandRejected as exc:
             return FlightStatus.REJECTED, str(exc)
-        except _End as end:
+        except FlightEnd as end:
             return end.status, end.detail
 
     # -- commands, parameters, time ----------------------------------------------------------------
@@ -1010,7 +692,7 @@ class Flight:
         deadline = None if timeout_s is None else self.clock() + timeout_s
         while True:
             if self._interrupt_enabled and self.stop_requested():
-                raise _End(FlightStatus.INTERRUPTED, "interrupted by the user")
+                raise FlightEnd(FlightStatus.INTERRUPTED, "interrupted by the user")
             self._lockstep_sample_if_due()
             if until():
                 return True
@@ -1064,7 +746,7 @@ class Flight:
                 self._outage_since = last
                 self._say(f"telemetry lost ({stale:.2f} s without ATTITUDE/LOCAL_POSITION_NED): setpoints stopped")
         elif now - self._outage_since > self.config.reconnect_timeout_s:
-            raise _End(FlightStatus.LINK_LOST, f"no telemetry for {now - self._outage_since:.1f} s")
+            raise FlightEnd(FlightStatus.LINK_LOST, f"no telemetry for {now - self._outage_since:.1f} s")
 
     def _telemetry_back(self, now: float) -> None:
         assert self._outage_since is not None
@@ -1172,7 +854,7 @@ class Flight:
         if self._verify_mode:
             self._verify_mode = False
             if not status.offboard:
-                raise _End(FlightStatus.LINK_LOST, f"telemetry came back with the vehicle in {status.mode_name}: "
+                raise FlightEnd(FlightStatus.LINK_LOST, f"telemetry came back with the vehicle in {status.mode_name}: "
                                                    "its failsafe took over during the outage")
         if self._expect_offboard:
             if status.offboard:
@@ -1186,7 +868,7 @@ class Flight:
                     why = "failsafe" if failsafe else "mode changed by someone else"
                     last = f" (vehicle: {self._statustexts[-1]})" if self._statustexts else ""
                     self._source = None
-                    raise _End(kind, f"the vehicle left Offboard for {status.mode_name}: {why}{last}")
+                    raise FlightEnd(kind, f"the vehicle left Offboard for {status.mode_name}: {why}{last}")
         if self._expect_armed:
             if status.armed:
                 self._armed_seen = True
@@ -1195,7 +877,7 @@ class Flight:
                 self._disarmed_beats += 1
                 if self._armed_seen or self._disarmed_beats >= 2:
                     self._source = None
-                    raise _End(FlightStatus.MODE_CHANGED, "the vehicle disarmed during the mission")
+                    raise FlightEnd(FlightStatus.MODE_CHANGED, "the vehicle disarmed during the mission")
 
     # -- sampling ----------------------------------------------------------------------------------
 
@@ -1312,7 +994,7 @@ class Flight:
         why = _diverged(measured)
         if recording:
             if why:
-                raise _End(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
+                raise FlightEnd(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
             if self._last_sample_wall is not None:
                 self.loop.add_period(now - self._last_sample_wall)
             self._last_sample_wall = now
@@ -1324,7 +1006,7 @@ class Flight:
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]
         if not command.is_finite():
             self._source = None
-            raise _End(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
+            raise FlightEnd(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
         if n >= self._mission_samples:
             self._mission_done = True
         sp = codec.command_setpoint(command, self.scaling, output=self.config.output, model=self.config.model,
