@@ -46,7 +46,7 @@ import numpy as np
 
 from offboard import codec
 from offboard.clockrate import STALLED_RATE, ClockRateMeter
-from offboard.codec import MeasuredState, Scaling, VehicleStatus
+from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ControllerParams
 from offboard.controller.command import Controller
 from offboard.controller.tuning import vehicle_values
@@ -54,6 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
+from offboard.flight.protocol import VehicleClient
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.model.tlog import LOCKSTEP_EPOCH_S
@@ -64,8 +65,6 @@ from pymavlink.dialects.v20 import common as mavlink
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
-STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
-MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second (the commander's)
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 # --- results -------------------------------------------------------------------------------------
@@ -146,22 +145,6 @@ class Progress:
     error_m: float
 
 
-@dataclass
-class _Pending:
-    command: int
-    params: tuple[float, ...]
-    name: str
-    attempts: int = 0
-    deadline: float = 0.0
-    result: int | None = None
-    acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: the last counts)
-    first_ack_s: float | None = None
-    results: list[int] = field(default_factory=list)  # every ACK's result, in order (a burst counts them)
-    #: what a heartbeat shows once the command is done, and whether one since the first try did
-    took_effect: Callable[[VehicleStatus], bool] | None = None
-    seen_done: bool = False
-
-
 # --- the flight ----------------------------------------------------------------------------------
 
 
@@ -225,7 +208,6 @@ class Flight:
         self.link = link
         self.mission_home = mission_home
         self.home_offset_ned_m: tuple[float, float, float] | None = None
-        self._vehicle_home: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
         self.trajectory = trajectory
         self.choice = choice
         self.config = config or FlightConfig()
@@ -238,22 +220,12 @@ class Flight:
         self.meta = dict(meta or {})
         self.to = choice.sample_time_s if choice.sample_time_s is not None else choice.base.sample_time_s
         self.phases = trajectory.phases()
-        # what we know of the vehicle
-        self.target: tuple[int, int] | None = None
-        self.status: codec.VehicleStatus | None = None
-        self.vehicle_params: dict[str, float] = {}
-        self.landed_state: int | None = None
+        # the vehicle's protocol, and what it has told us
+        self.client = VehicleClient(link, self.config, clock, self._pump, self._say, self._boot_ms)
         self._att: mavlink.MAVLink_message | None = None
         self._recent_att: dict[int, mavlink.MAVLink_message] = {}  # by stamp: pairs for the position
-        self._early: dict[tuple[tuple[int, int], str], mavlink.MAVLink_message] = {}
         self._lpn: mavlink.MAVLink_message | None = None
         self._last_telemetry_wall: float | None = None
-        self._statustexts: list[str] = []
-        self._statustext_count = 0
-        self._pending: _Pending | None = None
-        self._param_wanted: str | None = None
-        self._timesync_ts1: int | None = None
-        self._timesync_reply: tuple[int, int] | None = None
         # the sampler
         self._source: Callable[[MeasuredState], mavlink.MAVLink_message | None] | None = None
         self._answered_ms: int | None = None
@@ -265,8 +237,6 @@ class Flight:
         self._prev_sample_ms: int | None = None
         self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
-        self._next_heartbeat: float = 0.0
-        self._next_heartbeat_ms = 0
         # supervision
         self._watch_telemetry = False
         self._outage_since: float | None = None
@@ -290,7 +260,6 @@ class Flight:
         self._last_sample_wall: float | None = None
         self.loop = LoopStats()
         self.outages: list[float] = []
-        self.timesync: dict[str, float] | None = None
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
@@ -340,8 +309,8 @@ class Flight:
                 self._note(builder.spool_error)
         return FlightResult(
             record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
-            vehicle_params=dict(self.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.timesync,
-            landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.target,
+            vehicle_params=dict(self.client.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.client.timesync,
+            landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.client.target,
             home_offset_ned_m=self.home_offset_ned_m,
         )  # fmt: skip
 
@@ -349,35 +318,36 @@ class Flight:
 
     def _connect(self) -> None:
         cfg = self.config
-        if not self._pump(lambda: self.target is not None, cfg.heartbeat_timeout_s):
+        client = self.client
+        if not self._pump(lambda: client.target is not None, cfg.heartbeat_timeout_s):
             where = f" on {cfg.connect}" if cfg.connect else ""
             which = f" (system {cfg.target_system})" if cfg.target_system is not None else ""
             raise LinkTimeout(f"no vehicle heartbeat{which} heard{where} within {cfg.heartbeat_timeout_s:g} s")
-        self._say(f"vehicle {self.target[0]}/{self.target[1]} found ({self.status.mode_name if self.status else '?'}, "  # type: ignore[index]
-                  f"{'armed' if self.status and self.status.armed else 'disarmed'})")
-        self._send_heartbeat()
+        self._say(f"vehicle {client.target[0]}/{client.target[1]} found ({client.status.mode_name if client.status else '?'}, "  # type: ignore[index]
+                  f"{'armed' if client.status and client.status.armed else 'disarmed'})")
+        client.send_heartbeat()
         # stream from now on: a lockstep plant then never waits on us (no keepalives, same bytes
         # every run), and PX4 sees setpoints well before OFFBOARD is asked for
         self._watch_telemetry = True
         self._source = self._hold_source
 
     def _prepare(self) -> None:
-        cfg, choice = self.config, self.choice
-        family = self._param_family()
+        cfg, choice, client = self.config, self.choice, self.client
+        family = client.param_family()
         required, optional = params_to_read(choice, cfg, self._thrust_max_override is not None, family)
         for name in required + optional:
-            if name in self.vehicle_params:
+            if name in client.vehicle_params:
                 continue
-            value = self._read_param(name)
-            if value is None and self._link_lossy():  # a lossy link, not an absent parameter: ask longer
-                value = self._read_param(name, 2 * cfg.param_attempts)
+            value = client.read_param(name)
+            if value is None and client.link_lossy():  # a lossy link, not an absent parameter: ask longer
+                value = client.read_param(name, 2 * cfg.param_attempts)
             if value is None and name in required:
                 hint = " (pass --thrust-max-n for a vehicle without it)" if name == "SIM_THR_MAX" else ""
                 raise LinkTimeout(f"the vehicle did not answer PARAM_REQUEST_READ {name} ({VEHICLE_PARAMS[name]}) "
                                   f"after {cfg.param_attempts} tries{hint}")
             if value is not None:
-                self.vehicle_params[name] = value
-        p = vehicle_values(self.vehicle_params)
+                client.vehicle_params[name] = value
+        p = vehicle_values(client.vehicle_params)
         try:
             self.scaling = Scaling(
                 thrust_max_n=self._thrust_max_override if self._thrust_max_override is not None else p["SIM_THR_MAX"],
@@ -389,8 +359,8 @@ class Flight:
         # the latency the design allows for: measured (TIMESYNC) before designing, unless given
         measure_latency = choice.tuned and choice.latency_s is None and not cfg.lockstep
         if measure_latency:
-            self._do_timesync()
-            rtt_s = self.timesync["rtt_ms"] / 1000.0 if self.timesync else 0.0
+            client.sync_time()
+            rtt_s = client.timesync["rtt_ms"] / 1000.0 if client.timesync else 0.0
             rate_hz = cfg.telemetry_rate_for(self.to)
             period_s = 1.0 / rate_hz if rate_hz else 0.0
             choice = replace(choice, latency_s=rtt_s + period_s)
@@ -402,11 +372,11 @@ class Flight:
                 # after COM_OF_LOSS_T without setpoints). In lockstep the vehicle waits for us, and
                 # a thread's timing would make the log differ from run to run.
                 with ThreadPoolExecutor(max_workers=1) as pool:
-                    future = pool.submit(resolve_controller, choice, cfg.model, dict(self.vehicle_params), self.scaling)
+                    future = pool.submit(resolve_controller, choice, cfg.model, dict(client.vehicle_params), self.scaling)
                     self._pump(future.done)
                     self.params, notes = future.result()
             else:
-                self.params, notes = resolve_controller(choice, cfg.model, self.vehicle_params, self.scaling)
+                self.params, notes = resolve_controller(choice, cfg.model, client.vehicle_params, self.scaling)
                 if cfg.lockstep:  # the vehicle waited for us: our pause was no telemetry loss
                     self._last_telemetry_wall = self.clock()
         except ValueError as exc:
@@ -424,7 +394,7 @@ class Flight:
         self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model)
         self._mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:
-            self._do_timesync()
+            client.sync_time()
         if self.mission_home is not None:
             self._align_mission()
         self._configure_streams()
@@ -443,13 +413,13 @@ class Flight:
         wanted: list[tuple[int, float | None]] = [(mid, None) for mid in codec.UNREAD_STREAMS] if cfg.unread_streams_off else []
         if rate_hz is not None:
             wanted += [(mid, rate_hz) for mid in codec.SAMPLED_STREAMS]
-        if not wanted or self._command_burst([codec.message_interval_params(mid, rate) for mid, rate in wanted]):
+        if not wanted or self.client.command_burst([codec.message_interval_params(mid, rate) for mid, rate in wanted]):
             return
         refused = []
         for mid, rate in wanted:
             command, params = codec.message_interval_params(mid, rate)
             try:
-                self._command(command, params)
+                self.client.command(command, params)
             except CommandRejected as exc:
                 name = mavlink.mavlink_map[mid].msgname if mid in mavlink.mavlink_map else str(mid)
                 refused.append(f"{name} {'off' if rate is None else f'at {rate:g} Hz'}: {exc.result_name}")
@@ -462,11 +432,11 @@ class Flight:
         self._pump(lambda: self._samples_sent >= target)
         self._check_clock_rate()
         command, params = codec.set_mode_offboard_params()
-        self._command(command, params, took_effect=lambda st: st.offboard)
+        self.client.command(command, params, took_effect=lambda st: st.offboard)
         self._expect_offboard = True
         self._say("offboard mode accepted")
         command, params = codec.arm_params(True)
-        self._command(command, params, took_effect=lambda st: st.armed)
+        self.client.command(command, params, took_effect=lambda st: st.armed)
         self.armed_by_us = True
         self._expect_armed = True
         self._say("armed: flying the mission")
@@ -490,27 +460,28 @@ class Flight:
                 return FlightStatus.LINK_LOST, "telemetry lost before the landing"
             self._say("landing (MAV_CMD_NAV_LAND)")
             command, params = codec.land_params()
-            self._command(command, params, took_effect=lambda st: st.landing)
+            self.client.command(command, params, took_effect=lambda st: st.landing)
             self._source = self._idle_source
             deadline = self.clock() + self.config.land_timeout_s
-            on_ground = lambda: self.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND or (  # noqa: E731
-                self.status is not None and not self.status.armed
+            client = self.client
+            on_ground = lambda: client.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND or (  # noqa: E731
+                client.status is not None and not client.status.armed
             )
             if not self._pump(on_ground, deadline - self.clock()):
                 return None, self._note(f"the vehicle did not report being on the ground within {self.config.land_timeout_s:g} s")
             self.landed = True
-            if self.status is not None and not self.status.armed:
+            if client.status is not None and not client.status.armed:
                 self.disarmed = True
                 self._say("landed; the vehicle disarmed itself")
                 return None, ""
             command, params = codec.arm_params(False)
             try:
-                self._command(command, params, took_effect=lambda st: not st.armed)
+                self.client.command(command, params, took_effect=lambda st: not st.armed)
             except CommandRejected as exc:
                 # on the ground but not yet landed by the vehicle's own detector (its Land mode
                 # still running): it disarms itself once it is (PX4's COM_DISARM_LAND)
                 self._say(f"note: {exc}; waiting for the vehicle to disarm itself")
-                if not self._pump(lambda: self.status is not None and not self.status.armed, max(deadline - self.clock(), 0.0)):
+                if not self._pump(lambda: client.status is not None and not client.status.armed, max(deadline - self.clock(), 0.0)):
                     raise
                 self.disarmed = True
                 self._say("landed; the vehicle disarmed itself")
@@ -523,123 +494,14 @@ class Flight:
         except FlightEnd as end:
             return end.status, end.detail
 
-    # -- commands, parameters, time ----------------------------------------------------------------
-
-    def _command(self, command: int, params: tuple[float, ...], *, took_effect: Callable[[VehicleStatus], bool] | None = None) -> None:
-        """Send a COMMAND_LONG and wait for its ACK, retrying (confirmation + 1) when none comes.
-
-        ``took_effect``: what a heartbeat shows once the command is done (armed, a mode). With no
-        ACK after the attempts, a heartbeat received since the first try that shows it counts as
-        the ACK (the ACKs were lost, not the command: MAVSDK does the same).
-
-        Raises
-        ------
-        CommandRejected
-            Not ACCEPTED, or no ACK after the attempts (result name ``NO_ACK``).
-        """
-        assert self.target is not None
-        name = codec.mav_cmd_name(command)
-        pending = _Pending(command, params, name, took_effect=took_effect)
-        texts_before = self._statustext_count
-        self._pending = pending
-        try:
-            while pending.attempts < self.config.command_attempts:
-                self.link.send(codec.command_long(self.target[0], self.target[1], command, params, pending.attempts))
-                pending.attempts += 1
-                self._pump(lambda: pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS,
-                           self.config.command_timeout_s)
-                if pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS:
-                    break
-            if command == mavlink.MAV_CMD_DO_SET_MODE and pending.result is not None:
-                # PX4 answers a mode change twice: ACCEPTED from its MAVLink receiver at once, then
-                # the commander's own result 5-12 ms later; the last one is the answer
-                self._pump(lambda: pending.acks >= 2, MODE_ACK_GRACE_S)
-        finally:
-            self._pending = None
-        if pending.result is None:
-            if pending.seen_done:
-                self._say(f"note: no ACK for {name} after {pending.attempts} attempts, but the vehicle's heartbeat shows it done")
-                return
-            raise CommandRejected(name, -1, f"NO_ACK after {pending.attempts} attempts")
-        if pending.result != mavlink.MAV_RESULT_ACCEPTED:
-            # PX4 says why in a STATUSTEXT that follows the ACK: give it a moment
-            self._pump(lambda: self._statustext_count > texts_before, STATUSTEXT_GRACE_S)
-            reason = self._statustexts[-1] if self._statustext_count > texts_before else ""
-            exc = CommandRejected(name, pending.result, codec.mav_result_name(pending.result))
-            if reason:
-                exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
-            raise exc
-
-    def _command_burst(self, commands: list[tuple[int, tuple[float, ...]]]) -> bool:
-        """Send COMMAND_LONGs of one command id at once; whether every one was ACCEPTED within the
-        command timeout (False: the caller sends them one by one, with ``_command``'s retries)."""
-        assert self.target is not None
-        command = commands[0][0]
-        assert all(c == command for c, _ in commands)
-        pending = _Pending(command, (), codec.mav_cmd_name(command))
-        self._pending = pending
-        try:
-            for _, params in commands:
-                self.link.send(codec.command_long(self.target[0], self.target[1], command, params, 0))
-            self._pump(lambda: len(pending.results) >= len(commands), self.config.command_timeout_s)
-        finally:
-            self._pending = None
-        return len(pending.results) == len(commands) and all(r == mavlink.MAV_RESULT_ACCEPTED for r in pending.results)
-
-    def _param_family(self) -> str:
-        """Probe which simulator's physical parameters the vehicle publishes: ``SIM`` (sitl-plant),
-        ``SIH`` (PX4's SIH) or ``none`` (a real airframe); the probe's value is kept."""
-        for family, probe in (("SIM", "SIM_THR_MAX"), ("SIH", "SIH_MASS")):
-            value = self._read_param(probe)
-            if value is not None:
-                self.vehicle_params[probe] = value
-                return family
-        return "none"
-
-    def _link_lossy(self) -> bool:
-        """Whether the link has lost packets of the vehicle (its sequence numbers)."""
-        return int(getattr(getattr(self.link, "stats", None), "lost", 0)) > 0
-
-    def _read_param(self, name: str, attempts: int | None = None) -> float | None:
-        assert self.target is not None
-        self._param_wanted = name
-        try:
-            for _ in range(attempts or self.config.param_attempts):
-                self.link.send(codec.param_request_read(self.target[0], self.target[1], name))
-                if self._pump(lambda: name in self.vehicle_params, self.config.param_timeout_s):
-                    return self.vehicle_params.pop(name)
-        finally:
-            self._param_wanted = None
-        return None
-
-    def _do_timesync(self) -> None:
-        for _ in range(3):
-            ts1 = self._now_ns()
-            self._timesync_ts1 = ts1
-            self._timesync_reply = None
-            self.link.send(codec.timesync_request(ts1))
-            if self._pump(lambda: self._timesync_reply is not None, 1.0):
-                tc1, now_ns = self._timesync_reply  # type: ignore[misc]
-                offset, rtt = codec.timesync_offset_ns(ts1, tc1, now_ns)
-                self.timesync = {"offset_ms": offset / 1e6, "rtt_ms": rtt / 1e6}
-                self._timesync_ts1 = None
-                return
-        self._timesync_ts1 = None
-        self._say("note: no TIMESYNC reply; continuing without")
-
     def _align_mission(self) -> None:
         """Move a geo-referenced mission into the vehicle's local frame (HOME_POSITION)."""
         assert self.mission_home is not None
-        if self._vehicle_home is None:
-            try:
-                self._command(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(mavlink.MAVLINK_MSG_ID_HOME_POSITION),))
-            except CommandRejected as exc:
-                self._say(f"note: {exc}")
-            self._pump(lambda: self._vehicle_home is not None, 1.0)
-        if self._vehicle_home is None:
+        home = self.client.vehicle_home()
+        if home is None:
             self._say("note: no HOME_POSITION from the vehicle: the mission's home is taken as the vehicle's origin")
             return
-        offset = mission_offset_ned(self.mission_home, *self._vehicle_home)
+        offset = mission_offset_ned(self.mission_home, *home)
         horizontal = math.hypot(offset[0], offset[1])
         if horizontal > MAX_HOME_OFFSET_M:
             raise MissionFormatError(f"the mission's home ({self.mission_home[0]:.6f}, {self.mission_home[1]:.6f}) is "
@@ -676,13 +538,8 @@ class Flight:
         raise ClockMismatch(f"{measured.describe()}, so a sample time of {self.to * 1000:g} ms of ours would be "
                             f"{self.to * measured.rate * 1000:.0f} ms of the vehicle's: fly it with --clock vehicle")
 
-    def _now_ns(self) -> int:
-        """Our TIMESYNC time: the latest telemetry stamp in lockstep (reproducible), else the clock."""
-        if self.config.lockstep:
-            return self._boot_ms() * 1_000_000  # simulation time: reproducible
-        return int(self.clock() * 1e9)
-
     def _boot_ms(self) -> int:
+        """The latest ATTITUDE's ``time_boot_ms`` (ms; 0 before the first)."""
         return int(self._att.time_boot_ms) if self._att is not None else 0
 
     # -- the pump: every wait goes through here ----------------------------------------------------
@@ -710,11 +567,7 @@ class Flight:
 
     def _service(self, now: float) -> float:
         """Time-driven work (heartbeat, real-time samples, staleness); returns how long to wait."""
-        wait = 0.05
-        if not self.config.lockstep and self.target is not None:
-            if now >= self._next_heartbeat:
-                self._send_heartbeat()
-            wait = min(wait, self._next_heartbeat - now)
+        wait = min(0.05, self.client.service(now))
         if self._watch_telemetry:
             self._check_telemetry(now)
             wait = min(wait, self.config.telemetry_timeout_s / 4)
@@ -761,62 +614,20 @@ class Flight:
     # -- handling one message ----------------------------------------------------------------------
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        client = self.client
+        if client.target is None:
+            for early in client.discover(msg):
+                self._on_telemetry(early)
+            return
+        if not client.from_vehicle(msg):
+            return
         kind = msg.get_type()
-        if self.target is None:
-            source = (msg.get_srcSystem(), msg.get_srcComponent())
-            if kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
-                self._early[(source, kind)] = msg  # a lockstep plant may send it only once
-            elif kind == "HEARTBEAT" and codec.is_autopilot_heartbeat(msg):
-                if self.config.target_system is None or source[0] == self.config.target_system:
-                    self.target = source
-                    if hasattr(self.link, "trusted"):
-                        self.link.trusted = source  # only the vehicle's datagrams may move our link's peer
-                    self.status = codec.vehicle_status(msg)
-                    for early_kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
-                        early = self._early.get((source, early_kind))
-                        if early is not None:
-                            self._on_telemetry(early)
-                    self._early.clear()
-            return
-        if (msg.get_srcSystem(), msg.get_srcComponent()) != self.target:
-            return
         if kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
             self._on_telemetry(msg)
         elif kind == "HEARTBEAT":
             self._on_heartbeat(msg)
-        elif kind == "COMMAND_ACK":
-            p = self._pending
-            if p is not None and int(msg.command) == p.command and int(getattr(msg, "target_system", 0)) in (0, self._own_sysid()):
-                p.result = int(msg.result)
-                p.results.append(p.result)
-                p.acks += 1
-                if p.first_ack_s is None:
-                    p.first_ack_s = self.clock()
-        elif kind == "PARAM_VALUE":
-            name, value = codec.param_value(msg)
-            if name == self._param_wanted:
-                self.vehicle_params[name] = value
-        elif kind == "TIMESYNC":
-            # our request, answered; tc1 = 0 is the vehicle's own request (PX4 sends them at 10 Hz),
-            # whose ts1 equals ours in lockstep, where both are the simulation time
-            if self._timesync_ts1 is not None and int(msg.tc1) != 0 and int(msg.ts1) == self._timesync_ts1:
-                self._timesync_reply = (int(msg.tc1), self._now_ns())
-        elif kind == "EXTENDED_SYS_STATE":
-            self.landed_state = int(msg.landed_state)
-        elif kind == "HOME_POSITION":
-            self._vehicle_home = ((msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0),
-                                  (float(msg.x), float(msg.y), float(msg.z)))  # fmt: skip
-        elif kind == "STATUSTEXT":
-            text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else str(msg.text)
-            text = text.rstrip("\x00").strip()
-            if text:
-                self._statustexts = (self._statustexts + [text])[-20:]
-                self._statustext_count += 1
-                if int(msg.severity) <= mavlink.MAV_SEVERITY_WARNING:
-                    self._say(f"vehicle: {text}")
-
-    def _own_sysid(self) -> int:
-        return int(getattr(self.link, "sysid", 0))
+        else:
+            client.handle(msg)
 
     def _on_telemetry(self, msg: mavlink.MAVLink_message) -> None:
         try:
@@ -846,11 +657,7 @@ class Flight:
         self._vehicle_clock_sample_if_due()
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
-        status = codec.vehicle_status(msg)
-        self.status = status
-        pending = self._pending
-        if pending is not None and pending.took_effect is not None and pending.took_effect(status):
-            pending.seen_done = True
+        status = self.client.on_heartbeat(msg)
         if self._verify_mode:
             self._verify_mode = False
             if not status.offboard:
@@ -863,10 +670,10 @@ class Flight:
             else:
                 self._non_offboard_beats += 1
                 if self._offboard_seen or self._non_offboard_beats >= 2:
-                    failsafe = status.critical or any("failsafe" in t.lower() for t in self._statustexts[-3:])
+                    failsafe = status.critical or any("failsafe" in t.lower() for t in self.client.statustexts[-3:])
                     kind = FlightStatus.FAILSAFE if failsafe else FlightStatus.MODE_CHANGED
                     why = "failsafe" if failsafe else "mode changed by someone else"
-                    last = f" (vehicle: {self._statustexts[-1]})" if self._statustexts else ""
+                    last = f" (vehicle: {self.client.statustexts[-1]})" if self.client.statustexts else ""
                     self._source = None
                     raise FlightEnd(kind, f"the vehicle left Offboard for {status.mode_name}: {why}{last}")
         if self._expect_armed:
@@ -897,8 +704,7 @@ class Flight:
                                            "--lockstep, or fly without --lockstep")  # fmt: skip
                 raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
                                        f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
-        if self._next_heartbeat_ms <= t_ms:
-            self._send_heartbeat()
+        self.client.heartbeat_if_due_ms(t_ms)
         if self._sample(self.clock()):  # unanswered (nothing to send yet): the plant still waits for it
             self._stamps_since_sample = 0
             self._prev_sample_ms = t_ms
@@ -957,10 +763,11 @@ class Flight:
         return True
 
     def _setpoint_message(self, sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint, t_ms: int) -> mavlink.MAVLink_message:
-        assert self.target is not None
+        target = self.client.target
+        assert target is not None
         if isinstance(sp, codec.ActuatorSetpoint):
-            return codec.set_actuator_control_target(t_ms, sp, self.target[0], self.target[1])
-        return codec.set_attitude_target(t_ms, sp, self.target[0], self.target[1])
+            return codec.set_actuator_control_target(t_ms, sp, target[0], target[1])
+        return codec.set_attitude_target(t_ms, sp, target[0], target[1])
 
     def _hold_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
         """Before the mission: the vehicle's own attitude, thrust 0 (proof of offboard life)."""
@@ -969,7 +776,7 @@ class Flight:
     def _idle_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
         """While the vehicle lands by itself: not flown; hover thrust in the air, 0 on the ground."""
         thrust = 0.0
-        if self.params is not None and self.scaling is not None and self.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
+        if self.params is not None and self.scaling is not None and self.client.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
             thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
         if self._progress is not None:  # the landing's progress: seconds since it began, where the vehicle is
             if self._landing_ms is None:
@@ -1026,13 +833,6 @@ class Flight:
         return self.phases[-1].name if self.phases else "mission"
 
     # -- small things ------------------------------------------------------------------------------
-
-    def _send_heartbeat(self) -> None:
-        self.link.send(codec.heartbeat())
-        if self.config.lockstep:
-            self._next_heartbeat_ms = self._boot_ms() + 1000
-        else:
-            self._next_heartbeat = self.clock() + 1.0
 
     def _say(self, text: str) -> None:
         if self._event is not None:
