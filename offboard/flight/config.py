@@ -140,9 +140,10 @@ class FlightConfig:
 
 class FlightEnd(Exception):
     """The flight ends with this status (raised while handling a message or a sample, caught in
-    ``Flight.run``)."""
+    ``Flight.run``); ``stop_setpoints``: not one more setpoint (the vehicle is not ours to command)."""
 
-    def __init__(self, status: FlightStatus, detail: str) -> None:
+    def __init__(self, status: FlightStatus, detail: str, *, stop_setpoints: bool = False) -> None:
         super().__init__(detail)
         self.status = status
         self.detail = detail
+        self.stop_setpoints = stop_setpoints

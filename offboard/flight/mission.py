@@ -55,6 +55,7 @@ from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, Lockste
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
 from offboard.flight.protocol import VehicleClient
+from offboard.flight.supervisor import Supervisor
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.model.tlog import LOCKSTEP_EPOCH_S
@@ -225,7 +226,6 @@ class Flight:
         self._att: mavlink.MAVLink_message | None = None
         self._recent_att: dict[int, mavlink.MAVLink_message] = {}  # by stamp: pairs for the position
         self._lpn: mavlink.MAVLink_message | None = None
-        self._last_telemetry_wall: float | None = None
         # the sampler
         self._source: Callable[[MeasuredState], mavlink.MAVLink_message | None] | None = None
         self._answered_ms: int | None = None
@@ -237,16 +237,8 @@ class Flight:
         self._prev_sample_ms: int | None = None
         self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
-        # supervision
-        self._watch_telemetry = False
-        self._outage_since: float | None = None
-        self._verify_mode = False
-        self._expect_offboard = False
-        self._offboard_seen = False
-        self._non_offboard_beats = 0
-        self._expect_armed = False
-        self._armed_seen = False
-        self._disarmed_beats = 0
+        # the telemetry's freshness, the vehicle's mode and arming
+        self.supervisor = Supervisor(self.config, self._say)
         self._interrupt_enabled = True
         # the mission
         self.controller: Controller | None = None
@@ -259,7 +251,6 @@ class Flight:
         self._mission_wall0: float | None = None
         self._last_sample_wall: float | None = None
         self.loop = LoopStats()
-        self.outages: list[float] = []
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
@@ -309,7 +300,7 @@ class Flight:
                 self._note(builder.spool_error)
         return FlightResult(
             record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
-            vehicle_params=dict(self.client.vehicle_params), loop=self.loop, outages=list(self.outages), timesync=self.client.timesync,
+            vehicle_params=dict(self.client.vehicle_params), loop=self.loop, outages=list(self.supervisor.outages), timesync=self.client.timesync,
             landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.client.target,
             home_offset_ned_m=self.home_offset_ned_m,
         )  # fmt: skip
@@ -328,7 +319,7 @@ class Flight:
         client.send_heartbeat()
         # stream from now on: a lockstep plant then never waits on us (no keepalives, same bytes
         # every run), and PX4 sees setpoints well before OFFBOARD is asked for
-        self._watch_telemetry = True
+        self.supervisor.watching = True
         self._source = self._hold_source
 
     def _prepare(self) -> None:
@@ -378,7 +369,7 @@ class Flight:
             else:
                 self.params, notes = resolve_controller(choice, cfg.model, client.vehicle_params, self.scaling)
                 if cfg.lockstep:  # the vehicle waited for us: our pause was no telemetry loss
-                    self._last_telemetry_wall = self.clock()
+                    self.supervisor.heard(self.clock())
         except ValueError as exc:
             raise LinkTimeout(str(exc)) from None
         for note in notes:
@@ -433,12 +424,12 @@ class Flight:
         self._check_clock_rate()
         command, params = codec.set_mode_offboard_params()
         self.client.command(command, params, took_effect=lambda st: st.offboard)
-        self._expect_offboard = True
+        self.supervisor.expect_offboard = True
         self._say("offboard mode accepted")
         command, params = codec.arm_params(True)
         self.client.command(command, params, took_effect=lambda st: st.armed)
         self.armed_by_us = True
-        self._expect_armed = True
+        self.supervisor.expect_armed = True
         self._say("armed: flying the mission")
 
     def _fly_mission(self) -> None:
@@ -451,12 +442,11 @@ class Flight:
     def _land_and_disarm(self) -> tuple[FlightStatus | None, str]:
         """NAV_LAND, wait for the ground, disarm. Returns a status only if this itself failed."""
         self._interrupt_enabled = False
-        self._expect_offboard = False
-        self._expect_armed = False
+        self.supervisor.expect_offboard = self.supervisor.expect_armed = False
         if not self.armed_by_us:
             return None, ""
         try:
-            if self._outage_since is not None:
+            if self.supervisor.in_outage:
                 return FlightStatus.LINK_LOST, "telemetry lost before the landing"
             self._say("landing (MAV_CMD_NAV_LAND)")
             command, params = codec.land_params()
@@ -568,9 +558,7 @@ class Flight:
     def _service(self, now: float) -> float:
         """Time-driven work (heartbeat, real-time samples, staleness); returns how long to wait."""
         wait = min(0.05, self.client.service(now))
-        if self._watch_telemetry:
-            self._check_telemetry(now)
-            wait = min(wait, self.config.telemetry_timeout_s / 4)
+        wait = min(wait, self.supervisor.service(now))
         if not self.config.lockstep and not self._on_vehicle_clock and self._source is not None:
             if self._next_tick_s is None:
                 self._next_tick_s = now
@@ -588,28 +576,6 @@ class Flight:
                 self._next_tick_s += self.to
             wait = min(wait, self._next_tick_s - self.clock())
         return max(wait, 0.0)
-
-    def _check_telemetry(self, now: float) -> None:
-        last = self._last_telemetry_wall
-        if last is None:
-            last = self._last_telemetry_wall = now
-        stale = now - last
-        if self._outage_since is None:
-            if stale > self.config.telemetry_timeout_s:
-                self._outage_since = last
-                self._say(f"telemetry lost ({stale:.2f} s without ATTITUDE/LOCAL_POSITION_NED): setpoints stopped")
-        elif now - self._outage_since > self.config.reconnect_timeout_s:
-            raise FlightEnd(FlightStatus.LINK_LOST, f"no telemetry for {now - self._outage_since:.1f} s")
-
-    def _telemetry_back(self, now: float) -> None:
-        assert self._outage_since is not None
-        gap = now - self._outage_since
-        self.outages.append(gap)
-        self._outage_since = None
-        self._verify_mode = self._expect_offboard
-        if self.controller is not None and self._mission_tick0 is not None:
-            self.controller.reset()  # its memory is a gap old: restart it from the measured state
-        self._say(f"telemetry back after {gap:.2f} s: setpoints resumed")
 
     # -- handling one message ----------------------------------------------------------------------
 
@@ -648,43 +614,24 @@ class Flight:
         if self.log_clock is not None:
             self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
         now = self.clock()
-        self._last_telemetry_wall = now
+        self.supervisor.heard(now)
         if self._clock_meter is not None and msg.get_type() == "ATTITUDE":
             self._clock_meter.add(now, int(msg.time_boot_ms))
-        if self._outage_since is not None and self._att is not None and self._lpn is not None:
-            self._telemetry_back(now)
+        if self.supervisor.in_outage and self._att is not None and self._lpn is not None:
+            self.supervisor.telemetry_back(now)
+            if self.controller is not None and self._mission_tick0 is not None:
+                self.controller.reset()  # its memory is a gap old: restart it from the measured state
         self._lockstep_sample_if_due()
         self._vehicle_clock_sample_if_due()
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         status = self.client.on_heartbeat(msg)
-        if self._verify_mode:
-            self._verify_mode = False
-            if not status.offboard:
-                raise FlightEnd(FlightStatus.LINK_LOST, f"telemetry came back with the vehicle in {status.mode_name}: "
-                                                   "its failsafe took over during the outage")
-        if self._expect_offboard:
-            if status.offboard:
-                self._offboard_seen = True
-                self._non_offboard_beats = 0
-            else:
-                self._non_offboard_beats += 1
-                if self._offboard_seen or self._non_offboard_beats >= 2:
-                    failsafe = status.critical or any("failsafe" in t.lower() for t in self.client.statustexts[-3:])
-                    kind = FlightStatus.FAILSAFE if failsafe else FlightStatus.MODE_CHANGED
-                    why = "failsafe" if failsafe else "mode changed by someone else"
-                    last = f" (vehicle: {self.client.statustexts[-1]})" if self.client.statustexts else ""
-                    self._source = None
-                    raise FlightEnd(kind, f"the vehicle left Offboard for {status.mode_name}: {why}{last}")
-        if self._expect_armed:
-            if status.armed:
-                self._armed_seen = True
-                self._disarmed_beats = 0
-            else:
-                self._disarmed_beats += 1
-                if self._armed_seen or self._disarmed_beats >= 2:
-                    self._source = None
-                    raise FlightEnd(FlightStatus.MODE_CHANGED, "the vehicle disarmed during the mission")
+        try:
+            self.supervisor.on_heartbeat(status, self.client.statustexts)
+        except FlightEnd as end:
+            if end.stop_setpoints:
+                self._source = None  # we stop commanding at once
+            raise
 
     # -- sampling ----------------------------------------------------------------------------------
 
@@ -742,13 +689,13 @@ class Flight:
     def _sample(self, now: float) -> bool:
         """Run the current setpoint source on the freshest telemetry; whether a setpoint went out."""
         source = self._source
-        if source is None or self._att is None or self._lpn is None or self._outage_since is not None:
+        if source is None or self._att is None or self._lpn is None or self.supervisor.in_outage:
             return False
         if self.config.lockstep:
             # the plant waits for this answer: new telemetry is due within the timeout from now
-            self._last_telemetry_wall = now
-        elif self._watch_telemetry and self._last_telemetry_wall is not None and now - self._last_telemetry_wall > self.config.telemetry_timeout_s:
-            return False  # stale: _check_telemetry declares the outage
+            self.supervisor.heard(now)
+        elif self.supervisor.stale(now):
+            return False  # stale: the supervisor declares the outage
         try:
             # the attitude of the position's own instant when we have it: one coherent sample
             att = self._recent_att.get(int(self._lpn.time_boot_ms), self._att)
