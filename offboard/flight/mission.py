@@ -15,16 +15,12 @@ fake clock. The sequence (docs/offboard.md):
    ``offboard.inprocess.run_scenario`` does on its simulated vehicle, and sends one setpoint;
 5. land with MAV_CMD_NAV_LAND (the vehicle's own landing), wait for the ground, disarm.
 
-Sampling: in **lockstep** a sample is due when an ATTITUDE and a LOCAL_POSITION_NED with the
-same ``time_boot_ms`` T have arrived (the plant then waits for the setpoint echoing T); in
-**real time** the flight keeps its own sample clock at To from the injected clock and uses the
-freshest telemetry, still echoing the ATTITUDE's ``time_boot_ms``; on the **vehicle's clock**
-(``SampleClock.VEHICLE``, for a vehicle that runs faster or slower than real time: PX4 SITL
-``--speed``, ``sitl-plant --speed``) a sample is due when the telemetry's ``time_boot_ms`` has
-advanced To since the last one. ``SampleClock.AUTO`` (``offboard fly``'s default) measures the
-vehicle's clock rate before OFFBOARD (``offboard.clockrate``) and samples on our clock if it runs
-at ours, on the vehicle's if it does not. Every decision is taken
-while handling a message or a sample, so a lockstep flight sends the same bytes every time.
+The parts it owns: a ``VehicleClient`` (``protocol``: the vehicle's messages other than the
+setpoints), a ``Supervisor`` (``supervisor``: telemetry outages, the vehicle's mode and arming) and
+a ``Sampler`` (``sampler``: when a sample is due, lockstep, real time or the vehicle's clock, and
+what it is made of). Every wait of any of them goes through ``Flight._pump``, which reads the
+link, routes each message and runs the time-driven work, so that the setpoints never stop while
+the flight waits for an answer.
 
 How it can end (``FlightStatus``): COMPLETE; LINK_LOST (telemetry stale for longer than the
 telemetry timeout and not back within the reconnect timeout, or back after the vehicle left
@@ -40,21 +36,22 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from offboard import codec
-from offboard.clockrate import STALLED_RATE, ClockRateMeter
+from offboard.clockrate import STALLED_RATE
 from offboard.codec import MeasuredState, Scaling
 from offboard.controller import ControllerParams
 from offboard.controller.command import Controller
 from offboard.controller.tuning import vehicle_values
 from offboard.controllers import make_controller
-from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, LockstepMismatch, MissionFormatError
+from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
 from offboard.flight.protocol import VehicleClient
+from offboard.flight.sampler import LoopStats, Sampler
 from offboard.flight.supervisor import Supervisor
 from offboard.missions.geo import mission_offset_ned
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
@@ -69,46 +66,6 @@ MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicl
 MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 # --- results -------------------------------------------------------------------------------------
-
-
-@dataclass
-class LoopStats:
-    """The sample clock's behaviour over the mission.
-
-    The wall-clock periods between recorded samples are spooled like the record's rows
-    (``RecordBuilder``: 8 bytes a period, in blocks, to a temporary file), so an hour's flight
-    keeps none of them in memory and the summary's percentiles are still exact.
-    """
-
-    samples: int = 0
-    overruns: int = 0  # real time: samples skipped because we were late by a whole period
-    missed: int = 0  # real time: mission periods without a setpoint (telemetry stale)
-    mission_wall_s: float = 0.0
-    periods: RecordBuilder = field(default_factory=lambda: RecordBuilder({"period_s": 1}), repr=False, compare=False)
-
-    def add_period(self, period_s: float) -> None:
-        """One wall-clock period between two recorded samples (s)."""
-        self.periods.append(period_s=period_s)
-
-    @property
-    def periods_s(self) -> np.ndarray:
-        """Every period added, in order (s)."""
-        return self.periods.build()["period_s"]
-
-    def to_dict(self, sample_time_s: float) -> dict:
-        periods = self.periods_s
-        jitter = np.abs(periods - sample_time_s) if len(periods) else np.zeros(1)
-        return {
-            "samples": self.samples,
-            "overruns": self.overruns,
-            "missed": self.missed,
-            "mission_wall_s": self.mission_wall_s,
-            "rate_hz": self.samples / self.mission_wall_s if self.mission_wall_s > 0 else math.nan,
-            "period_mean_s": float(np.mean(periods)) if len(periods) else math.nan,
-            "jitter_p50_ms": float(np.percentile(jitter, 50) * 1e3),
-            "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
-            "jitter_max_ms": float(np.max(jitter) * 1e3),
-        }
 
 
 @dataclass
@@ -186,8 +143,9 @@ class Flight:
     mission_home : (lat deg, lon deg, alt m) or None
         The geographic origin of the trajectory's NED frame (waypoint files): the flight asks
         for the vehicle's HOME_POSITION and flies the mission where it is on the map.
-    phases : list of Phase, optional
-        Mission phases for the progress line (default: the trajectory's).
+    meta : dict, optional
+        Kept in the record's metadata (the flight adds the measured clock rate and the clock
+        sampled on).
     """
 
     def __init__(
@@ -219,48 +177,30 @@ class Flight:
         self._event = event
         self._thrust_max_override = thrust_max_n
         self.meta = dict(meta or {})
-        self.to = choice.sample_time_s if choice.sample_time_s is not None else choice.base.sample_time_s
         self.phases = trajectory.phases()
-        # the vehicle's protocol, and what it has told us
-        self.client = VehicleClient(link, self.config, clock, self._pump, self._say, self._boot_ms)
-        self._att: mavlink.MAVLink_message | None = None
-        self._recent_att: dict[int, mavlink.MAVLink_message] = {}  # by stamp: pairs for the position
-        self._lpn: mavlink.MAVLink_message | None = None
-        # the sampler
-        self._source: Callable[[MeasuredState], mavlink.MAVLink_message | None] | None = None
-        self._answered_ms: int | None = None
-        self._samples_sent = 0
-        self._tick = 0
-        self._next_tick_s: float | None = None
-        self._next_tick_ms: float | None = None  # on the vehicle's clock
-        self._sample_late_s = 0.0  # on the vehicle's clock: how long after its tick the sampled position came
-        self._prev_sample_ms: int | None = None
-        self._stamps_since_sample = 0  # distinct ATTITUDE stamps since the last lockstep sample
-        self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
-        # the telemetry's freshness, the vehicle's mode and arming
-        self.supervisor = Supervisor(self.config, self._say)
         self._interrupt_enabled = True
+        # the parts: the telemetry's freshness and the vehicle's mode and arming; the samples; the
+        # vehicle's protocol and what it has told us
+        self.supervisor = Supervisor(self.config, self._say)
+        to = choice.sample_time_s if choice.sample_time_s is not None else choice.base.sample_time_s
+        self.sampler = Sampler(link, self.config, to, clock, self.supervisor)
+        self.client = VehicleClient(link, self.config, clock, self._pump, self._say, self.sampler.boot_ms)
         # the mission
         self.controller: Controller | None = None
         self.params: ControllerParams | None = None
         self.scaling: Scaling | None = None
         self.rows = RecordBuilder(FLIGHT_COLUMNS)
-        self._mission_tick0: int | None = None
         self._mission_samples = int(round(trajectory.duration_s / self.to))
-        self._mission_done = False
-        self._mission_wall0: float | None = None
-        self._last_sample_wall: float | None = None
-        self.loop = LoopStats()
+        self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
         self.disarmed = False
-        # on our own clock in real time the vehicle's clock must run at our rate (offboard.clockrate);
-        # AUTO measures it and then follows the vehicle's clock if it does not
-        self._on_vehicle_clock = not self.config.lockstep and self.config.clock == SampleClock.VEHICLE
-        self._clock_meter: ClockRateMeter | None = None
-        if not (self.config.lockstep or self._on_vehicle_clock):
-            self._clock_meter = ClockRateMeter()
+
+    @property
+    def to(self) -> float:
+        """The sample time To (s): the choice's, and once resolved the controller's."""
+        return self.sampler.to
 
     # -- public ----------------------------------------------------------------------------------
 
@@ -277,9 +217,9 @@ class Flight:
                 status, detail = FlightStatus.REJECTED, str(exc)
             except FlightEnd as end:
                 status, detail = end.status, end.detail
-            self._mission_done = True  # whatever happens next is not part of the mission's record
+            self.sampler.mission_done = True  # whatever happens next is not part of the mission's record
             if status in (FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED):
-                self._source = None  # never send that output again
+                self.sampler.source = None  # never send that output again
             if status in (FlightStatus.COMPLETE, FlightStatus.INTERRUPTED, FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED) or (
                 status is FlightStatus.REJECTED and self.armed_by_us
             ):
@@ -291,16 +231,15 @@ class Flight:
             detail = (detail + "; " if detail else "") + "second interrupt: stopped waiting for the landing"
         if status is FlightStatus.INTERRUPTED and not detail:
             detail = "interrupted by the user"
-        if self._mission_wall0 is not None:
-            end = self._last_sample_wall if self._last_sample_wall is not None else self.clock()
-            self.loop.mission_wall_s = end - self._mission_wall0
+        loop = self.sampler.finish()
         record = self.rows.build(phases=self.phases, status=status, status_detail=detail, meta=self.meta)
-        for builder in (self.rows, self.loop.periods):
+        for builder in (self.rows, loop.periods):
             if builder.spool_error is not None:
                 self._note(builder.spool_error)
         return FlightResult(
             record=record, status=status, detail=detail, controller=self.params, scaling=self.scaling,
-            vehicle_params=dict(self.client.vehicle_params), loop=self.loop, outages=list(self.supervisor.outages), timesync=self.client.timesync,
+            vehicle_params=dict(self.client.vehicle_params), loop=loop, outages=list(self.supervisor.outages),
+            timesync=self.client.timesync,
             landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.client.target,
             home_offset_ned_m=self.home_offset_ned_m,
         )  # fmt: skip
@@ -320,7 +259,7 @@ class Flight:
         # stream from now on: a lockstep plant then never waits on us (no keepalives, same bytes
         # every run), and PX4 sees setpoints well before OFFBOARD is asked for
         self.supervisor.watching = True
-        self._source = self._hold_source
+        self.sampler.source = self._hold_source
 
     def _prepare(self) -> None:
         cfg, choice, client = self.config, self.choice, self.client
@@ -375,7 +314,7 @@ class Flight:
         for note in notes:
             self._say(note)
         if abs(self.params.sample_time_s - self.to) > 1e-12:
-            self.to = self.params.sample_time_s
+            self.sampler.to = self.params.sample_time_s
         if "PAP_TO" in p and abs(p["PAP_TO"] - self.to) > 1e-6:
             self._say(f"note: the vehicle's PAP_TO is {p['PAP_TO']:g} s, the controller's To {self.to:g} s "
                       "(its paper inner loop then differs from the in-process run)")
@@ -419,8 +358,9 @@ class Flight:
                       + "; ".join(refused))
 
     def _stream_and_arm(self) -> None:
-        target = self._samples_sent + self.config.prestream_samples
-        self._pump(lambda: self._samples_sent >= target)
+        sampler = self.sampler
+        target = sampler.samples_sent + self.config.prestream_samples
+        self._pump(lambda: sampler.samples_sent >= target)
         self._check_clock_rate()
         command, params = codec.set_mode_offboard_params()
         self.client.command(command, params, took_effect=lambda st: st.offboard)
@@ -435,9 +375,9 @@ class Flight:
     def _fly_mission(self) -> None:
         assert self.controller is not None
         self.controller.reset()
-        self._mission_tick0 = None
-        self._source = self._mission_source
-        self._pump(lambda: self._mission_done)
+        sampler = self.sampler
+        sampler.source = self._mission_source
+        self._pump(lambda: sampler.mission_done)
 
     def _land_and_disarm(self) -> tuple[FlightStatus | None, str]:
         """NAV_LAND, wait for the ground, disarm. Returns a status only if this itself failed."""
@@ -445,15 +385,15 @@ class Flight:
         self.supervisor.expect_offboard = self.supervisor.expect_armed = False
         if not self.armed_by_us:
             return None, ""
+        client = self.client
         try:
             if self.supervisor.in_outage:
                 return FlightStatus.LINK_LOST, "telemetry lost before the landing"
             self._say("landing (MAV_CMD_NAV_LAND)")
             command, params = codec.land_params()
-            self.client.command(command, params, took_effect=lambda st: st.landing)
-            self._source = self._idle_source
+            client.command(command, params, took_effect=lambda st: st.landing)
+            self.sampler.source = self._idle_source
             deadline = self.clock() + self.config.land_timeout_s
-            client = self.client
             on_ground = lambda: client.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND or (  # noqa: E731
                 client.status is not None and not client.status.armed
             )
@@ -466,7 +406,7 @@ class Flight:
                 return None, ""
             command, params = codec.arm_params(False)
             try:
-                self.client.command(command, params, took_effect=lambda st: not st.armed)
+                client.command(command, params, took_effect=lambda st: not st.armed)
             except CommandRejected as exc:
                 # on the ground but not yet landed by the vehicle's own detector (its Land mode
                 # still running): it disarms itself once it is (PX4's COM_DISARM_LAND)
@@ -505,12 +445,12 @@ class Flight:
     def _check_clock_rate(self) -> None:
         """Before OFFBOARD, on our own clock: refuse a vehicle whose clock runs at another rate
         (``offboard.clockrate``); we keep streaming while the measurement completes."""
-        meter = self._clock_meter
+        meter = self.sampler.clock_meter
         if meter is None:
             return
         self._pump(lambda: meter.measure() is not None, 10.0)
         measured = meter.measure()
-        self._clock_meter = None  # measured once; no more pairs kept
+        self.sampler.clock_meter = None  # measured once; no more pairs kept
         if measured is None:
             return  # no telemetry to measure with: the telemetry watch reports that
         self.meta["clock_rate"] = measured.rate
@@ -521,16 +461,12 @@ class Flight:
         if measured.rate < STALLED_RATE:
             raise ClockMismatch(f"{measured.describe()}: a lockstep vehicle waits for our setpoints; fly it with --lockstep")
         if self.config.clock == SampleClock.AUTO:
-            self._on_vehicle_clock = True
+            self.sampler.on_vehicle_clock = True
             self.meta["clock"] = SampleClock.VEHICLE.value
             self._say(f"{measured.describe()}: sampling every {self.to * 1000:g} ms of the vehicle's clock")
             return
         raise ClockMismatch(f"{measured.describe()}, so a sample time of {self.to * 1000:g} ms of ours would be "
                             f"{self.to * measured.rate * 1000:.0f} ms of the vehicle's: fly it with --clock vehicle")
-
-    def _boot_ms(self) -> int:
-        """The latest ATTITUDE's ``time_boot_ms`` (ms; 0 before the first)."""
-        return int(self._att.time_boot_ms) if self._att is not None else 0
 
     # -- the pump: every wait goes through here ----------------------------------------------------
 
@@ -556,25 +492,10 @@ class Flight:
                 self._handle(msg)
 
     def _service(self, now: float) -> float:
-        """Time-driven work (heartbeat, real-time samples, staleness); returns how long to wait."""
+        """Time-driven work (heartbeat, staleness, real-time samples); returns how long to wait (s)."""
         wait = min(0.05, self.client.service(now))
         wait = min(wait, self.supervisor.service(now))
-        if not self.config.lockstep and not self._on_vehicle_clock and self._source is not None:
-            if self._next_tick_s is None:
-                self._next_tick_s = now
-            if now >= self._next_tick_s:
-                late = now - self._next_tick_s
-                if late >= self.to:  # a whole period late: skip the missed samples
-                    skipped = int(late // self.to)
-                    self._tick += skipped
-                    self._next_tick_s += skipped * self.to
-                    if self._mission_tick0 is not None:
-                        self.loop.overruns += skipped
-                if not self._sample(now) and self._mission_tick0 is not None and not self._mission_done:
-                    self.loop.missed += 1  # no setpoint this period (telemetry stale)
-                self._tick += 1
-                self._next_tick_s += self.to
-            wait = min(wait, self._next_tick_s - self.clock())
+        wait = min(wait, self.sampler.service(now))
         return max(wait, 0.0)
 
     # -- handling one message ----------------------------------------------------------------------
@@ -596,18 +517,9 @@ class Flight:
             client.handle(msg)
 
     def _on_telemetry(self, msg: mavlink.MAVLink_message) -> None:
+        sampler = self.sampler
         try:
-            if msg.get_type() == "ATTITUDE":
-                codec.check_attitude(msg)
-                if self._att is None or int(msg.time_boot_ms) != int(self._att.time_boot_ms):
-                    self._stamps_since_sample += 1  # a lockstep vehicle: one a period
-                self._att = msg
-                self._recent_att[int(msg.time_boot_ms)] = msg
-                if len(self._recent_att) > codec.RECENT_ATTITUDES:
-                    del self._recent_att[next(iter(self._recent_att))]
-            else:
-                codec.check_local_position(msg)
-                self._lpn = msg
+            sampler.take(msg)
         except codec.BadTelemetry as exc:
             self._note(f"ignored: {exc}")
             return
@@ -615,14 +527,13 @@ class Flight:
             self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
         now = self.clock()
         self.supervisor.heard(now)
-        if self._clock_meter is not None and msg.get_type() == "ATTITUDE":
-            self._clock_meter.add(now, int(msg.time_boot_ms))
-        if self.supervisor.in_outage and self._att is not None and self._lpn is not None:
+        sampler.meter(msg, now)
+        if self.supervisor.in_outage and sampler.has_telemetry:
             self.supervisor.telemetry_back(now)
-            if self.controller is not None and self._mission_tick0 is not None:
+            if self.controller is not None and sampler.mission_started:
                 self.controller.reset()  # its memory is a gap old: restart it from the measured state
         self._lockstep_sample_if_due()
-        self._vehicle_clock_sample_if_due()
+        sampler.vehicle_clock_sample_if_due()
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         status = self.client.on_heartbeat(msg)
@@ -630,84 +541,18 @@ class Flight:
             self.supervisor.on_heartbeat(status, self.client.statustexts)
         except FlightEnd as end:
             if end.stop_setpoints:
-                self._source = None  # we stop commanding at once
+                self.sampler.source = None  # we stop commanding at once
             raise
 
     # -- sampling ----------------------------------------------------------------------------------
 
     def _lockstep_sample_if_due(self) -> None:
-        if not self.config.lockstep or self._source is None or self._att is None or self._lpn is None:
-            return
-        t_ms = int(self._att.time_boot_ms)
-        if t_ms != int(self._lpn.time_boot_ms) or t_ms == self._answered_ms:
-            return
-        if self._prev_sample_ms is not None:
-            step = t_ms - self._prev_sample_ms
-            if step != int(round(self.to * 1000)) and self._samples_sent > 1:
-                if self._stamps_since_sample > 1:
-                    # a lockstep vehicle sends one stamp a period and waits; this one did not wait
-                    raise LockstepMismatch(f"the vehicle is not in lockstep: its ATTITUDE advanced {self._stamps_since_sample} "
-                                           f"stamps ({step} ms) without waiting for our setpoint; start sitl-plant with "
-                                           "--lockstep, or fly without --lockstep")  # fmt: skip
-                raise LockstepMismatch(f"the lockstep plant advances {step} ms a period but the controller's To is "
-                                       f"{self.to * 1000:g} ms: start sitl-plant with --lockstep-period {self.to:g}")
-        self.client.heartbeat_if_due_ms(t_ms)
-        if self._sample(self.clock()):  # unanswered (nothing to send yet): the plant still waits for it
-            self._stamps_since_sample = 0
-            self._prev_sample_ms = t_ms
-            self._answered_ms = t_ms
-            self._tick += 1
-
-    def _vehicle_clock_sample_if_due(self) -> None:
-        """On the vehicle's clock: a sample when the position's ``time_boot_ms`` reaches the next
-        tick (late by whole periods: those are skipped and counted, as in real time)."""
-        if not self._on_vehicle_clock or self._source is None or self._att is None or self._lpn is None:
-            return
-        t_ms = float(self._lpn.time_boot_ms)
-        period_ms = self.to * 1000.0
-        if self._next_tick_ms is None:
-            self._next_tick_ms = t_ms
-        if t_ms < self._next_tick_ms:
-            return
-        late = t_ms - self._next_tick_ms
-        if late >= period_ms:
-            skipped = int(late // period_ms)
-            self._tick += skipped
-            self._next_tick_ms += skipped * period_ms
-            if self._mission_tick0 is not None:
-                self.loop.overruns += skipped
-        # the position came this long after the tick: the references are taken at its instant, so
-        # that state and reference are of one time (the streams' stamps need not fall on the ticks:
-        # sitl-plant's 100 Hz on its 4 ms steps are 8 and 12 ms apart, and the samples then fell
-        # 40 and 60 ms apart, reading 2 m/s of helix as a 2 cm ripple of the error)
-        self._sample_late_s = (t_ms - self._next_tick_ms) / 1000.0
-        if not self._sample(self.clock()) and self._mission_tick0 is not None and not self._mission_done:
-            self.loop.missed += 1
-        self._tick += 1
-        self._next_tick_ms += period_ms
-
-    def _sample(self, now: float) -> bool:
-        """Run the current setpoint source on the freshest telemetry; whether a setpoint went out."""
-        source = self._source
-        if source is None or self._att is None or self._lpn is None or self.supervisor.in_outage:
-            return False
-        if self.config.lockstep:
-            # the plant waits for this answer: new telemetry is due within the timeout from now
-            self.supervisor.heard(now)
-        elif self.supervisor.stale(now):
-            return False  # stale: the supervisor declares the outage
-        try:
-            # the attitude of the position's own instant when we have it: one coherent sample
-            att = self._recent_att.get(int(self._lpn.time_boot_ms), self._att)
-            measured = codec.measured_state(att, self._lpn)
-        except codec.BadTelemetry:
-            return False
-        msg = source(measured)
-        if msg is None:
-            return False
-        self.link.send(msg)
-        self._samples_sent += 1
-        return True
+        """In lockstep: the sample answering the latest telemetry, once both have come (our
+        heartbeat first when a second of the vehicle's time has passed)."""
+        t_ms = self.sampler.lockstep_due()
+        if t_ms is not None:
+            self.client.heartbeat_if_due_ms(t_ms)
+            self.sampler.sample_lockstep(t_ms)
 
     def _setpoint_message(self, sp: codec.AttitudeSetpoint | codec.ActuatorSetpoint, t_ms: int) -> mavlink.MAVLink_message:
         target = self.client.target
@@ -723,7 +568,8 @@ class Flight:
     def _idle_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
         """While the vehicle lands by itself: not flown; hover thrust in the air, 0 on the ground."""
         thrust = 0.0
-        if self.params is not None and self.scaling is not None and self.client.landed_state != mavlink.MAV_LANDED_STATE_ON_GROUND:
+        on_ground = self.client.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+        if self.params is not None and self.scaling is not None and not on_ground:
             thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
         if self._progress is not None:  # the landing's progress: seconds since it began, where the vehicle is
             if self._landing_ms is None:
@@ -735,34 +581,28 @@ class Flight:
     def _mission_source(self, measured: MeasuredState) -> mavlink.MAVLink_message | None:
         """One sample of the mission: the same computation as ``run_scenario``'s, from telemetry."""
         assert self.controller is not None and self.params is not None and self.scaling is not None
+        sampler = self.sampler
         now = self.clock()
-        if self._mission_tick0 is None:
-            self._mission_tick0 = self._tick
-            self._mission_wall0 = now
+        if not sampler.mission_started:
             self._say_start(measured)
-        n = self._tick - self._mission_tick0
-        recording = not self._mission_done and n <= self._mission_samples
-        t = n * self.to + (self._sample_late_s if self._on_vehicle_clock else 0.0)
+        n, t = sampler.mission_sample(now)
+        recording = not sampler.mission_done and n <= self._mission_samples
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
         command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
         if recording:
             if why:
                 raise FlightEnd(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
-            if self._last_sample_wall is not None:
-                self.loop.add_period(now - self._last_sample_wall)
-            self._last_sample_wall = now
-            self.loop.samples += 1
-            self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms,
-                             sample_wall_s=now - (self._mission_wall0 or now))  # fmt: skip
+            wall_s = sampler.recorded(now)
+            self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms, sample_wall_s=wall_s)
             if self._progress is not None:
                 err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]
         if not command.is_finite():
-            self._source = None
+            sampler.source = None
             raise FlightEnd(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
         if n >= self._mission_samples:
-            self._mission_done = True
+            sampler.mission_done = True
         sp = codec.command_setpoint(command, self.scaling, output=self.config.output, model=self.config.model,
                                     controller=self.controller.name)  # fmt: skip
         return self._setpoint_message(sp, measured.time_boot_ms)
