@@ -474,11 +474,11 @@ OFFBOARD_PARTS = (
     ("sendto (incl. preempted by the woken peer) + tlog", (("send", "offboard/link.py"),)),
     ("state decoding (codec, paper frame)", (("measured_state", "offboard/codec.py"), ("paper_state_of", "offboard/controller/paper.py"))),
     ("controller law", (("step", "offboard/controller/"), ("law_step", "offboard/controller/"))),
-    ("reference, setpoint encoding, records", (("_sample", "offboard/flight.py"),)),
-    ("handling telemetry", (("_handle", "offboard/flight.py"),)),
+    ("reference, setpoint encoding, records", (("sample", "offboard/flight/sampler.py"),)),
+    ("handling telemetry", (("_handle", "offboard/flight/mission.py"),)),
 )
 PLANT_SCOPE = ("run_lockstep", "sitl_plant/server.py")
-OFFBOARD_SCOPE = ("_fly_mission", "offboard/flight.py")
+OFFBOARD_SCOPE = ("_fly_mission", "offboard/flight/mission.py")
 
 
 def py_spy() -> str | None:
