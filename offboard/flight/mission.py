@@ -293,8 +293,9 @@ class Flight:
             rtt_s = client.timesync["rtt_ms"] / 1000.0 if client.timesync else 0.0
             rate_hz = cfg.telemetry_rate_for(self.to)
             period_s = 1.0 / rate_hz if rate_hz else 0.0
-            choice = replace(choice, latency_s=rtt_s + period_s)
-            self._say(f"latency {choice.latency_s * 1000:.0f} ms for the design: TIMESYNC round trip "
+            latency_s = rtt_s + period_s
+            choice = replace(choice, latency_s=latency_s)
+            self._say(f"latency {latency_s * 1000:.0f} ms for the design: TIMESYNC round trip "
                       f"{rtt_s * 1000:.1f} ms + one telemetry period {period_s * 1000:.0f} ms")
         try:
             if choice.tuned and not cfg.lockstep:

@@ -310,8 +310,9 @@ class VehicleClient:
             self._timesync_ts1 = ts1
             self._timesync_reply = None
             self.link.send(codec.timesync_request(ts1))
-            if self._wait(lambda: self._timesync_reply is not None, TIMESYNC_TIMEOUT_S):
-                tc1, now_ns = self._timesync_reply  # type: ignore[misc]
+            answered = self._wait(lambda: self._timesync_reply is not None, TIMESYNC_TIMEOUT_S)
+            if answered and self._timesync_reply is not None:
+                tc1, now_ns = self._timesync_reply
                 offset, rtt = codec.timesync_offset_ns(ts1, tc1, now_ns)
                 self.timesync = {"offset_ms": offset / 1e6, "rtt_ms": rtt / 1e6}
                 self._timesync_ts1 = None
