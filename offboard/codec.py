@@ -43,7 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from offboard.controller.command import VEHICLE_MODELS, Command, require
+from offboard.controller.command import Command, require
+from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
 from offboard.model.rotations import quat_from_euler
@@ -54,7 +55,6 @@ PX4_MAIN_MODE_AUTO = px4_modes.MAIN_AUTO
 PX4_SUB_MODE_AUTO_LAND = px4_modes.SUB_AUTO_LAND
 
 #: The vehicle models the offboard process knows how to talk to (``--model``).
-MODELS = VEHICLE_MODELS
 #: The setpoint messages the law's output can travel in (``--output``; ``command_setpoint``): an
 #: attitude and thrust, body rates and thrust (both SET_ATTITUDE_TARGET, as PX4 takes them), or
 #: SET_ACTUATOR_CONTROL_TARGET torques.
@@ -145,8 +145,8 @@ def euler_rate_form_for(model: str, controller_form: str) -> str:
     angles and true body rates, so ``zyx``; the paper's model reports its generalised
     coordinates with its own W_eta, which the controller file names (``castillo``).
     """
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if model not in VEHICLE_MODELS:
+        raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {model!r}")
     return "zyx" if model == "rigid-body" else controller_form
 
 
@@ -238,8 +238,8 @@ def command_setpoint(command: Command, scaling: Scaling, *, output: str, model: 
     """
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if model not in VEHICLE_MODELS:
+        raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {model!r}")
     thrust = thrust_norm(command.thrust_n, scaling)
     if output == "actuator":
         if scaling.torque_roll_pitch_max_nm is None or scaling.torque_yaw_max_nm is None:

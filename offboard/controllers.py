@@ -16,7 +16,8 @@ import enum
 import math
 
 from offboard.baselines import Px4Gains, Px4PositionController, SE3Controller
-from offboard.controller.command import Controller, VehicleModel
+from offboard.controller.command import Controller
+from offboard.model.vehicle import VehicleModel
 from offboard.controller.paper import PaperController
 from offboard.controller.params import ControllerParams
 

@@ -25,17 +25,18 @@ report are those the MAVLink process uses (``offboard.controller.paper``).
 from __future__ import annotations
 
 import enum
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from offboard.controller import ControllerParams
-from offboard.controller.command import VEHICLE_MODELS, Command, Controller, VehicleModel, require
+from offboard.controller.command import Command, Controller, require
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.paper import PaperController
+from offboard.metrics import lost_reason
 from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
@@ -43,6 +44,9 @@ from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_
 from sitl_plant.dynamics.wind import wind_from_spec
 from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, VehicleSim, WindField, make_model
 from offboard.model.vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from sitl_plant.inner_loops import Px4Loop
 
 
 class Drive(enum.StrEnum):
@@ -57,7 +61,6 @@ class Drive(enum.StrEnum):
 DRIVES = tuple(d.value for d in Drive)
 #: The drives of a scenario file (the paper's controller): all but a baseline's own attitude law.
 SCENARIO_DRIVES = (Drive.INNER_LOOP.value, Drive.HELD_TORQUE.value, Drive.PX4.value)
-MODELS = VEHICLE_MODELS
 
 
 class VehicleLoop(Protocol):
@@ -109,7 +112,7 @@ class Px4AttitudeLoop:
     """``px4``: PX4's attitude and rate controllers fly the attitude target (``Px4Loop``)."""
 
     vehicle: VehicleParams
-    loop: object = None
+    loop: Px4Loop | None = None
 
     def bind(self, sim: VehicleSim) -> None:
         from sitl_plant.inner_loops import Px4Loop
@@ -120,8 +123,8 @@ class Px4AttitudeLoop:
 
     def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
         assert self.loop is not None, "bind() first"
-        self.loop.fly_attitude(command.attitude_wxyz, command.thrust_n, command.yaw_rate_ff_rad_s)  # type: ignore[attr-defined]
-        return self.loop  # type: ignore[return-value]
+        self.loop.fly_attitude(command.attitude_wxyz, command.thrust_n, command.yaw_rate_ff_rad_s)
+        return self.loop
 
 
 class HasAttitudeLaw(Protocol):
@@ -162,15 +165,8 @@ def vehicle_loop(drive: Drive | str, controller: Controller, vehicle: VehiclePar
 
 
 def _diverged(sim: VehicleSim, euler_rad: np.ndarray, pos_ned_m: np.ndarray) -> str:
-    """Why the true state means the flight is lost ('' if it is not)."""
-    if not np.all(np.isfinite(sim.x)):
-        return "the simulated state is no longer finite"
-    phi, theta = float(euler_rad[0]), float(euler_rad[1])
-    if math.cos(phi) * math.cos(theta) <= 0.0:
-        return f"tilt past 90 degrees (roll {math.degrees(phi):.0f}, pitch {math.degrees(theta):.0f} deg)"
-    if float(np.max(np.abs(pos_ned_m))) > 1e4:
-        return "position beyond 10 km"
-    return ""
+    """Why the true state means the flight is lost ('' if it is not; ``metrics.lost_reason``)."""
+    return lost_reason(bool(np.all(np.isfinite(sim.x))), float(euler_rad[0]), float(euler_rad[1]), pos_ned_m, "simulated")
 
 
 @dataclass
@@ -371,8 +367,8 @@ class Scenario:
     source: str = ""
 
     def __post_init__(self) -> None:
-        if self.model not in MODELS:
-            raise ValueError(f"model must be one of {MODELS}, got {self.model!r}")
+        if self.model not in VEHICLE_MODELS:
+            raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {self.model!r}")
         if self.drive not in SCENARIO_DRIVES:
             raise ValueError(f"drive must be one of {SCENARIO_DRIVES}, got {self.drive!r}")
         steps_per_period(self.controller.sample_time_s, self.physics_dt_s)

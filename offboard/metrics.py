@@ -29,6 +29,8 @@ STEADY_FRACTION = 0.25  # steady-state error: mean over the last quarter of a ho
 #: did not follow that step at all is off.
 LOST_TRACK_M = 10.0
 LOST_TRACK_WINDOW_S = 1.0
+#: Beyond this on any axis from the origin a flight is called diverged (m).
+MAX_POSITION_M = 1e4
 #: A reference step: the reference moves more than STEP_M between two samples (m); after one, the
 #: transient lasts until the 3D error first falls below SETTLED_M (m). What follows, to the next
 #: step, is tracking. The law's velocity integral holds over the same transients: one definition,
@@ -183,6 +185,27 @@ def verdict(summary: Summary) -> str:
         return f"never within {SETTLED_M:g} m of the reference{after}; {tilt}"
     s = summary.settled
     return f"tracked within {s.max_m:.3f} m{after} (3D RMS {s.rms_m:.3f} m); {tilt}"
+
+
+def lost(finite: np.ndarray | bool, roll_rad: np.ndarray | float, pitch_rad: np.ndarray | float,
+         pos_ned_m: np.ndarray) -> np.ndarray:
+    """Whether a state means the flight is lost (DIVERGED): not finite, tilted past 90 degrees, or
+    beyond ``MAX_POSITION_M`` on an axis. Elementwise over a batch (``pos_ned_m`` (..., 3)); the
+    one rule of the in-process flight, the batched sweep and the MAVLink flight."""
+    far = np.max(np.abs(np.asarray(pos_ned_m, dtype=float)), axis=-1) > MAX_POSITION_M
+    return np.logical_not(finite) | (np.cos(roll_rad) * np.cos(pitch_rad) <= 0.0) | far
+
+
+def lost_reason(finite: bool, roll_rad: float, pitch_rad: float, pos_ned_m: np.ndarray, state: str) -> str:
+    """Why (one line) a state means the flight is lost ('' if it does not): ``lost``'s rule, in the
+    order a reader needs it; ``state`` says whose state it is (measured, simulated)."""
+    if not finite:
+        return f"the {state} state is no longer finite"
+    if math.cos(roll_rad) * math.cos(pitch_rad) <= 0.0:
+        return f"tilt past 90 degrees (roll {math.degrees(roll_rad):.0f}, pitch {math.degrees(pitch_rad):.0f} deg)"
+    if float(np.max(np.abs(pos_ned_m))) > MAX_POSITION_M:
+        return "position beyond 10 km"
+    return ""
 
 
 def end_error_m(record: FlightRecord, window_s: float = LOST_TRACK_WINDOW_S) -> float:

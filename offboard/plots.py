@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -33,6 +34,9 @@ from matplotlib.figure import Figure
 
 from offboard.record import FlightRecord, FlightStatus
 from offboard.model.rotations import wrap_pi
+
+if TYPE_CHECKING:  # only the annotation: the design's modules load with offboard tune --plot
+    from offboard.controller.design import Design
 
 #: File stems of the figures ``write_figures`` writes, in order.
 FIGURE_NAMES = ("path3d", "position", "attitude", "errors", "actions")
@@ -276,21 +280,21 @@ def comparison_figure(
     return fig
 
 
-def design_figure(design: object, path: Path) -> Path:
+def design_figure(design: Design, path: Path) -> Path:
     """``offboard tune --plot``: the north axis's loop gain, phase and closed-loop poles, designed
     gains against Table I's (docs/controller-design.md)."""
     from offboard.controller.design import AxisGains, analyse_axis, axis_plants, loop_response
     from offboard.controller.params import ControllerGains
 
     table1 = ControllerGains()
-    to = design.sample_time_s  # type: ignore[attr-defined]
-    north, _, _ = axis_plants(design.model, to)  # type: ignore[attr-defined]
+    to = design.sample_time_s
+    north, _, _ = axis_plants(design.model, to)
     fig = Figure(figsize=(10.0, 4.2), dpi=DPI, layout=LAYOUT)
     FigureCanvasAgg(fig)
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.13, top=0.88, wspace=0.3, hspace=0.08)
     grid = fig.add_gridspec(2, 2, width_ratios=(1.6, 1.0))
     ax_mag, ax_ph, ax_z = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[:, 1])
-    cases = (("Table I", AxisGains(table1.kx1, table1.kx2), "tab:red"), ("designed", design.horizontal, "tab:blue"))  # type: ignore[attr-defined]
+    cases = (("Table I", AxisGains(table1.kx1, table1.kx2), "tab:red"), ("designed", design.horizontal, "tab:blue"))
     for name, gains, color in cases:
         w, loop = loop_response(north, gains, to)
         a = analyse_axis(north, gains, to)
@@ -312,5 +316,5 @@ def design_figure(design: object, path: Path) -> Path:
     ax_z.set_xlabel("Re z")
     ax_z.set_ylabel("Im z")
     ax_z.legend(fontsize=7, loc="lower left")
-    fig.suptitle(f"north axis loop broken at the tilt setpoint, To {to:g} s, latency {design.model.latency_s * 1000:.0f} ms")  # type: ignore[attr-defined]
+    fig.suptitle(f"north axis loop broken at the tilt setpoint, To {to:g} s, latency {design.model.latency_s * 1000:.0f} ms")
     return save_figure(fig, path)

@@ -25,7 +25,8 @@ from pathlib import Path
 
 from offboard.controller.params import controller_from_table, load_controller
 from offboard.errors import ParameterFileError
-from offboard.inprocess import MODELS, SCENARIO_DRIVES, Scenario
+from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.inprocess import SCENARIO_DRIVES, Scenario
 from offboard.model.tomlfile import Fields, read_toml
 from offboard.model.vehicle import load_vehicle, vehicle_from_table
 
@@ -60,7 +61,7 @@ def load_scenario(path: str | Path) -> Scenario:
     initial_yaw_deg = s.number("initial_yaw_deg", 0.0)
     fields = dict(
         name=s.string("name", path.stem),
-        model=s.string("model", "paper", choices=tuple(sorted(MODELS))),
+        model=s.string("model", "paper", choices=tuple(sorted(VEHICLE_MODELS))),
         drive=s.string("drive", "inner-loop", choices=SCENARIO_DRIVES),
         physics_dt_s=s.number("physics_dt_s", 1e-3, gt=0),
         duration_s=None if duration is None else s.number("duration_s", gt=0),

@@ -26,7 +26,7 @@ from sitl_plant.params import plant_params
 from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
 from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
 from sitl_plant.server import Plant, PlantConfig, run_lockstep, run_realtime
-from sitl_plant.simulation import MODELS
+from offboard.model.vehicle import VEHICLE_MODELS
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
 GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link
@@ -47,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_version(parser, "sitl-plant")
     sim = parser.add_argument_group("simulation")
-    sim.add_argument("--model", choices=MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
+    sim.add_argument("--model", choices=VEHICLE_MODELS, default="rigid-body", help="dynamics: Newton-Euler rigid body, or the paper's model (eq. 13, 18)")
     sim.add_argument("--vehicle", metavar="FILE", type=Path, default=DEFAULT_VEHICLE_FILE,
                      help="vehicle parameter file (TOML); bundled: sitl-quad (default, hovers at 0.5 as PX4 SITL), "
                           "paper-quad (the paper's, hovers at 0.25), px4-sih (PX4 SITL's SIH quadrotor)")

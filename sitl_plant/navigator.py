@@ -46,9 +46,8 @@ than asked: PX4 v1.16 SIH flew 1.37 m/s when asked 2 m/s on 5 m (docs/parity/mis
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from sitl_plant.mission import (
@@ -61,6 +60,7 @@ from sitl_plant.mission import (
     NAV_WAYPOINT,
     MissionItem,
 )
+from sitl_plant.params import ParamTable
 
 EARTH_RADIUS_M = 6_371_000.0  # PX4's CONSTANTS_RADIUS_OF_EARTH (the plant's codec uses the same)
 _POSITION_COMMANDS = (NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LOITER_UNLIM, NAV_TAKEOFF, NAV_LAND)
@@ -156,7 +156,10 @@ class _Leg:
 
     def _direction(self) -> tuple[float, float, float]:
         n = self.length
-        return (0.0, 0.0, 0.0) if n < 1e-9 else tuple((b - a) / n for a, b in zip(self.start, self.end))  # type: ignore[return-value]
+        if n < 1e-9:
+            return (0.0, 0.0, 0.0)
+        (n0, e0, d0), (n1, e1, d1) = self.start, self.end
+        return ((n1 - n0) / n, (e1 - e0) / n, (d1 - d0) / n)
 
     def step(self, dt: float) -> None:
         d = self._direction()
@@ -178,11 +181,11 @@ class _Leg:
 
     def point(self) -> tuple[float, float, float]:
         d = self._direction()
-        return tuple(a + self.s * di for a, di in zip(self.start, d))  # type: ignore[return-value]
+        return (self.start[0] + self.s * d[0], self.start[1] + self.s * d[1], self.start[2] + self.s * d[2])
 
     def velocity(self) -> tuple[float, float, float]:
         d = self._direction()
-        return tuple(self.v * di for di in d)  # type: ignore[return-value]
+        return (self.v * d[0], self.v * d[1], self.v * d[2])
 
 
 @dataclass
@@ -206,7 +209,7 @@ class Navigator:
     params : mapping of parameter names to values (the plant's ParamTable), read at every use.
     """
 
-    params: object
+    params: ParamTable
     items: list[MissionItem] = field(default_factory=list)
     current_seq: int = 0
     reached_seq: int = -1
@@ -229,7 +232,7 @@ class Navigator:
     wants_rtl: bool = False
 
     def _p(self, name: str) -> float:
-        return float(self.params[name])  # type: ignore[index]
+        return float(self.params[name])
 
     # -- what the autopilot tells it --------------------------------------------------------------
 
@@ -324,9 +327,11 @@ class Navigator:
                 return NavSetpoint(r.target, self._yaw_sp)
             return NavSetpoint(r.target, self._yaw_sp, self._orbit_vel, hold_xy=False, acc_ff_ne_m_s2=self._orbit_acc)
         if r.phase == "land":
-            return NavSetpoint((r.target[0], r.target[1], self._pos[2]), self._yaw_sp, descend_m_s=self._land_speed(), landing=True)  # type: ignore[index]
+            assert r.target is not None, "a landing has its target"
+            return NavSetpoint((r.target[0], r.target[1], self._pos[2]), self._yaw_sp, descend_m_s=self._land_speed(), landing=True)
         if r.phase == "takeoff":
-            return NavSetpoint(r.target, self._yaw_sp, max_climb_m_s=self._p("MPC_TKO_SPEED"), takeoff=True)  # type: ignore[arg-type]
+            assert r.target is not None, "a take-off has its target"
+            return NavSetpoint(r.target, self._yaw_sp, max_climb_m_s=self._p("MPC_TKO_SPEED"), takeoff=True)
         if r.leg is not None:
             climb = self._p("MPC_TKO_SPEED") if self._activity == "reposition" and self._from_ground else None
             return NavSetpoint(r.leg.point(), self._yaw_sp, r.leg.velocity(), max_climb_m_s=climb)
@@ -411,15 +416,18 @@ class Navigator:
         c = item.command
         if r.phase == "":
             return True  # a DO item (or one the plant does not fly)
+        t = r.target
         if r.phase == "takeoff":
-            if self._pos[2] <= r.target[2] + self._p("NAV_MC_ALT_RAD"):  # type: ignore[index]
+            assert t is not None
+            if self._pos[2] <= t[2] + self._p("NAV_MC_ALT_RAD"):
                 if c == NAV_TAKEOFF:
                     return True
                 self._landed = False  # the take-off done, now fly the item itself
                 self._begin(item, now_s)
             return False
         if r.phase == "to-land":
-            if math.hypot(self._pos[0] - r.target[0], self._pos[1] - r.target[1]) <= self._p("NAV_ACC_RAD"):  # type: ignore[index]
+            assert t is not None
+            if math.hypot(self._pos[0] - t[0], self._pos[1] - t[1]) <= self._p("NAV_ACC_RAD"):
                 r.phase, r.leg = "land", None
             return False
         if r.phase == "land":
@@ -427,8 +435,8 @@ class Navigator:
         # goto: position, then yaw, then the hold time
         if r.hold_until_s is None:
             radius = item.params[1] if c == NAV_WAYPOINT and item.params[1] > 0 else self._p("NAV_ACC_RAD")
-            t = r.target
-            if math.hypot(self._pos[0] - t[0], self._pos[1] - t[1]) > radius or abs(self._pos[2] - t[2]) > self._p("NAV_MC_ALT_RAD"):  # type: ignore[index]
+            assert t is not None
+            if math.hypot(self._pos[0] - t[0], self._pos[1] - t[1]) > radius or abs(self._pos[2] - t[2]) > self._p("NAV_MC_ALT_RAD"):
                 return False
             if r.yaw is not None and abs(_wrap(self._yaw - r.yaw)) > math.radians(self._p("MIS_YAW_ERR")):
                 return False

@@ -21,6 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from offboard.model.euler_lagrange import euler_rate_matrix, real_torques
+from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.model.rotations import quat_from_euler
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
@@ -112,7 +113,6 @@ class PaperModel:
 
 
 #: The simulated vehicles: the rigid body with rotors (the default) and the paper's model.
-MODELS = ("rigid-body", "paper")
 
 
 def make_model(kind: str, vehicle: VehicleParams) -> Model:
@@ -123,7 +123,7 @@ def make_model(kind: str, vehicle: VehicleParams) -> Model:
         from sitl_plant.dynamics.rigid_body import RigidBodyModel
 
         return RigidBodyModel(vehicle)
-    raise ValueError(f"model must be one of {MODELS}, got {kind!r}")
+    raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {kind!r}")
 
 
 # --- actuation: what the inner loop asks of the model at each physics step ---------------

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TextIO
 
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
-from offboard.controller.command import VEHICLE_MODELS as MODELS
+from offboard.model.vehicle import VEHICLE_MODELS
 
 #: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
 PAPER_KEYWORD = "paper"
@@ -82,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ctl = parser.add_argument_group("controller")
     ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
-    ctl.add_argument("--model", choices=MODELS, default="rigid-body",
+    ctl.add_argument("--model", choices=VEHICLE_MODELS, default="rigid-body",
                      help="what the vehicle is: a rigid body (ZYX angles, W_eta zyx) or sitl-plant --model paper (the file's W_eta)")
     ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper|se3|px4",
                      help="controller file, or 'paper' for Table I's gains, or a baseline: 'se3' (Lee's SE(3) controller) "

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from offboard import jsonout
+from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.errors import UserError
 from offboard.model.paths import output_folder
 
@@ -305,7 +306,7 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     except ValueError as exc:
         raise ReplayArgumentError(f"--rerun: the vehicle's scaling in the log is unusable: {exc}") from None
     model = args.model or (summary_json or {}).get("model") or "rigid-body"
-    if model not in codec.MODELS:
+    if model not in VEHICLE_MODELS:
         model = "rigid-body"
     output = str(record.meta.get("commands") or "attitude")
     # offboard fly --output rates travels in SET_ATTITUDE_TARGET too: summary.json says so, else the

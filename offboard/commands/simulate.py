@@ -8,7 +8,8 @@ import time
 from pathlib import Path
 
 from offboard import jsonout
-from offboard.inprocess import MODELS, SCENARIO_DRIVES, run_scenario
+from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.inprocess import SCENARIO_DRIVES, run_scenario
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.scenario import load_scenario
@@ -30,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object instead of a table")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     parser.add_argument("--drive", choices=SCENARIO_DRIVES, default=None, help="override the scenario's way of driving the model")
-    parser.add_argument("--model", choices=sorted(MODELS), default=None, help="override the scenario's vehicle model")
+    parser.add_argument("--model", choices=sorted(VEHICLE_MODELS), default=None, help="override the scenario's vehicle model")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     parser.set_defaults(func=run)
 

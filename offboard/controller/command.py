@@ -24,7 +24,6 @@ asking for it is an error that names the controller. The controllers: ``PaperCon
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
@@ -38,20 +37,6 @@ if TYPE_CHECKING:
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
-
-
-class VehicleModel(enum.StrEnum):
-    """What the vehicle is, as the controller's command and its encoding see it: a rigid body
-    (PX4, any real vehicle; ``sitl-plant --model rigid-body``) or the paper's model of eq. 13 and
-    18 (``sitl-plant --model paper``), whose angles are generalised coordinates and whose torque
-    input is the generalised torque."""
-
-    RIGID_BODY = "rigid-body"
-    PAPER = "paper"
-
-
-#: The vehicle models by name, the rigid body (the default everywhere) first.
-VEHICLE_MODELS = tuple(m.value for m in VehicleModel)
 
 
 class StateEstimate(Protocol):

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from offboard.controller.command import VEHICLE_MODELS, Command, StateEstimate
+from offboard.controller.command import Command, StateEstimate
+from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity

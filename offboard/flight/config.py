@@ -13,6 +13,7 @@ from enum import StrEnum
 from typing import Protocol
 
 from offboard import codec
+from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.record import FlightStatus
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -113,8 +114,8 @@ class FlightConfig:
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
             raise ValueError(f"output must be one of {OUTPUTS}, got {self.output!r}")
-        if self.model not in codec.MODELS:
-            raise ValueError(f"model must be one of {codec.MODELS}, got {self.model!r}")
+        if self.model not in VEHICLE_MODELS:
+            raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {self.model!r}")
         for name in ("telemetry_timeout_s", "reconnect_timeout_s", "heartbeat_timeout_s", "command_timeout_s",
                      "param_timeout_s", "land_timeout_s"):  # fmt: skip
             value = getattr(self, name)

@@ -54,6 +54,7 @@ from offboard.flight.protocol import VehicleClient
 from offboard.flight.sampler import LoopStats, Sampler
 from offboard.flight.supervisor import Supervisor
 from offboard.missions.geo import mission_offset_ned
+from offboard.metrics import lost_reason
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.model.tlog import LOCKSTEP_EPOCH_S
 from offboard.trajectory.base import Trajectory
@@ -63,7 +64,6 @@ from pymavlink.dialects.v20 import common as mavlink
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
-MAX_POSITION_M = 1e4  # beyond 10 km the flight is called diverged (as run_scenario does)
 
 # --- results -------------------------------------------------------------------------------------
 
@@ -635,11 +635,5 @@ class Flight:
 def _diverged(measured: MeasuredState) -> str:
     """Why the measured state means the flight is lost ('' if it is not); as run_scenario."""
     values = np.concatenate([measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, measured.body_rate_frd_rad_s])
-    if not np.all(np.isfinite(values)):
-        return "the measured state is no longer finite"
-    phi, theta = measured.euler_rad[0], measured.euler_rad[1]
-    if math.cos(phi) * math.cos(theta) <= 0.0:
-        return f"tilt past 90 degrees (roll {math.degrees(phi):.0f}, pitch {math.degrees(theta):.0f} deg)"
-    if float(np.max(np.abs(measured.pos_ned_m))) > MAX_POSITION_M:
-        return "position beyond 10 km"
-    return ""
+    finite = bool(np.all(np.isfinite(values)))
+    return lost_reason(finite, float(measured.euler_rad[0]), float(measured.euler_rad[1]), measured.pos_ned_m, "measured")

@@ -18,6 +18,7 @@ coefficient in metres (``drag_to_thrust_m``).
 
 from __future__ import annotations
 
+import enum
 from typing import Any
 
 from dataclasses import dataclass, field
@@ -26,6 +27,20 @@ from pathlib import Path
 import numpy as np
 
 from offboard.model.tomlfile import Fields, read_toml
+
+
+class VehicleModel(enum.StrEnum):
+    """What the vehicle is, as the controller's command and its encoding see it: a rigid body
+    (PX4, any real vehicle; ``sitl-plant --model rigid-body``) or the paper's model of eq. 13 and
+    18 (``sitl-plant --model paper``), whose angles are generalised coordinates and whose torque
+    input is the generalised torque."""
+
+    RIGID_BODY = "rigid-body"
+    PAPER = "paper"
+
+
+#: The vehicle models by name, the rigid body (the default everywhere) first.
+VEHICLE_MODELS = tuple(m.value for m in VehicleModel)
 
 #: The bundled vehicle files: data of the simulator's package (sitl_plant/vehicles), found by
 #: path so that reading one imports nothing of the simulator.

@@ -28,7 +28,6 @@ differ.
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -38,6 +37,7 @@ from offboard.controller.law import NUMPY_OPS, LawMemory, law_step
 from offboard.controller.params import GAIN_NAMES, ControllerGains
 from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import tracking_reference
+from offboard.metrics import lost, lost_reason
 from offboard.record import FlightStatus
 from offboard.sweep.flight import Series, fly_one, row_of
 from offboard.sweep.spec import FlightSetup, FlightSpec, SweepSpec, scenario_of
@@ -235,18 +235,10 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
             out, new_memory = law_step(params, memory, state, tracking_reference(ref_n, lead),  # type: ignore[arg-type]
                                        tracking_reference(ref_n1, lead), NUMPY_OPS)  # fmt: skip
             memory = LawMemory(*(np.where(active, new, old) for new, old in zip(new_memory, memory)))
-            # simulate's _diverged, on the truth before the row is written
+            # simulate's check, on the truth before the row is written
             finite = np.all(np.isfinite(x), axis=1)
-            tilted = np.cos(euler[0]) * np.cos(euler[1]) <= 0.0
-            far = np.max(np.abs(x[:, 0:3]), axis=1) > 1e4
-            for i in np.nonzero(active & (~finite | tilted | far))[0]:
-                if not finite[i]:
-                    why = "the simulated state is no longer finite"
-                elif tilted[i]:
-                    why = (f"tilt past 90 degrees (roll {math.degrees(float(euler[0][i])):.0f}, "
-                           f"pitch {math.degrees(float(euler[1][i])):.0f} deg)")  # fmt: skip
-                else:
-                    why = "position beyond 10 km"
+            for i in np.nonzero(active & lost(finite, euler[0], euler[1], x[:, 0:3]))[0]:
+                why = lost_reason(bool(finite[i]), float(euler[0][i]), float(euler[1][i]), x[i, 0:3], "simulated")
                 status[i], detail[i] = FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}"
                 active[i] = False
             rec_pos[active, k] = x[active, 0:3]

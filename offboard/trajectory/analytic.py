@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from offboard.trajectory.base import Reference
 from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
@@ -52,7 +53,7 @@ class Hold(Segment):
         Phase name.
     """
 
-    def __init__(self, pos_ned_m: object, yaw_rad: float, duration_s: float, name: str = "hold") -> None:
+    def __init__(self, pos_ned_m: ArrayLike, yaw_rad: float, duration_s: float, name: str = "hold") -> None:
         super().__init__(duration_s, name, "hold")
         self._ref = Reference(pos_ned_m=vec3(pos_ned_m, "pos_ned_m"), yaw_rad=finite(yaw_rad, "yaw_rad"))
 
@@ -85,8 +86,8 @@ class Line(Segment):
 
     def __init__(
         self,
-        start_ned_m: object,
-        end_ned_m: object,
+        start_ned_m: ArrayLike,
+        end_ned_m: ArrayLike,
         speed_m_s: float,
         yaw_rad: float = 0.0,
         yaw_mode: str = "fixed",
@@ -141,7 +142,7 @@ class Helix(Segment):
 
     def __init__(
         self,
-        center_ned_m: object,
+        center_ned_m: ArrayLike,
         radius_m: float,
         angular_rate_rad_s: float,
         climb_rate_m_s: float,
@@ -191,7 +192,7 @@ class Helix(Segment):
 
 
 def circle(
-    center_ned_m: object,
+    center_ned_m: ArrayLike,
     radius_m: float,
     angular_rate_rad_s: float,
     duration_s: float,
@@ -231,10 +232,10 @@ class Lissajous(Segment):
 
     def __init__(
         self,
-        center_ned_m: object,
-        amplitude_m: object,
-        angular_rate_rad_s: object,
-        phase_rad: object,
+        center_ned_m: ArrayLike,
+        amplitude_m: ArrayLike,
+        angular_rate_rad_s: ArrayLike,
+        phase_rad: ArrayLike,
         duration_s: float,
         yaw_rad: float = 0.0,
         yaw_mode: str = "fixed",
@@ -286,7 +287,7 @@ class Lissajous(Segment):
 
 
 def figure_eight(
-    center_ned_m: object,
+    center_ned_m: ArrayLike,
     length_m: float,
     width_m: float,
     period_s: float,

@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def _vec3(value: object, name: str) -> np.ndarray:
+def _vec3(value: ArrayLike, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
     if arr.shape != (3,):
         raise ValueError(f"{name} must have 3 components, got {arr.shape[0]}")

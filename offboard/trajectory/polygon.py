@@ -10,6 +10,7 @@ from __future__ import annotations
 from bisect import bisect_right
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from offboard.trajectory.base import Reference
 from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
@@ -40,7 +41,7 @@ class Polygon(Segment):
 
     def __init__(
         self,
-        vertices_ned_m: object,
+        vertices_ned_m: ArrayLike,
         speed_m_s: float,
         closed: bool = True,
         laps: int = 1,
@@ -99,7 +100,7 @@ class Polygon(Segment):
 
 
 def square(
-    corner_ned_m: object,
+    corner_ned_m: ArrayLike,
     side_m: float,
     speed_m_s: float,
     first_side: str = "north",

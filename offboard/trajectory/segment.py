@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from offboard.trajectory.base import Phase, Reference
 from offboard.model.rotations import wrap_pi
@@ -85,7 +86,7 @@ class Segment(ABC):
         return f"{type(self).__name__}(name={self.name!r}, duration_s={self._duration_s:g})"
 
 
-def vec3(value: object, name: str) -> np.ndarray:
+def vec3(value: ArrayLike, name: str) -> np.ndarray:
     """A finite, read-only 3-vector of floats (raises ``ValueError`` naming ``name``)."""
     arr = np.array(value, dtype=float).reshape(-1)
     if arr.shape != (3,):

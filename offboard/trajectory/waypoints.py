@@ -37,6 +37,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from offboard.trajectory.base import Phase, Reference
 from offboard.trajectory.profile import Trapezoid, boundary_speeds
@@ -225,7 +226,7 @@ class WaypointLegs(Segment):
 
     def __init__(
         self,
-        start_ned_m: object,
+        start_ned_m: ArrayLike,
         waypoints: Sequence[Waypoint],
         cruise_speed_m_s: float,
         accel_m_s2: float,
@@ -519,7 +520,7 @@ class VerticalMove(WaypointLegs):
 
     def __init__(
         self,
-        start_ned_m: object,
+        start_ned_m: ArrayLike,
         to_down_m: float,
         speed_m_s: float,
         accel_m_s2: float,
