@@ -15,11 +15,16 @@ import json
 import math
 import struct
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from offboard import jsonout
 from offboard.codec import Scaling
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
-from offboard.controller.design import MarginSpec
+from offboard.controller.design import Design, MarginSpec, nearby_designs
+from offboard.controller.params import ControllerParams
 from offboard.controller.tuning import (
     AUTOPILOT_PARAMS,
     PLANT_PARAMS,
@@ -34,7 +39,10 @@ from offboard.controller.tuning import (
 )
 from offboard.errors import LinkTimeout, UserError
 from offboard.model.clihelp import HelpFormatter
-from offboard.model.paths import output_file
+from offboard.model.paths import output_file, output_folder
+
+if TYPE_CHECKING:  # the search's module loads only with --search (Dask, pyarrow)
+    from offboard.sweep.tune import Trial
 
 
 class TuneArgumentError(UserError, ValueError):
@@ -66,6 +74,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="at most this max |1/(1+L)| (> 1; 'inf' for no bound)")
     parser.add_argument("--no-integral", action="store_true",
                         help="design without the law's velocity integral (docs/controller-design.md)")
+    search = parser.add_argument_group("search on the sweep engine (needs --vehicle and Dask: pip install -e '.[sweep]')")
+    search.add_argument("--search", type=Path, default=None, metavar="SWEEP.toml",
+                        help="fly the designs near the analytic one (each keeping the margins) on this sweep's flights "
+                        "through PX4's attitude loop, and write the one with the lowest median error")
+    search.add_argument("--search-flights", type=int, default=16, metavar="N", help="flights of the sweep flown per design")
+    search.add_argument("--search-designs", type=int, default=12, metavar="N", help="designs flown, the analytic one first")
+    search.add_argument("--run-dir", type=Path, default=None,
+                        help="folder for each design's flights.parquet and search.json (default: runs/tune-<time>)")
+    search.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                        help="a running Dask scheduler to fly on (default: a local cluster of this machine's cores)")
+    search.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster (default: the cores)")
     parser.add_argument("--output", type=Path, default=None, metavar="FILE", help="controller file to write (default: stdout)")
     parser.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                         help="the loop's frequency response and poles, designed against Table I's gains")
@@ -162,6 +181,15 @@ def _check(args: argparse.Namespace) -> None:
             raise TuneArgumentError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
     if not (args.sensitivity_peak > 1.0):  # inf allowed: no bound; NaN refused
         raise TuneArgumentError(f"--sensitivity-peak must be > 1, got {args.sensitivity_peak}")
+    if args.search is not None:
+        if args.vehicle is None:
+            raise TuneArgumentError("--search flies the vehicle in process: give it as --vehicle FILE")
+        for option in ("search_flights", "search_designs", "workers"):
+            value = getattr(args, option)
+            if value is not None and value < 1:
+                raise TuneArgumentError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
+        if args.scheduler is not None and args.workers is not None:
+            raise TuneArgumentError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
     for option, path in (("--output", args.output), ("--plot", args.plot)):
@@ -192,8 +220,11 @@ def run(args: argparse.Namespace) -> int:
         raise TuneArgumentError(str(exc)) from None
     choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), sample_time_s=args.sample_time)
     params, _ = resolve_controller(choice, "rigid-body", values, Scaling(values["SIM_THR_MAX"]))
-    params = tuned_params(params, design, values)
+    base = params
+    params = tuned_params(base, design, values)
     text = controller_file_text(params, design, source=source)
+    if args.search is not None:
+        design, params, text = _search(args, design, lambda d: tuned_params(base, d, values), source)
     if args.output is not None:
         try:
             args.output.write_text(text)
@@ -214,3 +245,68 @@ def run(args: argparse.Namespace) -> int:
             raise TuneArgumentError(f"--plot {args.plot}: {exc.strerror or exc}") from None
         print(f"figure {args.plot}", file=sys.stderr)
     return 0
+
+
+def _search(args: argparse.Namespace, design: Design, params_of: Callable[[Design], ControllerParams],
+            source: str) -> tuple[Design, ControllerParams, str]:  # fmt: skip
+    """``--search``: the designs near ``design`` flown on the sweep (``offboard.sweep.tune``); the
+    best one's design, controller parameters and controller file (with the search as comments)."""
+    try:
+        import distributed  # noqa: F401
+        import pyarrow  # noqa: F401
+    except ImportError as exc:
+        raise TuneArgumentError(f"--search needs Dask and pyarrow (pip install -e '.[sweep]'): {exc}") from None
+    from offboard.model.vehicle import load_vehicle
+    from offboard.sweep import tune as sweep_tune
+    from offboard.sweep.spec import load_sweep
+
+    spec = load_sweep(args.search)  # a ParameterFileError names the field
+    try:
+        sweep_tune.check_sweep(spec)
+    except ValueError as exc:
+        raise TuneArgumentError(f"--search {exc}") from None
+    run_dir = output_folder(args.run_dir or Path("runs") / f"tune-{time.strftime('%Y%m%d-%H%M%S')}", "--run-dir")
+    designs = nearby_designs(design, args.search_designs)
+    flights = min(args.search_flights, spec.flights)
+    print(f"search: {len(designs)} designs keeping the margins, {flights} flights of {args.search} each "
+          f"(through PX4's attitude loop), into {run_dir}", file=sys.stderr)  # fmt: skip
+    try:
+        trials = sweep_tune.search(designs, params_of, spec, load_vehicle(args.vehicle), run_dir, flights=flights,
+                                   latency_s=args.latency, scheduler=args.scheduler, workers=args.workers,
+                                   say=lambda text: print(f"search: {text}", file=sys.stderr))  # fmt: skip
+    except OSError as exc:  # the scheduler cannot be reached, or the run folder written
+        where = f"--scheduler {args.scheduler}" if args.scheduler is not None else f"--run-dir {run_dir}"
+        raise TuneArgumentError(f"{where}: {exc}") from None
+    chosen = sweep_tune.best(trials)
+    table = _search_table(trials, chosen, sweep_tune.error_column(spec))
+    (run_dir / "search.json").write_text(jsonout.dumps({
+        "sweep": str(args.search), "flights_per_design": flights, "error": sweep_tune.error_column(spec),
+        "chosen": None if chosen is None else trials.index(chosen),
+        "designs": [{"k_pos": float(t.design.horizontal.k_pos), "k_vel": float(t.design.horizontal.k_vel),
+                     "tilt_lead": float(t.design.horizontal.lead),
+                     "velocity_integral_per_s2": float(t.design.horizontal.velocity_integral_per_s2),
+                     "flights": t.flights, "complete": t.complete, "median_rms_m": t.median_rms_m,
+                     "p90_rms_m": t.p90_rms_m, "run_dir": str(t.run_dir)} for t in trials],
+    }, indent=2) + "\n")  # fmt: skip
+    for line in table:
+        print(line, file=sys.stderr)
+    if chosen is None:
+        raise TuneArgumentError(f"--search: no design completed every one of the {flights} flights of {args.search} "
+                                f"(see {run_dir})")  # fmt: skip
+    text = controller_file_text(chosen.params, chosen.design, source=source)
+    comment = [f"# Searched (offboard tune --search {args.search}): {len(trials)} designs keeping these margins, "
+               f"{flights} flights each through PX4's attitude loop; the lowest median error kept:",
+               *(f"#   {line}" for line in table)]  # fmt: skip
+    head, _, rest = text.partition("\n[law]\n")
+    return chosen.design, chosen.params, head.rstrip("\n") + "\n" + "\n".join(comment) + "\n\n[law]\n" + rest
+
+
+def _search_table(trials: list[Trial], chosen: Trial | None, column: str) -> list[str]:
+    lines = [f"design  k_pos   k_vel   lead  vel. integral  complete  median {column}  p90"]
+    for k, t in enumerate(trials):
+        h = t.design.horizontal
+        mark = "  <- kept" if t is chosen else ("  (analytic)" if k == 0 else "")
+        lines.append(f"{k:6d}  {float(h.k_pos):.4f}  {float(h.k_vel):.4f}  {float(h.lead):4.2f}  "
+                     f"{float(h.velocity_integral_per_s2):8.4f}/s^2  {t.complete:3d}/{t.flights:<3d}  "
+                     f"{t.median_rms_m:10.4f} m  {t.p90_rms_m:.4f} m{mark}")  # fmt: skip
+    return lines

@@ -827,3 +827,60 @@ def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: floa
         if analyse_axis(plant, g, to).meets(spec):
             return g
     return AxisGains(float(np.asarray(cand.k_pos)[best]), float(np.asarray(cand.k_vel)[best]), 0.0, ki, kiv)
+
+
+# --- designs near a design: what offboard tune --search flies ------------------------------------
+
+#: ``offboard tune --search``: the factors on the designed horizontal loop's position and velocity
+#: rates (k = exp(-rate To)), the steps of its tilt lead, and the factors on the velocity integral
+#: (shared by the axes), whose combinations are the designs the search may fly.
+NEAR_RATE_FACTORS = (0.8, 1.0, 1.25)
+NEAR_LEAD_STEPS = (-0.25, 0.0, 0.25)
+NEAR_INTEGRAL_FACTORS = (0.5, 1.0, 2.0)
+
+
+def with_gains(design: Design, horizontal: AxisGains, vertical: AxisGains) -> Design:
+    """``design`` with other gains, every axis analysed again (the same model and margins asked)."""
+    to = design.sample_time_s
+    north_plant, east_plant, up_plant = axis_plants(design.model, to)
+    north, east, up = (analyse_axis(north_plant, horizontal, to), analyse_axis(east_plant, horizontal, to),
+                       analyse_axis(up_plant, vertical, to))  # fmt: skip
+    reference_lead = (0.5 * (north.reference_lead_s2 + east.reference_lead_s2), up.reference_lead_s2)
+    return Design(to, north, east, up, reference_lead, design.spec, design.model)
+
+
+def nearby_designs(design: Design, limit: int = 12) -> list[Design]:
+    """Designs near ``design`` that keep its margins, for a search by flying them.
+
+    Every combination of ``NEAR_RATE_FACTORS`` on the horizontal position and velocity rates,
+    ``NEAR_LEAD_STEPS`` on the tilt lead (not below 0) and ``NEAR_INTEGRAL_FACTORS`` on the
+    velocity integral (the vertical axis keeping its gains, with the shared integral), rounded as a
+    controller file writes them and analysed in full; kept where every axis meets ``design.spec``.
+    ``design`` itself first, then the others nearest first (one factor changed, then two ...; of
+    as many changes, the faster horizontal loop first: the smaller spectral radius of its
+    proportional part, the integral being slow by design), at most ``limit`` in all.
+    """
+    to = design.sample_time_s
+    h, v = design.horizontal, design.vertical
+    rate_pos, rate_vel = -math.log(float(h.k_pos)) / to, -math.log(float(h.k_vel)) / to
+    seen = {(float(h.k_pos), float(h.k_vel), float(h.lead), float(h.velocity_integral_per_s2))}
+    near: list[tuple[int, float, Design]] = []
+    north_plant, _, _ = axis_plants(design.model, to)
+    for fp in NEAR_RATE_FACTORS:
+        for fv in NEAR_RATE_FACTORS:
+            for step in NEAR_LEAD_STEPS:
+                for fi in NEAR_INTEGRAL_FACTORS:
+                    kp, kv = round(math.exp(-rate_pos * fp * to), 4), round(math.exp(-rate_vel * fv * to), 4)
+                    lead, kiv = max(0.0, float(h.lead) + step), round(float(h.velocity_integral_per_s2) * fi, 4)
+                    if (kp, kv, lead, kiv) in seen:
+                        continue
+                    seen.add((kp, kv, lead, kiv))
+                    candidate = with_gains(design, AxisGains(kp, kv, lead, float(h.integral_per_s), kiv),
+                                           AxisGains(v.k_pos, v.k_vel, 0.0, v.integral_per_s, kiv))  # fmt: skip
+                    axes = (candidate.north, candidate.east, candidate.up)
+                    if all(a.meets(design.spec) for a in axes):
+                        changes = (fp != 1.0) + (fv != 1.0) + (lead != float(h.lead)) + (fi != 1.0)
+                        speed = analyse_axis(north_plant, AxisGains(kp, kv, lead), to).spectral_radius
+                        near.append((changes, speed, candidate))
+    near.sort(key=lambda item: item[:2])
+    return [design, *(d for _, _, d in near[: max(0, limit - 1)])]
