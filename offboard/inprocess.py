@@ -267,7 +267,7 @@ def simulate(
 
         cls = FastRigidBodySim
     sim = cls(
-        sim_model,  # type: ignore[arg-type]
+        sim_model,
         physics_dt_s=physics_dt_s,
         wind=wind,
         ground=ground,

@@ -176,7 +176,7 @@ class MavLink:
     def local_address(self) -> tuple[str, int] | None:
         port = getattr(self.conn, "port", None)
         try:
-            return port.getsockname() if port is not None else None  # type: ignore[no-any-return]
+            return port.getsockname() if port is not None else None
         except OSError:
             return None
 

@@ -256,7 +256,7 @@ def _run(args: argparse.Namespace) -> int:
 
     impair_in, impair_out = _impairments(args)
 
-    def endpoint(name: str, link_id: int, bind, remote) -> Endpoint:  # type: ignore[no-untyped-def]
+    def endpoint(name: str, link_id: int, bind, remote) -> Endpoint:
         # each direction of each link its own generator, from --seed: the same seed, the same fates
         return Endpoint(name, bind, remote, args.sysid, config.compid, signing=session(link_id), allowed_senders=allowed,
                         impair_in=Impairment(impair_in, f"{args.seed}/{name}/in") if impair_in else None,

@@ -89,8 +89,8 @@ def _state_reader(model: Model) -> Callable[[np.ndarray], tuple[Quat, Vec3, tupl
 
         def read_rigid(x: np.ndarray) -> tuple[Quat, Vec3, tuple[float, float, float]]:
             # the quaternion loop needs no Euler angles: skip them on this hot path
-            q = _qnormalize(tuple(x[QUAT].tolist()))  # type: ignore[arg-type]
-            return q, tuple(x[RATES].tolist()), (0.0, 0.0, 0.0)  # type: ignore[return-value]
+            q = _qnormalize(tuple(x[QUAT].tolist()))
+            return q, tuple(x[RATES].tolist()), (0.0, 0.0, 0.0)
 
         return read_rigid
     form = model_euler_form(model)
@@ -294,7 +294,7 @@ class Px4Loop:
         dt = POSITION_LOOP_DT_S
         gains = (p["MPC_XY_P"], p["MPC_XY_P"], p["MPC_Z_P"])
         vsp = [
-            task.vel_ned_m_s[i] + (0.0 if task.pos_ned_m[i] is None else gains[i] * (task.pos_ned_m[i] - pos[i]))  # type: ignore[operator]
+            task.vel_ned_m_s[i] + (0.0 if task.pos_ned_m[i] is None else gains[i] * (task.pos_ned_m[i] - pos[i]))
             for i in range(3)
         ]
         vxy_max = p["MPC_XY_VEL_MAX"]
@@ -392,7 +392,7 @@ class Px4Loop:
         sim.on_ground = bool(resting)  # type: ignore[attr-defined]
         self._step_count = int(count)
         self._rate_int = rate_int.tolist()
-        self._prev_rates = tuple(prev.tolist()) if has_prev else None  # type: ignore[assignment]
+        self._prev_rates = tuple(prev.tolist()) if has_prev else None
         self.last_output = (float(thrust), torque)
         return True
 

@@ -136,7 +136,7 @@ class Endpoint:
 
     @property
     def local_address(self) -> tuple[str, int]:
-        return self.sock.getsockname()  # type: ignore[no-any-return]
+        return self.sock.getsockname()
 
     def close(self) -> None:
         self.sock.close()

@@ -670,7 +670,7 @@ class Plant:
     def heartbeat_now(self) -> None:
         """A heartbeat of the current status on every link (in the outbox)."""
         for box in self.outbox:
-            box.append(self._build(mavlink.MAVLINK_MSG_ID_HEARTBEAT))  # type: ignore[arg-type]
+            box.append(self._build(mavlink.MAVLINK_MSG_ID_HEARTBEAT))
 
     def telemetry(self, index: int, *, force: tuple[int, ...] = ()) -> list[mavlink.MAVLink_message]:
         """The streams due now on link ``index`` (plus ``force``d ones), all stamped now."""

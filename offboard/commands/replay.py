@@ -220,7 +220,7 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
     if mission is not None:
         offset, offset_note = _mission_offset(mission, scan, vehicle, summary_json)
         trajectory = shift_trajectory(mission.trajectory, offset)
-        if trajectory is not mission.trajectory:
+        if trajectory is not mission.trajectory and offset is not None:
             mission_note += f"; moved by NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m, {offset_note}"
     params_log = scan.params.get(vehicle, {}) if vehicle is not None else {}
     thrust_max = replay.logged_scale(params_log, args.thrust_max_n)[0]

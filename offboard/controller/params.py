@@ -223,7 +223,7 @@ def controller_from_table(f: Fields) -> ControllerParams:
         thrust_max_n=None if not limits_table.has("thrust_max_n") else limits_table.number("thrust_max_n", gt=0),
         tilt_max_rad=None if tilt_deg is None else math.radians(limits_table.number("tilt_max_deg", gt=0, lt=90)),
         tilt_cone=limits_table.boolean("tilt_cone", False),
-        **{name: limits_table.number(name, gt=0) if limits_table.has(name) else None for name in SPEED_LIMITS},  # type: ignore[arg-type]
+        **{name: limits_table.number(name, gt=0) if limits_table.has(name) else None for name in SPEED_LIMITS},
     )
     if limits.thrust_min_n is not None and limits.thrust_max_n is not None and limits.thrust_min_n >= limits.thrust_max_n:
         raise limits_table.error("thrust_min_n", "must be below thrust_max_n")

@@ -423,7 +423,7 @@ def parse_mission_table(table: Any, source: str, prefix: str = "mission.", defau
         end = segment.end_reference
         ctx.pos, ctx.yaw = end.pos_ned_m.copy(), end.yaw_rad
     f.reject_unknown()
-    return ParsedMission(name, description, Sequence(segments), home, tuple(start.tolist()), start_yaw)  # type: ignore[arg-type]
+    return ParsedMission(name, description, Sequence(segments), home, tuple(start.tolist()), start_yaw)
 
 
 def _lowest_down_m(segment: Any) -> float | None:

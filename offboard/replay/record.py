@@ -338,7 +338,7 @@ def build_record(
     )
 
 
-def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the ATTITUDE and LOCAL_POSITION_NED behind each sample (-1: none yet), and
     the two tables (``LogScan`` row layout) they index.
 
@@ -366,9 +366,9 @@ def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, befor
                     if att[k, 0] == time_boot_ms[j]:
                         i_att[j] = k
                         break
-            return i_att, np.searchsorted(pos[:, 8], before, side="left") - 1, att, pos  # type: ignore[return-value]
+            return i_att, np.searchsorted(pos[:, 8], before, side="left") - 1, att, pos
         # not the controller's own log (a plant's, in real time: telemetry newer than what the
         # command answered is logged before it): the command's echo of time_boot_ms decides
     att = table(scan.attitude[vehicle], True)
     pos = table(scan.local_position[vehicle], True)
-    return _latest(att[:, 0], time_boot_ms), _latest(pos[:, 0], time_boot_ms), att, pos  # type: ignore[return-value]
+    return _latest(att[:, 0], time_boot_ms), _latest(pos[:, 0], time_boot_ms), att, pos

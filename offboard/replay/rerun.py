@@ -144,7 +144,9 @@ def rerun_controller(
     if output not in RERUN_FIELDS:
         raise LogFormatError(f"{record.meta.get('source') or 'the log'}: no controller commands to compare with "
                              "(SET_ATTITUDE_TARGET or SET_ACTUATOR_CONTROL_TARGET)")
-    vehicle = int(record.meta["vehicle_sysid"])  # type: ignore[arg-type]
+    vehicle = record.meta["vehicle_sysid"]
+    if not isinstance(vehicle, int):
+        raise LogFormatError(f"{record.meta.get('source') or 'the log'}: no vehicle to re-run the controller against")
     setpoints = setpoints_for(scan, vehicle)
     rows = np.asarray(record.meta["setpoint_rows"], dtype=np.int64)
     grid = np.asarray(record.meta["time_boot_ms"], dtype=np.int64)
@@ -278,7 +280,7 @@ def flight_controller(
             speed_down_max_m_s=recorded.get("speed_down_max_m_s"),
             yaw_rate_max_rad_s=recorded.get("yaw_rate_max_rad_s"),
         )
-    return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"  # type: ignore[attr-defined]
+    return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"
 
 
 def rerun_panels(result: RerunResult, thrust_max_n: float) -> list[tuple[str, np.ndarray, np.ndarray, tuple[str, ...]]]:

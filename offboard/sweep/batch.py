@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 
@@ -136,7 +137,7 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
     # the law's parameters, the believed numbers as arrays over the batch
     beliefs = [s.scenario.controller for s in setups]
     gains = SimpleNamespace(**{g: np.array([getattr(b.gains, g) for b in beliefs]) for g in GAIN_NAMES})
-    params = SimpleNamespace(**{f.name: getattr(ctl, f.name) for f in ctl.__dataclass_fields__.values()})  # type: ignore[attr-defined]
+    params = SimpleNamespace(**{f.name: getattr(ctl, f.name) for f in ctl.__dataclass_fields__.values()})
     params.gains = gains
     params.mass_kg = np.array([b.mass_kg for b in beliefs])
     params.gravity_m_s2 = np.array([b.gravity_m_s2 for b in beliefs])
@@ -159,17 +160,17 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
         on_ground[i] = ground and bool(pos0[2] >= 0.0)
         winds.append(None if sc.wind == "none" else wind_from_spec(sc.wind, sc.seed))
     xdot = np.zeros((n, STATE_SIZE))
-    for i, s_ in enumerate(setups):  # VehicleSim's mean derivative before the first step
-        if not on_ground[i]:
-            xdot[i] = RigidBodyModel(s_.scenario.vehicle).derivative(x[i], 0.0, np.zeros(3), np.zeros(3))
+    for j, s_ in enumerate(setups):  # VehicleSim's mean derivative before the first step
+        if not on_ground[j]:
+            xdot[j] = RigidBodyModel(s_.scenario.vehicle).derivative(x[j], 0.0, np.zeros(3), np.zeros(3))
     meters = [sensors_from_spec(s_.scenario.sensors, s_.scenario.seed) for s_ in setups]
     noisy = np.array([isinstance(m, PaperAccelNoise) for m in meters])
     fraction = np.array([m.fraction if isinstance(m, PaperAccelNoise) else 0.0 for m in meters])
     # each flight's normals, drawn as PaperAccelNoise.measure draws them: 3 a sample, in order
     normals = np.zeros((n, samples + 1, 3))
-    for i in np.nonzero(noisy)[0]:
-        meters[i].reset()
-        normals[i] = meters[i]._rng.standard_normal((samples + 1, 3))
+    for j, meter in enumerate(meters):
+        if isinstance(meter, PaperAccelNoise):
+            normals[j] = meter.normals(samples + 1)
     vel_error, pos_error = np.zeros((n, 3)), np.zeros((n, 3))
     previous_vel, previous_time = x[:, 3:6].copy(), 0.0
     cmd = np.zeros((n, 4))
@@ -230,14 +231,14 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
                 vel = consistent.update(pos, vel)
             state = (pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1], -pos[:, 2], -vel[:, 2], euler[0], rates[0], euler[1],
                      rates[1], euler[2], rates[2])  # fmt: skip
-            if memory is None:
-                memory = LawMemory.from_state(state)
+            if memory is None:  # the law's numbers are arrays over the batch here (NUMPY_OPS)
+                memory = LawMemory.from_state(cast(tuple[float, ...], state))
             out, new_memory = law_step(params, memory, state, tracking_reference(ref_n, lead),  # type: ignore[arg-type]
                                        tracking_reference(ref_n1, lead), NUMPY_OPS)  # fmt: skip
-            memory = LawMemory(*(np.where(active, new, old) for new, old in zip(new_memory, memory)))
+            memory = LawMemory(*(cast(float, np.where(active, new, old)) for new, old in zip(new_memory, memory)))
             # simulate's check, on the truth before the row is written
             finite = np.all(np.isfinite(x), axis=1)
-            for i in np.nonzero(active & lost(finite, euler[0], euler[1], x[:, 0:3]))[0]:
+            for i in np.nonzero(active & lost(finite, euler[0], euler[1], x[:, 0:3]))[0].tolist():
                 why = lost_reason(bool(finite[i]), float(euler[0][i]), float(euler[1][i]), x[i, 0:3], "simulated")
                 status[i], detail[i] = FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}"
                 active[i] = False
@@ -249,7 +250,7 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
             rows[active] = k + 1
             bad = active & ~(np.isfinite(thrust) & np.all(np.isfinite(tau), axis=1) & np.isfinite(out.roll_ref_rad)
                              & np.isfinite(out.pitch_ref_rad))  # fmt: skip
-            for i in np.nonzero(bad)[0]:
+            for i in np.nonzero(bad)[0].tolist():
                 status[i], detail[i] = FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite"
                 active[i] = False
             if k == samples or not active.any():

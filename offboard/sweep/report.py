@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +76,7 @@ def summary(spec: SweepSpec, rows: dict[str, np.ndarray]) -> dict:
         percentiles[c] = {f"p{q}": (float(np.percentile(v, q)) if len(v) else math.nan) for q in PERCENTILES}
         percentiles[c]["samples"] = int(len(v))
     failed = (~ok).astype(float)
-    sensitivity = []
+    sensitivity: list[dict[str, Any]] = []
     for name in spec.swept:
         if PARAMETERS[name].kind != "number":
             continue

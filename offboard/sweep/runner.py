@@ -77,7 +77,7 @@ def _one_thread_per_worker() -> None:
     if NUMBA:
         import numba
 
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))  # set at import
 
 
 def _warm_up(spec: SweepSpec, engine: str) -> None:
@@ -128,8 +128,8 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
         return spec.flights
     # fill the task to TASK_TARGET_S, but give the flights at least FIXED_SHARE of it beside the
     # fixed part (a long flight's fixed part alone can be near the target: then the task is longer)
-    n = max((TASK_TARGET_S - fixed) / per_flight, fixed * (1 - FIXED_SHARE) / FIXED_SHARE / per_flight)
-    return max(1, min(spec.flights, int(n)))
+    fill = max((TASK_TARGET_S - fixed) / per_flight, fixed * (1 - FIXED_SHARE) / FIXED_SHARE / per_flight)
+    return max(1, min(spec.flights, int(fill)))
 
 
 @dataclass

@@ -222,6 +222,8 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
                 raise ParameterFileError(f"{where}.{label}: expected a spec string, got {v!r}")
             _check_spec(name, v, f"{where}.{label}")
             return
+        if isinstance(v, str):
+            raise ParameterFileError(f"{where}.{label}: expected a number, got {v!r}")
         if relative:  # a factor: positive, the product is checked per flight
             if not v > 0:
                 raise ParameterFileError(f"{where}.{label}: a relative factor must be > 0, got {v:g}")
@@ -404,10 +406,10 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
     wind_parts: list[str] = [] if base.wind == "none" else [base.wind]
     sensors, wind_spec = base.sensors, None
     pos, yaw, latency = list(base.initial_pos_ned_m), base.initial_yaw_rad, 0.0
-    for name, value in values.items():
+    for name, raw in values.items():
         par = PARAMETERS[name]
+        value = float(raw) if par.kind == "number" else math.nan  # a spec's string is ``raw``
         if par.kind == "number":
-            value = float(value)
             for bound, ok, text in ((par.gt, lambda b: value > b, ">"), (par.ge, lambda b: value >= b, ">="),
                                     (par.lt, lambda b: value < b, "<")):  # fmt: skip
                 if bound is not None and not ok(bound):
@@ -428,9 +430,9 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
             else:
                 controller_changes[key] = value
         elif name == "wind":
-            wind_spec = str(value)
+            wind_spec = str(raw)
         elif name == "sensors":
-            sensors = str(value)
+            sensors = str(raw)
         elif name == "sensors.paper_fraction":
             sensors = f"paper:{value!r}"
         elif group == "initial":
@@ -439,7 +441,7 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
             else:
                 pos[("north_m", "east_m", "down_m").index(key)] = value
         elif name == "latency_s":
-            latency = float(value)
+            latency = value
     if "wind.north_m_s" in values or "wind.east_m_s" in values:
         wind_parts.append(f"constant:{float(values.get('wind.north_m_s', 0.0))!r},{float(values.get('wind.east_m_s', 0.0))!r},0")
     if "wind.dryden_m_s" in values and float(values["wind.dryden_m_s"]) > 0:
@@ -449,13 +451,13 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
                           f"dur={GUST_DURATION_S!r},dir={float(values.get('wind.gust_dir_deg', 0.0))!r}")  # fmt: skip
     if wind_spec is not None:
         wind_parts = [] if wind_spec == "none" else [wind_spec, *wind_parts[1 if base.wind != "none" else 0:]]
-    vehicle = replace(base.vehicle, inertia_kg_m2=tuple(v_inertia), **vehicle_changes)
+    vehicle = replace(base.vehicle, inertia_kg_m2=(v_inertia[0], v_inertia[1], v_inertia[2]), **vehicle_changes)
     controller = base.controller
     if gains:
         controller = replace(controller, gains=replace(controller.gains, **gains))
-    controller = replace(controller, inertia_kg_m2=tuple(c_inertia), **controller_changes)
+    controller = replace(controller, inertia_kg_m2=(c_inertia[0], c_inertia[1], c_inertia[2]), **controller_changes)
     scenario = replace(base, name=f"{base.name}#{fl.index}", vehicle=vehicle, controller=controller, sensors=sensors,
-                       wind="+".join(wind_parts) or "none", seed=fl.seed, initial_pos_ned_m=tuple(pos),
+                       wind="+".join(wind_parts) or "none", seed=fl.seed, initial_pos_ned_m=(pos[0], pos[1], pos[2]),
                        initial_yaw_rad=yaw)  # fmt: skip
     n_physics = round(scenario.controller.sample_time_s / scenario.physics_dt_s)
     if latency and not latency < n_physics * scenario.physics_dt_s:

@@ -114,6 +114,11 @@ class PaperAccelNoise:
         self._vel_error = np.zeros(3)
         self._pos_error = np.zeros(3)
 
+    def normals(self, samples: int) -> np.ndarray:
+        """(samples, 3): the standard normals ``measure`` draws after a ``reset``, three a sample,
+        in order (what a batch of these flights draws at once: ``offboard.sweep.batch``)."""
+        return np.random.default_rng(np.random.SeedSequence(self.seed)).standard_normal((samples, 3))
+
     def measure(self, truth: VehicleState) -> VehicleState:
         previous, self._previous = self._previous, truth
         if previous is None or not truth.time_s > previous.time_s:

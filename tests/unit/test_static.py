@@ -1,6 +1,6 @@
 """The static checks, as part of the suite (issue 12): ruff's pyflakes rules over every Python
-file of the project, and mypy over both packages but for the modules pyproject.toml's
-[tool.mypy] still excludes (the sweep engine, the log replay, the commands)."""
+file of the project, and mypy over both packages, offboard and sitl_plant (pyproject.toml's
+[tool.mypy])."""
 
 from __future__ import annotations
 
