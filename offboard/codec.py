@@ -36,6 +36,7 @@ rotating body FRD into NED, ZYX Euler angles. The setpoint mapping (docs/offboar
 
 from __future__ import annotations
 
+import enum
 import math
 import struct
 from dataclasses import dataclass
@@ -54,11 +55,19 @@ PX4_MAIN_MODE_OFFBOARD = px4_modes.MAIN_OFFBOARD
 PX4_MAIN_MODE_AUTO = px4_modes.MAIN_AUTO
 PX4_SUB_MODE_AUTO_LAND = px4_modes.SUB_AUTO_LAND
 
-#: The vehicle models the offboard process knows how to talk to (``--model``).
-#: The setpoint messages the law's output can travel in (``--output``; ``command_setpoint``): an
-#: attitude and thrust, body rates and thrust (both SET_ATTITUDE_TARGET, as PX4 takes them), or
-#: SET_ACTUATOR_CONTROL_TARGET torques.
-OUTPUTS = ("attitude", "rates", "actuator")
+
+class SetpointOutput(enum.StrEnum):
+    """The setpoint messages the law's output travels in (``--output``; ``command_setpoint``): an
+    attitude and thrust, body rates and thrust (both SET_ATTITUDE_TARGET, as PX4 takes them), or
+    SET_ACTUATOR_CONTROL_TARGET torques."""
+
+    ATTITUDE = "attitude"
+    RATES = "rates"
+    ACTUATOR = "actuator"
+
+
+#: The outputs by name, the default first.
+OUTPUTS = tuple(o.value for o in SetpointOutput)
 
 #: How many recent ATTITUDE messages ``offboard fly`` keeps to pair one with a position's instant
 #: (``Flight._sample``), and how far back a re-run looks for it.

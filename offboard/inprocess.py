@@ -28,25 +28,24 @@ import enum
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from offboard.controller import ControllerParams
 from offboard.controller.command import Command, Controller, require
-from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.paper import PaperController
 from offboard.metrics import lost_reason
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel, VehicleParams
 from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
+from sitl_plant.dynamics.rigid_body import ROTORS, hover_rotor_speed
 from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
+from sitl_plant.inner_loops import Px4Loop
+from sitl_plant.params import plant_params
 from sitl_plant.simulation import Actuation, EulerAccelActuation, HeldActuation, VehicleSim, WindField, make_model
-from offboard.model.vehicle import VehicleParams
-
-if TYPE_CHECKING:
-    from sitl_plant.inner_loops import Px4Loop
 
 
 class Drive(enum.StrEnum):
@@ -115,8 +114,6 @@ class Px4AttitudeLoop:
     loop: Px4Loop | None = None
 
     def bind(self, sim: VehicleSim) -> None:
-        from sitl_plant.inner_loops import Px4Loop
-        from sitl_plant.params import plant_params
 
         self.loop = Px4Loop(plant_params(self.vehicle), sim.model, sim.physics_dt_s)
         self.loop.landed = False
@@ -263,7 +260,7 @@ def simulate(
     sim_model = make_model(str(VehicleModel(model)), vehicle)
     cls: type[VehicleSim] = VehicleSim
     if fast:
-        from sitl_plant.dynamics.batch import FastRigidBodySim
+        from sitl_plant.dynamics.batch import FastRigidBodySim  # numba (a third of a second): only when asked
 
         cls = FastRigidBodySim
     sim = cls(
@@ -275,7 +272,6 @@ def simulate(
         initial_yaw_rad=initial_yaw_rad,
     )
     if hovering and VehicleModel(model) is VehicleModel.RIGID_BODY and float(sim.x[2]) < 0.0:
-        from sitl_plant.dynamics.rigid_body import ROTORS, hover_rotor_speed
 
         sim.x[ROTORS] = hover_rotor_speed(vehicle)
     loop = drive if not isinstance(drive, str) else vehicle_loop(drive, controller, vehicle)
@@ -354,8 +350,8 @@ class Scenario:
     trajectory: Trajectory
     vehicle: VehicleParams
     controller: ControllerParams
-    model: str = "paper"
-    drive: str = "inner-loop"
+    model: VehicleModel = VehicleModel.PAPER
+    drive: Drive = Drive.INNER_LOOP
     physics_dt_s: float = 1e-3
     duration_s: float | None = None
     sensors: str = "clean"
@@ -371,6 +367,8 @@ class Scenario:
             raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {self.model!r}")
         if self.drive not in SCENARIO_DRIVES:
             raise ValueError(f"drive must be one of {SCENARIO_DRIVES}, got {self.drive!r}")
+        object.__setattr__(self, "model", VehicleModel(self.model))  # a word from a file: its enum
+        object.__setattr__(self, "drive", Drive(self.drive))
         steps_per_period(self.controller.sample_time_s, self.physics_dt_s)
 
     @property

@@ -25,10 +25,11 @@ from pathlib import Path
 
 from offboard.controller.params import controller_from_table, load_controller
 from offboard.errors import ParameterFileError
-from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.inprocess import SCENARIO_DRIVES, Scenario
 from offboard.model.tomlfile import Fields, read_toml
-from offboard.model.vehicle import load_vehicle, vehicle_from_table
+from offboard.model.vehicle import VEHICLE_MODELS, load_vehicle, vehicle_from_table
+from sitl_plant.dynamics.sensors import sensors_from_spec
+from sitl_plant.dynamics.wind import wind_from_spec
 
 
 def _table_or_file(top: Fields, key: str, base_dir: Path, from_table, from_file):
@@ -86,8 +87,6 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def _check_specs(scenario: Scenario, s: Fields) -> None:
     """Parse the sensor and wind specs now, so a typo fails before the flight, naming the field."""
-    from sitl_plant.dynamics.sensors import sensors_from_spec
-    from sitl_plant.dynamics.wind import wind_from_spec
 
     try:
         sensors_from_spec(scenario.sensors, scenario.seed)

@@ -41,6 +41,7 @@ from sitl_plant.autopilot import (
 )
 from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
+from sitl_plant.dynamics.rigid_body import rotor_speeds_for
 from sitl_plant.ftp import FtpFormatError, FtpServer
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
@@ -782,7 +783,6 @@ class Plant:
     def _motor_speeds(self) -> np.ndarray:
         if self._rigid:
             return self._truth.motor_speeds_rad_s
-        from sitl_plant.dynamics.rigid_body import rotor_speeds_for
 
         thrust, torque = self.loops.last_output(self.sim.x)
         return rotor_speeds_for(thrust, torque, self.vehicle)

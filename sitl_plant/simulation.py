@@ -15,16 +15,15 @@ both drive a ``VehicleSim`` the same way, which is what makes them comparable sa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 
 from offboard.model.euler_lagrange import euler_rate_matrix, real_torques
-from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.model.rotations import quat_from_euler
 from offboard.model.state import VehicleState
-from offboard.model.vehicle import VehicleParams
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleParams
 from sitl_plant.dynamics import paper_model
 from sitl_plant.dynamics.integrate import rk4_step
 
@@ -250,7 +249,6 @@ class VehicleSim:
         """The true state now; acceleration is the mean over the last physics step."""
         state = self.model.vehicle_state(self.x, self.time_s, self._last_xdot)
         if self.on_ground != state.on_ground:
-            from dataclasses import replace
 
             state = replace(state, on_ground=self.on_ground)
         return state

@@ -13,8 +13,20 @@ import math
 from collections.abc import Mapping
 from dataclasses import replace
 
-from offboard.controller.design import Design, InnerLoopModel, MarginSpec, design_gains, inner_loop_from_params, step_hold_s
-from offboard.controller.params import ControllerParams
+from offboard.baselines.se3 import SE3Gains
+from offboard.controller.design import (
+    AxisGains,
+    Design,
+    InnerLoopModel,
+    MarginSpec,
+    analyse_axis,
+    axis_plants,
+    design_gains,
+    inner_loop_from_params,
+    pd_analysis,
+    step_hold_s,
+)
+from offboard.controller.params import ControllerGains, ControllerParams
 
 #: PX4's attitude/rate gains and speed limits the design reads (PX4's defaults where missing).
 AUTOPILOT_PARAMS = (
@@ -122,8 +134,6 @@ def design_summary(design: Design) -> list[str]:
 
 def paper_gains_summary(design: Design) -> str:
     """One line: Table I's horizontal gains on the same model, for comparison."""
-    from offboard.controller.design import AxisGains, analyse_axis, axis_plants
-    from offboard.controller.params import ControllerGains
 
     table1 = ControllerGains()
     north, _, _ = axis_plants(design.model, design.sample_time_s)
@@ -137,8 +147,6 @@ def paper_gains_summary(design: Design) -> str:
 def se3_gains_summary(design: Design) -> str:
     """One line: SE(3)'s horizontal position loop (RotorPy's gains, ``offboard.baselines.SE3Gains``)
     on the same model, for comparison (``design.pd_analysis``)."""
-    from offboard.baselines.se3 import SE3Gains
-    from offboard.controller.design import axis_plants, pd_analysis
 
     gains = SE3Gains()
     north, _, _ = axis_plants(design.model, design.sample_time_s)

@@ -12,12 +12,12 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
 
-from offboard import codec
-from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.codec import OUTPUTS, SetpointOutput
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.record import FlightStatus
 from pymavlink.dialects.v20 import common as mavlink
 
-OUTPUTS = codec.OUTPUTS
+
 #: ``FlightConfig.telemetry_rate_hz`` that follows the sample rate (``telemetry_rate_for``).
 AUTO_TELEMETRY_RATE = "auto"
 #: In real time the telemetry comes at a whole multiple of the sample rate at or above this:
@@ -93,8 +93,8 @@ class FlightConfig:
         The address listened on / connected to (for messages only).
     """
 
-    output: str = "attitude"
-    model: str = "rigid-body"
+    output: SetpointOutput = SetpointOutput.ATTITUDE
+    model: VehicleModel = VehicleModel.RIGID_BODY
     lockstep: bool = False
     clock: SampleClock = SampleClock.WALL
     telemetry_timeout_s: float = 0.5
@@ -116,6 +116,8 @@ class FlightConfig:
             raise ValueError(f"output must be one of {OUTPUTS}, got {self.output!r}")
         if self.model not in VEHICLE_MODELS:
             raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {self.model!r}")
+        object.__setattr__(self, "output", SetpointOutput(self.output))  # a word from the command line: its enum
+        object.__setattr__(self, "model", VehicleModel(self.model))
         for name in ("telemetry_timeout_s", "reconnect_timeout_s", "heartbeat_timeout_s", "command_timeout_s",
                      "param_timeout_s", "land_timeout_s"):  # fmt: skip
             value = getattr(self, name)

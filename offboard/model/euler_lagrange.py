@@ -22,6 +22,7 @@ matrices.
 
 from __future__ import annotations
 
+import enum
 import math
 
 from collections.abc import Sequence
@@ -31,14 +32,30 @@ import numpy as np
 #: Three angles, rates or torques: an array, or a tuple where the hot path avoids building one.
 Vec3Like = Sequence[float] | np.ndarray
 
-_FORM = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
+
+
+class EulerRateForm(enum.StrEnum):
+    """Which W_eta (eq. 4) maps Euler rates to body rates (module docstring)."""
+
+    CASTILLO = "castillo"
+    PRINTED = "printed"
+    ZYX = "zyx"
+
+
+#: Each form's W_eta as (the angle its off-diagonal terms use: 0 phi, 2 psi; their sign): the one
+#: table the numpy maps here and the compiled kernels (``sitl_plant.dynamics.batch``) read.
+EULER_FORM_TERMS: dict[str, tuple[int, float]] = {
+    EulerRateForm.CASTILLO: (2, -1.0),
+    EulerRateForm.PRINTED: (2, 1.0),
+    EulerRateForm.ZYX: (0, -1.0),
+}
 
 
 def _angle_and_sign(form: str) -> tuple[int, float]:
     try:
-        return _FORM[form]
+        return EULER_FORM_TERMS[form]
     except KeyError:
-        raise ValueError(f"unknown Euler-rate form {form!r}; expected one of {sorted(_FORM)}") from None
+        raise ValueError(f"unknown Euler-rate form {form!r}; expected one of {sorted(EULER_FORM_TERMS)}") from None
 
 
 def euler_rate_matrix(eta: np.ndarray, form: str = "castillo") -> np.ndarray:

@@ -6,6 +6,7 @@ names the file and the dotted field: ``vehicle.toml: inertia_kg_m2: expected 3 n
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from collections.abc import Mapping
@@ -129,7 +130,6 @@ class Fields:
 
 def near_name(name: str, candidates: Any) -> str | None:
     """The candidate a typo of ``name`` most likely is (``radius`` for ``radius_m``), or None."""
-    import difflib
 
     names = [str(c) for c in candidates]
     close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)

@@ -19,13 +19,13 @@ coefficient in metres (``drag_to_thrust_m``).
 from __future__ import annotations
 
 import enum
-from typing import Any
-
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from offboard.model.euler_lagrange import EulerRateForm
 from offboard.model.tomlfile import Fields, read_toml
 
 
@@ -51,7 +51,7 @@ DEFAULT_VEHICLE_FILE = VEHICLES_DIR / "sitl-quad.toml"
 #: PX4 v1.16 SITL's SIH quadrotor (airframe 10040), to fly the vehicle PX4 SITL flies.
 PX4_SIH_VEHICLE_FILE = VEHICLES_DIR / "px4-sih.toml"
 
-EULER_RATE_FORMS = ("castillo", "printed", "zyx")
+EULER_RATE_FORMS = tuple(f.value for f in EulerRateForm)
 
 
 @dataclass(frozen=True)
@@ -131,7 +131,6 @@ class VehicleParams:
         return 2.0 * self.drag_to_thrust_m * self.max_rotor_thrust_n
 
     def with_changes(self, **changes: Any) -> VehicleParams:
-        from dataclasses import replace
 
         return replace(self, **changes)
 

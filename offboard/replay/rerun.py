@@ -11,10 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from offboard import codec
+from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
 from offboard.controller.params import ControllerParams
+from offboard.controllers import make_controller
 from offboard.errors import LogFormatError, ParameterFileError
+from offboard.flight import ControllerChoice, resolve_controller
 from offboard.model.rotations import euler_from_quat
-from offboard.record import FlightRecord
+from offboard.record import FlightRecord, RecordBuilder, control_row
 from offboard.replay.record import _telemetry_rows, setpoints_for
 from offboard.replay.scan import LogScan
 from offboard.trajectory.base import Trajectory
@@ -137,8 +140,6 @@ def rerun_controller(
     kind : str
         Which controller flew (``paper``, ``se3``, ``px4``).
     """
-    from offboard.controllers import make_controller
-    from offboard.record import RecordBuilder, control_row
 
     output = record.meta.get("commands")
     if output not in RERUN_FIELDS:
@@ -228,8 +229,6 @@ def flight_controller(
     -------
     (ControllerParams, str)
     """
-    from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
-    from offboard.flight import ControllerChoice, resolve_controller
 
     if controller_file is not None:
         choice = ControllerChoice(base=load_controller(controller_file), from_file=True)

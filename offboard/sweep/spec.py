@@ -45,6 +45,8 @@ import numpy as np
 from offboard.errors import ParameterFileError
 from offboard.inprocess import Scenario
 from offboard.model.tomlfile import Fields, near_name, read_toml
+from sitl_plant.dynamics.sensors import sensors_from_spec
+from sitl_plant.dynamics.wind import wind_from_spec
 
 
 @dataclass(frozen=True)
@@ -275,8 +277,6 @@ def _number(value: Any, where: str) -> float:
 
 
 def _check_spec(name: str, spec: str, where: str) -> None:
-    from sitl_plant.dynamics.sensors import sensors_from_spec
-    from sitl_plant.dynamics.wind import wind_from_spec
 
     try:
         if name == "wind":

@@ -25,7 +25,8 @@ import numpy as np
 from offboard.controller.design import Design
 from offboard.controller.params import ControllerParams
 from offboard.metrics import SETTLE_S
-from offboard.model.vehicle import VehicleParams
+from offboard.inprocess import Drive
+from offboard.model.vehicle import VehicleModel, VehicleParams
 from offboard.sweep.runner import run_sweep
 from offboard.sweep.spec import Distribution, SweepSpec
 
@@ -79,7 +80,7 @@ def error_column(spec: SweepSpec) -> str:
 def search_spec(spec: SweepSpec, vehicle: VehicleParams, params: ControllerParams, latency_s: float) -> SweepSpec:
     """The sweep flown for one design: its scenario flying ``vehicle`` through PX4's attitude loop
     with ``params``, and the design's latency where the sweep does not draw one."""
-    base = replace(spec.base, vehicle=vehicle, controller=params, drive="px4", model="rigid-body")
+    base = replace(spec.base, vehicle=vehicle, controller=params, drive=Drive.PX4, model=VehicleModel.RIGID_BODY)
     parameters = spec.parameters
     if latency_s > 0.0 and not any(d.name == "latency_s" for d in parameters):
         parameters = (*parameters, Distribution("latency_s", "fixed", (latency_s,)))

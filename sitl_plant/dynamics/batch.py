@@ -35,6 +35,7 @@ import os
 
 import numpy as np
 
+from offboard.model.euler_lagrange import EULER_FORM_TERMS
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 from sitl_plant.dynamics import rigid_body
@@ -846,7 +847,7 @@ def warm_up() -> None:
              True, np.zeros(STATE_SIZE), np.zeros(4))  # fmt: skip
 
 
-_EULER_FORMS = {"castillo": (2, -1.0), "printed": (2, 1.0), "zyx": (0, -1.0)}
+_EULER_FORMS = EULER_FORM_TERMS  # the one table (offboard.model.euler_lagrange)
 
 
 class FastRigidBodySim(VehicleSim):
