@@ -26,6 +26,8 @@ from sitl_plant.params import plant_params
 from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
 from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
 from sitl_plant.server import Plant, PlantConfig, run_lockstep, run_realtime
+from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
+from sitl_plant.dynamics.wind import WindField, wind_from_spec
 from offboard.model.vehicle import VEHICLE_MODELS
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
@@ -163,10 +165,7 @@ def _unhealthy(text: str) -> set[str]:
     return units
 
 
-def _wind_and_sensors(args: argparse.Namespace) -> tuple[object | None, object | None]:
-    from sitl_plant.dynamics.sensors import CleanSensors, sensors_from_spec
-    from sitl_plant.dynamics.wind import wind_from_spec
-
+def _wind_and_sensors(args: argparse.Namespace) -> tuple[WindField | None, SensorModel | None]:
     wind = None if args.wind.strip().lower() == "none" else wind_from_spec(args.wind, args.seed)
     sensors = sensors_from_spec(args.noise, args.seed)
     return wind, (None if isinstance(sensors, CleanSensors) else sensors)

@@ -42,6 +42,8 @@ from sitl_plant.autopilot import (
 from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.dynamics.rigid_body import rotor_speeds_for
+from sitl_plant.dynamics.sensors import SensorModel
+from sitl_plant.dynamics.wind import WindField
 from sitl_plant.ftp import FtpFormatError, FtpServer
 from sitl_plant.inner_loops import InnerLoops
 from sitl_plant.link import Link
@@ -57,7 +59,7 @@ API, GCS = 0, 1
 MAX_DISTANCE_M = 1e7  # beyond this from home the simulation is taken as broken down
 
 
-def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleSim:
+def make_sim(model: Model, physics_dt_s: float, wind: WindField | None) -> VehicleSim:
     """The stepper: for the rigid body, ``FastRigidBodySim`` (the same equations compiled, equal
     to ``VehicleSim`` to 1e-12; the PX4 attitude and rate loops fused into it) when numba is
     installed and its kernels are already compiled in numba's cache (``python -m
@@ -71,7 +73,7 @@ def make_sim(model: Model, physics_dt_s: float, wind: object | None) -> VehicleS
         if px4_kernel.compiled_ready():
             px4_kernel.compile_all()  # load now, before any link opens: the first period is not late
             return batch.FastRigidBodySim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
-    return VehicleSim(model, physics_dt_s=physics_dt_s, wind=wind)  # type: ignore[arg-type]
+    return VehicleSim(model, physics_dt_s=physics_dt_s, wind=wind)
 
 
 # --- telemetry streams ---------------------------------------------------------------------------
@@ -219,8 +221,10 @@ class Plant:
         The vehicle file's values (``SIM_*`` parameters start from them).
     params : ParamTable
     autopilot : Autopilot
-    wind : object with ``velocity_ned(t, pos)``, or None
-    sensors : object with ``measure(truth) -> VehicleState``, or None (clean)
+    wind : WindField or None
+        The air's velocity (``velocity_ned(t, pos)``); None: calm.
+    sensors : SensorModel or None
+        What the estimate is made of (``measure(truth) -> VehicleState``); None: the truth.
     """
 
     def __init__(
@@ -230,8 +234,8 @@ class Plant:
         params: ParamTable,
         autopilot: Autopilot,
         *,
-        wind: object | None = None,
-        sensors: object | None = None,
+        wind: WindField | None = None,
+        sensors: SensorModel | None = None,
     ) -> None:
         self.config = config
         self.vehicle = vehicle
@@ -660,7 +664,7 @@ class Plant:
         """The sensor model's measurement of the current truth (once per telemetry sample)."""
         if self._measured is None:
             truth = self._truth
-            self._measured = truth if self.sensors is None else self.sensors.measure(truth)  # type: ignore[attr-defined]
+            self._measured = truth if self.sensors is None else self.sensors.measure(truth)
         return self._measured
 
     def status_changed(self) -> bool:

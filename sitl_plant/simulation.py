@@ -26,6 +26,7 @@ from offboard.model.state import VehicleState
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleParams
 from sitl_plant.dynamics import paper_model
 from sitl_plant.dynamics.integrate import rk4_step
+from sitl_plant.dynamics.wind import WindField
 
 __all__ = ["VehicleState", "VehicleSim", "PaperModel", "HeldActuation", "EulerAccelActuation", "Model"]
 
@@ -163,10 +164,6 @@ class Actuation(Protocol):
 
 
 IDLE = HeldActuation(0.0, np.zeros(3))
-
-
-class WindField(Protocol):
-    def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray: ...
 
 
 class VehicleSim:
