@@ -44,6 +44,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def check_cluster(workers: int | None, scheduler: str | None) -> None:
+    """The cluster options of a command that flies on Dask (``offboard sweep``, ``offboard tune
+    --search``); a UserError naming the bad one."""
+    if workers is not None and workers < 1:
+        raise UserError(f"--workers must be >= 1, got {workers}")
+    if scheduler is not None and workers is not None:
+        raise UserError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
+    if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+        raise UserError(f"--scheduler: expected tcp://HOST:PORT, got {scheduler!r}")
+
+
 def _progress(name: str, every_s: float):  # noqa: ANN202
     tty = sys.stderr.isatty()
     last = [-1e9]
@@ -73,14 +84,11 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.spec is None:
         raise UserError("a sweep file is needed (e.g. missions/sweep-table2.toml), or --list-parameters")
-    for option in ("workers", "flights_per_task", "limit"):
+    for option in ("flights_per_task", "limit"):
         value = getattr(args, option)
         if value is not None and value < 1:
             raise UserError(f"--{option.replace('_', '-')} must be >= 1, got {value}")
-    if args.scheduler is not None and args.workers is not None:
-        raise UserError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
-    if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
-        raise UserError(f"--scheduler: expected tcp://HOST:PORT, got {args.scheduler!r}")
+    check_cluster(args.workers, args.scheduler)
     spec = load_sweep(args.spec)
     try:
         import distributed  # noqa: F401

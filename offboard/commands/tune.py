@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from offboard import jsonout
 from offboard.codec import Scaling
+from offboard.commands.sweep import check_cluster
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
 from offboard.controller.design import Design, MarginSpec, nearby_designs
 from offboard.controller.params import ControllerParams
@@ -184,12 +185,11 @@ def _check(args: argparse.Namespace) -> None:
     if args.search is not None:
         if args.vehicle is None:
             raise TuneArgumentError("--search flies the vehicle in process: give it as --vehicle FILE")
-        for option in ("search_flights", "search_designs", "workers"):
+        for option in ("search_flights", "search_designs"):
             value = getattr(args, option)
-            if value is not None and value < 1:
+            if value < 1:
                 raise TuneArgumentError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
-        if args.scheduler is not None and args.workers is not None:
-            raise TuneArgumentError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
+        check_cluster(args.workers, args.scheduler)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise TuneArgumentError(f"--plot {args.plot}: expected a .png file")
     for option, path in (("--output", args.output), ("--plot", args.plot)):
