@@ -43,7 +43,6 @@ class _Pending:
     params: tuple[float, ...]
     name: str
     attempts: int = 0
-    deadline: float = 0.0
     result: int | None = None
     acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: the last counts)
     first_ack_s: float | None = None
