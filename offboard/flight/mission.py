@@ -190,7 +190,7 @@ class Flight:
         self.params: ControllerParams | None = None
         self.scaling: Scaling | None = None
         self.rows = RecordBuilder(FLIGHT_COLUMNS)
-        self._mission_samples = int(round(trajectory.duration_s / self.to))
+        self.sampler.mission_samples = int(round(trajectory.duration_s / self.to))
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self.notes: list[str] = []
         self.armed_by_us = False
@@ -323,7 +323,7 @@ class Flight:
             self._say(f"note: the telemetry timeout {cfg.telemetry_timeout_s:g} s is not below the vehicle's "
                       f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
         self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model)
-        self._mission_samples = int(round(self.trajectory.duration_s / self.to))
+        self.sampler.mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:
             client.sync_time()
         if self.mission_home is not None:
@@ -587,7 +587,7 @@ class Flight:
         if not sampler.mission_started:
             self._say_start(measured)
         n, t = sampler.mission_sample(now)
-        recording = not sampler.mission_done and n <= self._mission_samples
+        recording = not sampler.mission_done and n <= sampler.mission_samples
         ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
         command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
@@ -602,7 +602,7 @@ class Flight:
         if not command.is_finite():
             sampler.source = None
             raise FlightEnd(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")
-        if n >= self._mission_samples:
+        if n >= sampler.mission_samples:
             sampler.mission_done = True
         sp = codec.command_setpoint(command, self.scaling, output=self.config.output, model=self.config.model,
                                     controller=self.controller.name)  # fmt: skip

@@ -111,7 +111,8 @@ class Sampler:
     clock_meter : ClockRateMeter or None
         On our own clock in real time, until the flight has measured the vehicle's clock rate.
     mission_tick0 : int or None
-        The tick of the mission's first sample; ``mission_done``: its last has been taken.
+        The tick of the mission's first sample; ``mission_samples``: the number of its last (the
+        flight sets it); ``mission_done``: its last has been taken.
     loop : LoopStats
         The mission's samples, overruns and missed periods.
     """
@@ -146,6 +147,7 @@ class Sampler:
             self.clock_meter = ClockRateMeter()
         # the mission's window
         self.mission_tick0: int | None = None
+        self.mission_samples = 0  # the mission's last sample number (its samples are 0 ... this)
         self.mission_done = False
         self._mission_wall0: float | None = None
         self._last_sample_wall: float | None = None
@@ -236,19 +238,27 @@ class Sampler:
         late = t_ms - self._next_tick_ms
         if late >= period_ms:
             skipped = int(late // period_ms)
+            self.loop.overruns += self._mission_ticks(self.tick, skipped)
             self.tick += skipped
             self._next_tick_ms += skipped * period_ms
-            if self.mission_tick0 is not None:
-                self.loop.overruns += skipped
         # the position came this long after the tick: the references are taken at its instant, so
         # that state and reference are of one time (the streams' stamps need not fall on the ticks:
         # sitl-plant's 100 Hz on its 4 ms steps are 8 and 12 ms apart, and the samples then fell
         # 40 and 60 ms apart, reading 2 m/s of helix as a 2 cm ripple of the error)
         self._sample_late_s = (t_ms - self._next_tick_ms) / 1000.0
-        if not self.sample(self.clock()) and self.mission_tick0 is not None and not self.mission_done:
-            self.loop.missed += 1
+        if not self.sample(self.clock()):
+            self.loop.missed += self._mission_ticks(self.tick, 1)
         self.tick += 1
         self._next_tick_ms += period_ms
+
+    def _mission_ticks(self, first: int, count: int) -> int:
+        """How many of the ``count`` ticks from ``first`` are the mission's, from its first sample
+        to its last (a late loop's skip, or a period without a setpoint, before the mission or
+        past its end is not the mission's overrun or miss)."""
+        if self.mission_tick0 is None or self.mission_done:
+            return 0
+        last = self.mission_tick0 + self.mission_samples
+        return max(0, min(first + count - 1, last) - max(first, self.mission_tick0) + 1)
 
     def service(self, now: float) -> float:
         """On our own clock in real time: the sample due at ``now`` (s of the clock; late by whole
@@ -262,12 +272,11 @@ class Sampler:
             late = now - self._next_tick_s
             if late >= self.to:  # a whole period late: skip the missed samples
                 skipped = int(late // self.to)
+                self.loop.overruns += self._mission_ticks(self.tick, skipped)
                 self.tick += skipped
                 self._next_tick_s += skipped * self.to
-                if self.mission_tick0 is not None:
-                    self.loop.overruns += skipped
-            if not self.sample(now) and self.mission_tick0 is not None and not self.mission_done:
-                self.loop.missed += 1  # no setpoint this period (telemetry stale)
+            if not self.sample(now):
+                self.loop.missed += self._mission_ticks(self.tick, 1)  # no setpoint this period (telemetry stale)
             self.tick += 1
             self._next_tick_s += self.to
         return self._next_tick_s - self.clock()
