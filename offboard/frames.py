@@ -14,7 +14,6 @@ import numpy as np
 
 from offboard.controller.law import TrackingReference
 from offboard.trajectory.base import Reference
-from offboard.model.euler_lagrange import euler_rate_matrix
 from offboard.model.rotations import quat_from_euler
 
 
@@ -28,19 +27,22 @@ def ned_from_paper_position(xyz_up_m: np.ndarray) -> np.ndarray:
     return np.array([xyz_up_m[0], xyz_up_m[1], -xyz_up_m[2]])
 
 
-def body_rates_from_euler_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, form: str) -> np.ndarray:
-    """omega = W_eta eta_dot (eq. 3)."""
-    return euler_rate_matrix(np.asarray(euler_rad, dtype=float), form) @ np.asarray(euler_rate_rad_s, dtype=float)
+def _floats3(values: np.ndarray) -> list[float]:
+    """Three Python floats (``tolist`` is the cheap way out of a float array, per sample)."""
+    out = np.asarray(values, dtype=float).tolist()
+    if len(out) != 3:
+        raise ValueError(f"expected 3 components, got {len(out)}")
+    return out
 
 
 def paper_state(
     pos_ned_m: np.ndarray, vel_ned_m_s: np.ndarray, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray
 ) -> tuple[float, ...]:
     """The 12-state of eq. 22 (paper frame) from NED position/velocity and Euler angles/rates."""
-    n, e, d = (float(v) for v in pos_ned_m)
-    vn, ve, vd = (float(v) for v in vel_ned_m_s)
-    phi, theta, psi = (float(v) for v in euler_rad)
-    dphi, dtheta, dpsi = (float(v) for v in euler_rate_rad_s)
+    n, e, d = _floats3(pos_ned_m)
+    vn, ve, vd = _floats3(vel_ned_m_s)
+    phi, theta, psi = _floats3(euler_rad)
+    dphi, dtheta, dpsi = _floats3(euler_rate_rad_s)
     return (n, vn, e, ve, -d, -vd, phi, dphi, theta, dtheta, psi, dpsi)
 
 

@@ -25,6 +25,7 @@ report are those the MAVLink process uses (``offboard.controller.paper``).
 from __future__ import annotations
 
 import enum
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ from offboard.controller.paper import PaperController
 from offboard.metrics import lost_reason
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel, VehicleParams
 from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import ReferencePairs, Trajectory
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.dynamics.rigid_body import ROTORS, hover_rotor_speed
 from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
@@ -163,7 +164,9 @@ def vehicle_loop(drive: Drive | str, controller: Controller, vehicle: VehiclePar
 
 def _diverged(sim: VehicleSim, euler_rad: np.ndarray, pos_ned_m: np.ndarray) -> str:
     """Why the true state means the flight is lost ('' if it is not; ``metrics.lost_reason``)."""
-    return lost_reason(bool(np.all(np.isfinite(sim.x))), float(euler_rad[0]), float(euler_rad[1]), pos_ned_m, "simulated")
+    x = sim.x.tolist()  # a NaN or infinity makes the sum NaN or infinite: one check, per sample
+    finite = math.isfinite(sum(x)) or all(math.isfinite(v) for v in x)
+    return lost_reason(finite, float(euler_rad[0]), float(euler_rad[1]), pos_ned_m, "simulated")
 
 
 @dataclass
@@ -285,9 +288,10 @@ def simulate(
     physics_wall_s = 0.0
     status, detail = FlightStatus.COMPLETE, ""
     t = 0.0
+    references = ReferencePairs(trajectory, to)
     for n in range(samples + 1):
         t = n * to
-        ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
+        ref_n, ref_n1 = references.pair(t)
         truth = sim.truth()
         measured = meter.measure(truth)
         start = time.perf_counter()

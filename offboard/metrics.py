@@ -203,7 +203,7 @@ def lost_reason(finite: bool, roll_rad: float, pitch_rad: float, pos_ned_m: np.n
         return f"the {state} state is no longer finite"
     if math.cos(roll_rad) * math.cos(pitch_rad) <= 0.0:
         return f"tilt past 90 degrees (roll {math.degrees(roll_rad):.0f}, pitch {math.degrees(pitch_rad):.0f} deg)"
-    if float(np.max(np.abs(pos_ned_m))) > MAX_POSITION_M:
+    if max(map(abs, np.asarray(pos_ned_m, dtype=float).tolist())) > MAX_POSITION_M:
         return "position beyond 10 km"
     return ""
 

@@ -105,7 +105,9 @@ class Command:
         for extra in (self.body_rate_frd_rad_s, self.torque_nm, self.euler_accel_rad_s2, self.generalized_torque_nm):
             if extra is not None:
                 values.extend(extra)
-        return all(math.isfinite(v) for v in values)
+        # any NaN or infinity makes the sum NaN or infinite, so a finite sum answers at once; the
+        # numbers one by one only when it is not (a sum of finite numbers may overflow)
+        return math.isfinite(sum(values)) or all(math.isfinite(v) for v in values)
 
 
 @runtime_checkable

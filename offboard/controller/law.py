@@ -419,7 +419,7 @@ class RosalesController:
 
     def step(self, x: np.ndarray | tuple[float, ...], ref_n: TrackingReference, ref_n1: TrackingReference) -> ControlOutput:
         """Compute u, tau~ and the real torques for the measured paper-frame state ``x``."""
-        state = tuple(float(v) for v in x)
+        state = tuple(map(float, x))
         if len(state) != 12:
             raise ValueError(f"the state must have 12 components (eq. 22), got {len(state)}")
         if self.memory is None:

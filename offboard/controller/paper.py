@@ -26,8 +26,8 @@ from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity
-from offboard.frames import body_rates_from_euler_rates, paper_state, setpoint_attitude, tracking_reference
-from offboard.model.euler_lagrange import body_torque_from_generalized, euler_rates_from_body_rates
+from offboard.frames import paper_state, setpoint_attitude, tracking_reference
+from offboard.model.euler_lagrange import body_rates_from_euler_rates, body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
 
 def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:
@@ -63,7 +63,7 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
     form = params.euler_rate_form
     heading = float(euler_rad[2]) if params.yaw_aware else 0.0
     q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, vehicle_model)
-    rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), form)  # eq. 3
+    rates = body_rates_from_euler_rates(euler_rad, law.euler_rate_ref_rad_s, form)  # eq. 3
     torque: np.ndarray | tuple[float, ...] = out.torques_nm
     if vehicle_model == "rigid-body":
         try:

@@ -57,7 +57,7 @@ from offboard.missions.geo import mission_offset_ned
 from offboard.metrics import lost_reason
 from offboard.record import COLUMNS, FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.model.tlog import LOCKSTEP_EPOCH_S
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import ReferencePairs, Trajectory
 from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -191,6 +191,7 @@ class Flight:
         self.scaling: Scaling | None = None
         self.rows = RecordBuilder(FLIGHT_COLUMNS)
         self.sampler.mission_samples = int(round(trajectory.duration_s / self.to))
+        self.references = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self.notes: list[str] = []
         self.armed_by_us = False
@@ -441,6 +442,7 @@ class Flight:
         shifted = shift_trajectory(self.trajectory, offset)
         if shifted is not self.trajectory:
             self.trajectory = shifted
+            self.references = ReferencePairs(shifted, self.to)
             self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
 
     def _check_clock_rate(self) -> None:
@@ -588,7 +590,7 @@ class Flight:
             self._say_start(measured)
         n, t = sampler.mission_sample(now)
         recording = not sampler.mission_done and n <= sampler.mission_samples
-        ref_n, ref_n1 = self.trajectory.reference(t), self.trajectory.reference(t + self.to)
+        ref_n, ref_n1 = self.references.pair(t)
         command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
         if recording:

@@ -68,6 +68,24 @@ def euler_rate_matrix(eta: np.ndarray, form: str = "castillo") -> np.ndarray:
     return np.array([[1.0, 0.0, -st], [0.0, ca, ct * sa], [0.0, sign * sa, ct * ca]])
 
 
+def _w_terms(eta: Vec3Like, form: str) -> tuple[float, float, float, float, float]:
+    """(sin theta, cos theta, sin a, cos a, sign) of W_eta (eq. 4) at ``eta``, as floats: the
+    scalar maps below need only these, and math on floats is what makes them cheap per sample."""
+    index, sign = _angle_and_sign(form)
+    theta, a = float(eta[1]), float(eta[index])
+    return math.sin(theta), math.cos(theta), math.sin(a), math.cos(a), sign
+
+
+def _solve_w_transposed(
+    st: float, ct: float, sa: float, ca: float, sign: float, det: float, y: Vec3Like
+) -> tuple[float, float, float]:
+    """z with ``W_eta^T z = y`` in closed form (W's first column is (1, 0, 0); ``det`` = det W,
+    non-zero): the body torque of a generalised torque, eq. 13's W^-T."""
+    y1, y2, y3 = float(y[0]), float(y[1]), float(y[2])
+    y3p = y3 + st * y1
+    return y1, (ct * ca * y2 - sign * sa * y3p) / det, (ca * y3p - ct * sa * y2) / det
+
+
 def _rows(eta, eta_dot, form):
     """W's rows w_r, their time derivatives w_r_dot, and g[r][k] = (dw_r/d eta_k) . eta_dot.
 
@@ -173,11 +191,7 @@ def euler_acceleration(
     c = _coriolis(rows, rows_dot, g, eta_dot, moments)
     y1, y2, y3 = float(tau[0]) - c[0], float(tau[1]) - c[1], float(tau[2]) - c[2]
     det = ct * (ca * ca - sign * sa * sa)  # det W
-    # z = W^-T y (body-axis torque), then I^-1
-    z1 = y1
-    y3p = y3 + st * y1
-    z2 = (ct * ca * y2 - sign * sa * y3p) / det
-    z3 = (ca * y3p - ct * sa * y2) / det
+    z1, z2, z3 = _solve_w_transposed(st, ct, sa, ca, sign, det, (y1, y2, y3))  # body-axis torque
     b1, b2, b3 = z1 / moments[0], z2 / moments[1], z3 / moments[2]
     # eta_ddot = W^-1 b
     v2 = ct * (ca * b2 - sa * b3) / det
@@ -193,6 +207,13 @@ def rotational_lagrangian(eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndar
 # --- eq. 3 solved: Euler-angle rates of body rates, body torque of a generalised torque -------------
 
 
+def body_rates_from_euler_rates(euler_rad: Vec3Like, euler_rate_rad_s: Vec3Like, form: str) -> np.ndarray:
+    """omega = W_eta eta_dot (eq. 3), W_eta in ``form``'s terms (module docstring)."""
+    st, ct, sa, ca, k = _w_terms(euler_rad, form)
+    d_phi, d_theta, d_psi = float(euler_rate_rad_s[0]), float(euler_rate_rad_s[1]), float(euler_rate_rad_s[2])
+    return np.array((d_phi - st * d_psi, ca * d_theta + ct * sa * d_psi, k * sa * d_theta + ct * ca * d_psi))
+
+
 def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: str) -> np.ndarray:
     """eta_dot = W_eta^-1 omega (eq. 3), solved in closed form (W's first column is (1, 0, 0)).
 
@@ -200,24 +221,28 @@ def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.n
     ``k`` set by ``form``) the lower 2x2 block gives the pitch and yaw rates and the first row the
     roll rate. Raises ``numpy.linalg.LinAlgError`` where W is singular, as ``numpy.linalg.solve``.
     """
-    w = euler_rate_matrix(np.asarray(euler_rad, dtype=float), form)
-    p, q, r = (float(v) for v in body_rate_frd_rad_s)
-    ca, ct_sa, k_sa, ct_ca = float(w[1, 1]), float(w[1, 2]), float(w[2, 1]), float(w[2, 2])
+    st, ct, sa, ca, k = _w_terms(euler_rad, form)
+    p, q, r = float(body_rate_frd_rad_s[0]), float(body_rate_frd_rad_s[1]), float(body_rate_frd_rad_s[2])
+    ct_sa, k_sa, ct_ca = ct * sa, k * sa, ct * ca
     det = ca * ct_ca - ct_sa * k_sa
     if det == 0.0:
         raise np.linalg.LinAlgError(f"W_eta ({form}) is singular at the Euler angles {tuple(euler_rad)}")
     theta_dot = (ct_ca * q - ct_sa * r) / det
     psi_dot = (ca * r - k_sa * q) / det
-    return np.array((p - float(w[0, 2]) * psi_dot, theta_dot, psi_dot))
+    return np.array((p + st * psi_dot, theta_dot, psi_dot))
 
 
 def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
-    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)``.
+    """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)`` in closed form.
 
     By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``
     (eq. 3), so ``tau_gen = W_eta^T tau_body``.
     """
-    return np.linalg.solve(euler_rate_matrix(np.asarray(euler_rad, dtype=float), form).T, np.asarray(tau_generalized_nm, dtype=float))
+    st, ct, sa, ca, k = _w_terms(euler_rad, form)
+    det = ct * (ca * ca - k * sa * sa)  # det W
+    if det == 0.0:
+        raise np.linalg.LinAlgError(f"W_eta ({form}) is singular at the Euler angles {tuple(euler_rad)}")
+    return np.array(_solve_w_transposed(st, ct, sa, ca, k, det, tau_generalized_nm))
 
 
 def zyx_euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:

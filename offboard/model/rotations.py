@@ -29,7 +29,7 @@ def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.nda
 
 def euler_from_quat(q: np.ndarray) -> np.ndarray:
     """(roll, pitch, yaw) in radians, ZYX, from (w, x, y, z); pitch clipped to +-pi/2."""
-    w, x, y, z = (float(v) for v in q)
+    w, x, y, z = np.asarray(q, dtype=float).tolist()
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

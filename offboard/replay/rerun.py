@@ -20,7 +20,7 @@ from offboard.model.rotations import euler_from_quat
 from offboard.record import FlightRecord, RecordBuilder, control_row
 from offboard.replay.record import _telemetry_rows, setpoints_for
 from offboard.replay.scan import LogScan
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import ReferencePairs, Trajectory
 
 #: The setpoint fields compared, per output kind (message units).
 RERUN_FIELDS = {
@@ -157,6 +157,7 @@ def rerun_controller(
     controller = make_controller(kind, params, vehicle_model=model)
     t_all = record["t_s"]
     builder = RecordBuilder()
+    references = ReferencePairs(trajectory, to)
     logged = setpoints.values[rows]
     logged = logged[:, 1:9] if output == "attitude" else logged[:, 0:4]
     rerun = np.full(logged.shape, np.nan, dtype=np.float32)
@@ -167,7 +168,7 @@ def rerun_controller(
             _Msg(time_boot_ms=int(p[0]), x=p[1], y=p[2], z=p[3], vx=p[4], vy=p[5], vz=p[6]),
         )
         t = float(t_all[k])
-        ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
+        ref_n, ref_n1 = references.pair(t)
         command = controller.step(measured, ref_n, ref_n1)
         builder.append(**control_row(t, measured, ref_n, command))
         if not command.is_finite():

@@ -42,6 +42,7 @@ from offboard.metrics import lost, lost_reason
 from offboard.record import FlightStatus
 from offboard.sweep.flight import Series, fly_one, row_of
 from offboard.sweep.spec import FlightSetup, FlightSpec, SweepSpec, scenario_of
+from offboard.trajectory.base import ReferencePairs
 from sitl_plant.dynamics.batch import _EULER_FORMS, advance_many, param_vector
 from sitl_plant.dynamics.rigid_body import STATE_SIZE, RigidBodyModel
 from sitl_plant.dynamics.sensors import CleanSensors, PaperAccelNoise, sensors_from_spec
@@ -205,10 +206,11 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
     prev_thrust, prev_tau, prev_mode = np.zeros(n), np.zeros((n, 3)), 0
     t_s = np.arange(samples + 1) * to
 
+    references = ReferencePairs(trajectory, to)
     with np.errstate(all="ignore"):
         for k in range(samples + 1):
             t = k * to
-            ref_n, ref_n1 = trajectory.reference(t), trajectory.reference(t + to)
+            ref_n, ref_n1 = references.pair(t)
             rec_ref[k] = ref_n.pos_ned_m
             euler = _truth(x)
             rates = _euler_rates(euler, x[:, 10:13], form)

@@ -51,11 +51,13 @@ class Reference:
         object.__setattr__(self, "pos_ned_m", _vec3(self.pos_ned_m, "pos_ned_m"))
         object.__setattr__(self, "vel_ned_m_s", _vec3(self.vel_ned_m_s, "vel_ned_m_s"))
         object.__setattr__(self, "acc_ned_m_s2", _vec3(self.acc_ned_m_s2, "acc_ned_m_s2"))
-        for name in ("yaw_rad", "yaw_rate_rad_s"):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value}")
-            object.__setattr__(self, name, value)
+        yaw, yaw_rate = float(self.yaw_rad), float(self.yaw_rate_rad_s)
+        if not math.isfinite(yaw):
+            raise ValueError(f"yaw_rad must be finite, got {yaw}")
+        if not math.isfinite(yaw_rate):
+            raise ValueError(f"yaw_rate_rad_s must be finite, got {yaw_rate}")
+        object.__setattr__(self, "yaw_rad", yaw)
+        object.__setattr__(self, "yaw_rate_rad_s", yaw_rate)
 
 
 @dataclass(frozen=True)
@@ -84,3 +86,24 @@ class Trajectory(Protocol):
     def reference(self, t_s: float) -> Reference:
         """The reference at time ``t_s`` (seconds from the trajectory's start)."""
         ...
+
+
+class ReferencePairs:
+    """The controller's two references of each sample: ``pair(t) = (reference(t), reference(t + To))``.
+
+    Sample n's second reference is usually sample n + 1's first (where ``t + To`` is the next
+    sample's time to the last bit): it is then handed on instead of evaluated again.
+    """
+
+    def __init__(self, trajectory: Trajectory, sample_time_s: float) -> None:
+        self.trajectory = trajectory
+        self.sample_time_s = sample_time_s
+        self._next_t_s = math.nan
+        self._next: Reference | None = None
+
+    def pair(self, t_s: float) -> tuple[Reference, Reference]:
+        """(ref_n, ref_n1) of the sample at ``t_s``."""
+        ref_n = self._next if t_s == self._next_t_s and self._next is not None else self.trajectory.reference(t_s)
+        self._next_t_s = t_s + self.sample_time_s
+        self._next = self.trajectory.reference(self._next_t_s)
+        return ref_n, self._next

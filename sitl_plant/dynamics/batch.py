@@ -889,6 +889,7 @@ class FastRigidBodySim(VehicleSim):
         self._cmd = np.zeros(4)
         self._no_wind: np.ndarray = np.zeros((0, 3))
         self._zeros3 = np.zeros(3)
+        self._believed: tuple[np.ndarray | None, np.ndarray] = (None, self._zeros3)  # (inertia, its diagonal)
 
     _model: RigidBodyModel
 
@@ -930,7 +931,9 @@ class FastRigidBodySim(VehicleSim):
         if isinstance(act, HeldActuation):
             self._held(float(act.thrust_n), np.asarray(act.torque_nm, dtype=float), n_steps, winds)
         elif isinstance(act, EulerAccelActuation):
-            believed = np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float)
+            if self._believed[0] is not act.believed_inertia:  # the same believed matrix every sample
+                self._believed = (act.believed_inertia, np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float))
+            believed = self._believed[1]
             index, sign = _EULER_FORMS[act.form]
             self.on_ground = bool(
                 _advance(self.x, n_steps, self.physics_dt_s, 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),

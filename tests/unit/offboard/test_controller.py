@@ -341,7 +341,7 @@ def test_integral_off_by_default_and_validated():
 @pytest.mark.parametrize("form", ["castillo", "printed", "zyx"])
 def test_euler_rates_from_body_rates_inverts_w_eta(form):
     """The closed-form W_eta^-1 (offboard.frames) is the inverse of eq. 3's W_eta."""
-    from offboard.frames import body_rates_from_euler_rates
+    from offboard.model.euler_lagrange import body_rates_from_euler_rates
     from offboard.model.euler_lagrange import euler_rates_from_body_rates
     from offboard.model.euler_lagrange import euler_rate_matrix
 

@@ -205,7 +205,8 @@ def test_paper_loop_reproduces_the_in_process_law():
     To) follows the in-process reproduction (offboard.inprocess, drive ``inner-loop``)."""
     from offboard.controller import RosalesController
     from offboard.controller.params import PAPER_CONTROLLER_FILE, load_controller
-    from offboard.frames import body_rates_from_euler_rates, paper_state, tracking_reference
+    from offboard.frames import paper_state, tracking_reference
+    from offboard.model.euler_lagrange import body_rates_from_euler_rates
     from offboard.model.euler_lagrange import euler_rates_from_body_rates
     from offboard.inprocess import Scenario, run_scenario
     from offboard.trajectory.analytic import Line
