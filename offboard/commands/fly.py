@@ -87,7 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper|se3|px4",
                      help="controller file, or 'paper' for Table I's gains, or a baseline: 'se3' (Lee's SE(3) controller) "
                           "or 'px4' (PX4's position cascade), believing what the law would (default: with the attitude "
-                          "output on a rigid body, gains designed for the vehicle's inner loop from its parameters, "
+                          "or rates output on a rigid body, gains designed for the vehicle's inner loop from its parameters, "
                           "believing its SIM_*/SIH_* mass and inertia (docs/controller-design.md); else Table I's)")
     ctl.add_argument("--design-latency", type=float, default=None, metavar="S",
                      help="latency the designed gains allow for (default: 0 in lockstep; in real time measured, the "
@@ -226,9 +226,10 @@ def run(args: argparse.Namespace) -> int:
         base=base,
         kind=kind,
         from_file=from_file,
-        # the design models an autopilot's attitude loop: what the attitude output drives on a rigid
-        # body; the paper model's own inner loop and the actuator output fly the paper's gains
-        tuned=args.controller is None and args.model == "rigid-body" and args.output == "attitude",
+        # the design models an autopilot's attitude loop (the attitude output) or its rate loop (the
+        # rates output) on a rigid body; the paper model's own inner loop and the actuator output
+        # fly the paper's gains
+        tuned=args.controller is None and args.model == "rigid-body" and args.output in ("attitude", "rates"),
         latency_s=latency,
         mass_from_vehicle=args.mass_from_vehicle,
         yaw_aware=args.yaw_aware,
@@ -236,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         thrust_min_fraction=args.thrust_min,
         sample_time_s=args.sample_time,
         velocity_integral=not args.no_integral,
+        body_rates=args.output == "rates",
     )
     config = FlightConfig(
         output=args.output,

@@ -75,6 +75,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="at most this max |1/(1+L)| (> 1; 'inf' for no bound)")
     parser.add_argument("--no-integral", action="store_true",
                         help="design without the law's velocity integral (docs/controller-design.md)")
+    parser.add_argument("--setpoint-output", choices=("attitude", "rates"), default="attitude",
+                        help="what offboard fly --output will send: an attitude, which the autopilot's attitude loop "
+                        "closes, or body rates, which only its rate loop flies (the law's angle gains kx7..kx10 "
+                        "designed too; docs/controller-design.md)")
     search = parser.add_argument_group("search on the sweep engine (needs --vehicle and Dask: pip install -e '.[sweep]')")
     search.add_argument("--search", type=Path, default=None, metavar="SWEEP.toml",
                         help="fly the designs near the analytic one (each keeping the margins) on this sweep's flights "
@@ -183,6 +187,8 @@ def _check(args: argparse.Namespace) -> None:
     if not (args.sensitivity_peak > 1.0):  # inf allowed: no bound; NaN refused
         raise TuneArgumentError(f"--sensitivity-peak must be > 1, got {args.sensitivity_peak}")
     if args.search is not None:
+        if args.setpoint_output == "rates":
+            raise TuneArgumentError("--search flies PX4's attitude loop in process: it searches --setpoint-output attitude only")
         if args.vehicle is None:
             raise TuneArgumentError("--search flies the vehicle in process: give it as --vehicle FILE")
         for option in ("search_flights", "search_designs"):
@@ -213,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     spec = MarginSpec(args.gain_margin, args.phase_margin_deg, args.delay_margin, args.sensitivity_peak)
     try:
         design = design_for_vehicle(values, sample_time_s=args.sample_time, latency_s=args.latency, spec=spec,
-                                    velocity_integral=not args.no_integral)
+                                    velocity_integral=not args.no_integral, body_rates=args.setpoint_output == "rates")
     except KeyError as exc:
         raise TuneArgumentError(f"{source}: {exc.args[0]}") from None
     except ValueError as exc:

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -107,6 +107,11 @@ class InnerLoopModel:
     drag_per_s : float
         delta = d / m, the vehicle's linear drag per unit mass (1/s), which the law makes up
         (``[model] linear_drag_n_s_m``); 0 for none.
+    angle_gains : AxisGains or None
+        None: the law hands the autopilot an attitude, which its attitude P loop closes (``--output
+        attitude``). Otherwise the law closes the attitude loop itself, eq. 32-33 on the angles
+        with these (k_pos, k_vel) = (kx7, kx8) = (kx9, kx10), and hands the autopilot the body
+        rates x8ref, x10ref, which only its rate loop flies (``--output rates``; ``rate_axis_plant``).
     """
 
     roll: TiltLoop
@@ -115,6 +120,7 @@ class InnerLoopModel:
     latency_s: float = 0.0
     source: str = ""
     drag_per_s: float = 0.0
+    angle_gains: AxisGains | None = None
 
     def __post_init__(self) -> None:
         for name in ("thrust_time_constant_s", "latency_s", "drag_per_s"):
@@ -210,6 +216,34 @@ def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per
     a[5, 5] = (-t1 * kd / i - 1.0) / tm
     b[5, 0] = t1 * kp * patt / g / tm
     return a, b
+
+
+def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of one horizontal axis flown by body rates, states (p, v, theta, omega, rate
+    integral, torque) as ``tilt_axis_plant``; input the body-rate setpoint omega_sp (rad/s), which
+    the rate loop flies with no attitude P in front of it (PX4 with a rate setpoint)."""
+    g = gravity_m_s2
+    tm = max(loop.motor_time_constant_s, 1e-4)
+    i = loop.inertia_kg_m2
+    t1 = loop.torque_per_unit_nm
+    kp, ki, kd = loop.rate_p, loop.rate_i, loop.rate_d
+    a = np.zeros((6, 6))
+    b = np.zeros((6, 1))
+    a[0, 1] = 1.0
+    a[1, 1] = -drag_per_s
+    a[1, 2] = g
+    a[2, 3] = 1.0
+    a[3, 5] = 1.0 / i
+    a[4, 3], b[4, 0] = -1.0, 1.0  # the integral of omega_sp - omega
+    a[5, 3] = -t1 * kp / tm
+    a[5, 4] = t1 * ki / tm
+    a[5, 5] = (-t1 * kd / i - 1.0) / tm
+    b[5, 0] = t1 * kp / tm
+    return a, b
+
+
+#: Where ``rate_axis_plant``'s tilt and body rate sit in its state.
+TILT_STATE, RATE_STATE = 2, 3
 
 
 def vertical_plant(thrust_time_constant_s: float, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -404,6 +438,63 @@ def closed_loop(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) ->
 def closed_loop_matrix(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> np.ndarray:
     """The closed loop's state matrix (``closed_loop``)."""
     return closed_loop(plant, gains, sample_time_s)[0]
+
+
+# --- the law's own attitude loop: the body-rate output ------------------------------------------------
+
+
+def angle_stage_plant(rates: DiscretePlant, sample_time_s: float) -> DiscretePlant:
+    """A rate-flown axis (``rate_axis_plant`` discretised) as the law's angle stage sees it: input
+    tau~ (eq. 40-42's angular acceleration, rad/s^2), outputs (theta, omega, 0).
+
+    The body-rate output is x8ref = x8 + To tau~ (eq. 41 with eq. 32-33 on the angles), held for
+    the sample: omega_sp(n) = omega(n) + To u(n). With (k_pos, k_vel) = (kx7, kx8) the law on the
+    angles is then ``law_state_space`` itself, on (theta, omega) in place of (p, v), and the
+    same search designs it (``design_angle_gains``). The position and velocity, which the angles
+    drive but which do not act back on them, are left out (their poles at 1 are not the angle
+    stage's).
+    """
+    to = sample_time_s
+    keep = np.arange(TILT_STATE, rates.phi.shape[0])  # theta, omega, the rate integral, the torque, the delay line
+    n = keep.size
+    tilt, rate = 0, RATE_STATE - TILT_STATE
+    rate_row = np.zeros((1, n))
+    rate_row[0, rate] = 1.0
+    c = np.zeros((3, n))
+    c[0, tilt] = c[1, rate] = 1.0
+    gamma = rates.gamma[keep]
+    return DiscretePlant(rates.phi[np.ix_(keep, keep)] + gamma @ rate_row, gamma * to, c)
+
+
+def rate_output_plant(rates: DiscretePlant, angle: AxisGains, sample_time_s: float,
+                      gravity_m_s2: float = GRAVITY_M_S2) -> DiscretePlant:  # fmt: skip
+    """A rate-flown axis closed by the law's angle stage, as the position law (eq. 32-34) sees it:
+    input the acceleration command a_c (m/s^2), the angle reference x7ez = a_c / g (eq. 28-29,
+    linearised); outputs (p, v, theta). Two states of the law join the plant's, x7ez(n-1) and
+    x8d(n-1)::
+
+        x8d(n)   = (x7ez(n) - kx7 (x7ez(n-1) - theta(n)) - theta(n)) / To   (eq. 32 on the angle)
+        x8ref(n) = x8d(n) - kx8 (x8d(n-1) - omega(n))                       (eq. 33): omega_sp(n)
+    """
+    to, g = sample_time_s, gravity_m_s2
+    k7, k8 = float(np.asarray(angle.k_pos)), float(np.asarray(angle.k_vel))
+    n = rates.phi.shape[0]
+    tilt, rate = np.zeros(n), np.zeros(n)
+    tilt[TILT_STATE], rate[RATE_STATE] = 1.0, 1.0
+    # x8d(n) = d_u a_c + d_m x7ez(n-1) + d_x . x
+    d_u, d_m, d_x = 1.0 / (g * to), -k7 / to, (k7 - 1.0) / to * tilt
+    gam = rates.gamma[:, 0]
+    phi = np.zeros((n + 2, n + 2))
+    gamma = np.zeros((n + 2, 1))
+    phi[:n, :n] = rates.phi + np.outer(gam, d_x + k8 * rate)
+    phi[:n, n] = gam * d_m
+    phi[:n, n + 1] = -k8 * gam
+    gamma[:n, 0] = gam * d_u
+    gamma[n, 0] = 1.0 / g  # x7ez(n), kept for the next sample
+    phi[n + 1, :n], phi[n + 1, n], gamma[n + 1, 0] = d_x, d_m, d_u  # x8d(n), kept likewise
+    c = np.zeros((3, n + 2))
+    c[:, :n] = rates.c
+    return DiscretePlant(phi, gamma, c, rates.drag_per_s)
 
 
 def _plant_response(plant: DiscretePlant, z: np.ndarray) -> np.ndarray:
@@ -644,11 +735,23 @@ class Design:
         return self.up.gains
 
 
-def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant, DiscretePlant]:
-    """(north, east, up) discrete plants of a model at a sample time."""
+def rate_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant]:
+    """(north, east) discrete plants flown by body rates (``rate_axis_plant``): input omega_sp."""
     drag = model.drag_per_s
-    north = discretise(*tilt_axis_plant(model.pitch, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
-    east = discretise(*tilt_axis_plant(model.roll, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
+    return tuple(discretise(*rate_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=TILT_STATE,  # type: ignore[return-value]
+                            drag_per_s=drag) for loop in (model.pitch, model.roll))  # fmt: skip
+
+
+def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant, DiscretePlant]:
+    """(north, east, up) discrete plants of a model at a sample time: input the acceleration
+    command; through the autopilot's attitude loop, or with ``model.angle_gains`` through the
+    law's own angle stage and the autopilot's rate loop (``rate_output_plant``)."""
+    drag = model.drag_per_s
+    if model.angle_gains is None:
+        north = discretise(*tilt_axis_plant(model.pitch, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
+        east = discretise(*tilt_axis_plant(model.roll, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
+    else:
+        north, east = (rate_output_plant(p, model.angle_gains, sample_time_s) for p in rate_plants(model, sample_time_s))
     up = discretise(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s, drag_per_s=drag)
     return north, east, up
 
@@ -766,8 +869,21 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
                      round(float(best.integral_per_s), 4), round(float(best.velocity_integral_per_s2), 4))  # fmt: skip
 
 
+def angle_stage_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant]:
+    """(pitch, roll) as the law's angle stage sees them (``angle_stage_plant``)."""
+    return tuple(angle_stage_plant(p, sample_time_s) for p in rate_plants(model, sample_time_s))  # type: ignore[return-value]
+
+
+def design_angle_gains(model: InnerLoopModel, sample_time_s: float, spec: MarginSpec) -> AxisGains:
+    """(kx7, kx8) = (kx9, kx10) for a body-rate output: the fastest angle stage that keeps
+    ``spec`` on both tilt axes flown by the autopilot's rate loop (``search_gains`` on
+    ``angle_stage_plants``; no lead, no integral)."""
+    return search_gains(angle_stage_plants(model, sample_time_s), sample_time_s, spec, leads=np.zeros(1))
+
+
 def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: MarginSpec | None = None, *,
-                 tilt_lead: bool = True, integral: bool = False, velocity_integral: bool = False) -> Design:  # fmt: skip
+                 tilt_lead: bool = True, integral: bool = False, velocity_integral: bool = False,
+                 body_rates: bool = False) -> Design:  # fmt: skip
     """The fastest law (gains, and the tilt lead and integral action where allowed) that keeps
     ``spec`` on every axis of ``model`` (module docstring).
 
@@ -776,9 +892,17 @@ def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: Margi
     design chose. Both are off by default here; ``offboard tune`` and ``offboard fly`` design the
     velocity integral (docs/controller-design.md: the position integral, added to eq. 32's desired
     speed, is cut by the speed bounds exactly when a disturbance needs it most).
+
+    With ``body_rates`` the law closes the attitude loop itself (``--output rates``): its angle
+    gains are designed first (``design_angle_gains``, into ``model.angle_gains``), then the
+    position and velocity gains on the loop they close, without a tilt lead (it leads the
+    attitude setpoint only, which a rate setpoint does not carry).
     """
     spec = spec or MarginSpec()
     to = sample_time_s
+    if body_rates:
+        model = replace(model, angle_gains=design_angle_gains(replace(model, angle_gains=None), to, spec))
+        tilt_lead = False
     north_plant, east_plant, up_plant = axis_plants(model, to)
     h = search_gains((north_plant, east_plant), to, spec, leads=LEAD_GRID if tilt_lead else np.zeros(1), integral=integral,
                      velocity_integral=velocity_integral)  # fmt: skip

@@ -20,6 +20,7 @@ from offboard.controller.design import (
     InnerLoopModel,
     MarginSpec,
     analyse_axis,
+    angle_stage_plants,
     axis_plants,
     design_gains,
     inner_loop_from_params,
@@ -73,9 +74,10 @@ def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
 
 
 def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, latency_s: float = 0.0,
-                       spec: MarginSpec | None = None, velocity_integral: bool = True) -> Design:  # fmt: skip
+                       spec: MarginSpec | None = None, velocity_integral: bool = True, body_rates: bool = False) -> Design:  # fmt: skip
     """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``),
-    with the velocity integral unless ``velocity_integral`` is False.
+    with the velocity integral unless ``velocity_integral`` is False; with ``body_rates``, for a
+    body-rate output (the law's angle gains designed too).
 
     Raises
     ------
@@ -85,7 +87,7 @@ def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, lat
         No gains meet the margins.
     """
     model: InnerLoopModel = inner_loop_from_params(params, latency_s)
-    return design_gains(model, sample_time_s, spec, velocity_integral=velocity_integral)
+    return design_gains(model, sample_time_s, spec, velocity_integral=velocity_integral, body_rates=body_rates)
 
 
 def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, float]) -> ControllerParams:
@@ -95,12 +97,18 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
     speeds bounded by the autopilot's own MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN and
     the yaw reference's rate by MPC_YAWRAUTO_MAX (PX4's defaults when not published), so that a
     step in the reference is flown in the range the linear design holds for (a pi yaw step
-    while tilted to the bound made the attitude loop overshoot it by 5 deg). The angle gains kx7..kx12 stay: through an attitude setpoint
-    the autopilot closes the attitude loop, and they act only with the paper's own inner loop.
+    while tilted to the bound made the attitude loop overshoot it by 5 deg). The angle gains
+    kx7..kx12 stay, unless the design is for a body-rate output: through an attitude setpoint the
+    autopilot closes the attitude loop, and they act only with the paper's own inner loop; with
+    body rates the law closes it, with the designed kx7..kx10 (``design.model.angle_gains``).
     """
     h, v = design.horizontal, design.vertical
     gains = replace(base.gains, kx1=float(h.k_pos), kx2=float(h.k_vel), kx3=float(h.k_pos), kx4=float(h.k_vel),
                     kx5=float(v.k_pos), kx6=float(v.k_vel))  # fmt: skip
+    angle = design.model.angle_gains
+    if angle is not None:
+        k7, k8 = float(angle.k_pos), float(angle.k_vel)
+        gains = replace(gains, kx7=k7, kx8=k8, kx9=k7, kx10=k8)
     speed = {k: float(params.get(k, v)) for k, v in PX4_SPEED_DEFAULTS.items()}
     limits = replace(
         base.limits,
@@ -119,8 +127,19 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
 
 
 def design_summary(design: Design) -> list[str]:
-    """One line per axis: gains, poles, margins (what ``offboard tune`` prints)."""
+    """One line per axis: gains, poles, margins (what ``offboard tune`` prints); first, for a
+    body-rate output, the law's angle stage."""
     lines = []
+    angle = design.model.angle_gains
+    if angle is not None:
+        to = design.sample_time_s
+        a = analyse_axis(angle_stage_plants(design.model, to)[0], angle, to)
+        lines.append(
+            f"{'angles (rates)':14s} kx7 = kx9 {float(angle.k_pos):.4g} kx8 = kx10 {float(angle.k_vel):.4g} on the rate loop: "
+            f"|pole| max {a.spectral_radius:.3f} (2 % in {a.settling_time_s:.2f} s), gain margin {a.gain_margin:.2f}, "
+            f"phase margin {a.phase_margin_deg:.1f} deg, delay margin {a.delay_margin_s * 1000:.0f} ms, sensitivity peak "
+            f"{a.sensitivity_peak:.2f}"
+        )
     for name, a in (("north (pitch)", design.north), ("east (roll)", design.east), ("up (thrust)", design.up)):
         g = a.gains
         lines.append(
@@ -136,9 +155,13 @@ def paper_gains_summary(design: Design) -> str:
     """One line: Table I's horizontal gains on the same model, for comparison."""
 
     table1 = ControllerGains()
-    north, _, _ = axis_plants(design.model, design.sample_time_s)
+    model = design.model
+    if model.angle_gains is not None:  # body rates: Table I's own angle stage too
+        model = replace(model, angle_gains=AxisGains(table1.kx7, table1.kx8))
+    north, _, _ = axis_plants(model, design.sample_time_s)
     a = analyse_axis(north, AxisGains(table1.kx1, table1.kx2), design.sample_time_s)
-    head = f"Table I (kx1 {table1.kx1:g}, kx2 {table1.kx2:g}) on this loop:"
+    angles = f", kx7 {table1.kx7:g}, kx8 {table1.kx8:g}" if design.model.angle_gains is not None else ""
+    head = f"Table I (kx1 {table1.kx1:g}, kx2 {table1.kx2:g}{angles}) on this loop:"
     if a.spectral_radius >= 1.0:
         return f"{head} UNSTABLE, |pole| max {a.spectral_radius:.3f}"
     return f"{head} |pole| max {a.spectral_radius:.3f}, gain margin {a.gain_margin:.2f}, phase margin {a.phase_margin_deg:.1f} deg"
@@ -170,7 +193,8 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"# (docs/controller-design.md), from {source}.",
         f"# Model: {m.source}; latency {m.latency_s * 1000:.0f} ms; roll P {m.roll.attitude_p_per_s:g}/s, rate P/I/D "
         f"{m.roll.rate_p:g}/{m.roll.rate_i:g}/{m.roll.rate_d:g}, {m.roll.torque_per_unit_nm:.4g} N m at torque 1, "
-        f"Ixx {m.roll.inertia_kg_m2:.4g} kg m^2, motor lag {m.roll.motor_time_constant_s * 1000:.0f} ms.",
+        f"Ixx {m.roll.inertia_kg_m2:.4g} kg m^2, motor lag {m.roll.motor_time_constant_s * 1000:.0f} ms"
+        + (" (the roll P unused: designed for a body-rate output, fly it with --output rates)." if m.angle_gains is not None else "."),
         f"# Required: gain margin {design.spec.gain_margin:g}, phase margin {design.spec.phase_margin_deg:g} deg, "
         f"delay margin {design.spec.delay_margin_s * 1000:.0f} ms, sensitivity peak {design.spec.sensitivity_peak:g}. Achieved:",
         *(f"#   {line}" for line in design_summary(design)),
@@ -200,7 +224,8 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"drag_to_thrust_m = {_fmt(params.drag_to_thrust_m)}",
         f"linear_drag_n_s_m = {_fmt(params.linear_drag_n_s_m)}",
         "",
-        "[gains]                # kx1..kx6 designed; kx7..kx12 Table I's (the autopilot closes the attitude loop)",
+        "[gains]                # kx1..kx6 designed; kx7..kx12 Table I's (the autopilot closes the attitude loop)"
+        if m.angle_gains is None else "[gains]                # kx1..kx10 designed (body rates: the law closes the attitude loop); kx11, kx12 Table I's",
         *(f"kx{i} = {_fmt(getattr(g, f'kx{i}'))}" for i in range(1, 13)),
         "",
         "[limits]               # the range the linear design holds for",

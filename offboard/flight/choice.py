@@ -55,6 +55,9 @@ class ControllerChoice:
         plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
     velocity_integral : bool
         With ``tuned``: design the law's velocity integral too (``--no-integral``: without).
+    body_rates : bool
+        With ``tuned``: design for a body-rate output (``--output rates``: the law closes the
+        attitude loop, its kx7..kx10 designed too).
     kind : str
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
@@ -71,6 +74,7 @@ class ControllerChoice:
     thrust_min_fraction: float | None = None
     sample_time_s: float | None = None
     velocity_integral: bool = True
+    body_rates: bool = False
 
 
 #: Parameters read from the vehicle: name -> why.
@@ -188,7 +192,7 @@ def resolve_controller(
     if choice.tuned:
         try:
             design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
-                                        velocity_integral=choice.velocity_integral)
+                                        velocity_integral=choice.velocity_integral, body_rates=choice.body_rates)
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None

@@ -296,6 +296,34 @@ def test_the_default_flight_designs_its_gains_and_holds_without_a_limit_cycle(tm
 
 
 @pytest.mark.slow
+def test_the_body_rate_output_flies_its_own_design(tmp_path):
+    """--output rates with no --controller: the law closes the attitude loop itself, its angle gains
+    kx7..kx10 designed on the plant's rate loop with the rest (docs/controller-design.md, "The
+    body-rate output"); Table I's gains through the same rate loop diverge in the helix's 2 m step."""
+    from offboard.controller.tuning import design_for_vehicle, vehicle_values
+    from sitl_plant.params import plant_params
+
+    designed = fly(tmp_path, HELIX, fly_args=("--output", "rates"), name="rates")
+    assert designed.returncode == 0, designed.stderr
+    assert designed.summary["controller_choice"] == "tuned" and designed.summary["output"] == "rates"
+    table = plant_params(load_vehicle(PAPER_VEHICLE_FILE))
+    design = design_for_vehicle(vehicle_values({n: table[n] for n in table}), sample_time_s=0.05, body_rates=True)
+    gains = designed.summary["controller"]["gains"]
+    assert (gains["kx7"], gains["kx8"], gains["kx1"]) == pytest.approx(
+        (design.model.angle_gains.k_pos, design.model.angle_gains.k_vel, design.horizontal.k_pos))
+    s = series(designed)
+    t, err = s["t_s"], error_3d(s)
+    tilt = np.degrees(np.arccos(np.cos(s["euler_rad_0"]) * np.cos(s["euler_rad_1"])))
+    hold = (t >= 18.5) & (t < 25.0)
+    helix_rms, hold_tilt = rms(err[(t >= 5.0) & (t < 11.9)]), float(tilt[hold].max())
+    print(f"\nbody rates, designed: helix 5-11.9 s RMS {helix_rms:.4f} m, hold tilt max {hold_tilt:.3f} deg, "
+          f"peak tilt {tilt.max():.1f} deg")
+    assert helix_rms < 0.05 and hold_tilt < 3.0  # flown: 0.009 m, 0.01 deg
+    table1 = fly(tmp_path, HELIX, fly_args=("--output", "rates", "--controller", "paper"), name="rates-table1")
+    assert table1.summary["status"] == "diverged", table1.summary["status"]
+
+
+@pytest.mark.slow
 def test_a_vehicle_four_times_faster_is_flown_on_its_own_clock(tmp_path):
     """sitl-plant --speed 4 in real time, offboard fly with its default --clock auto: it measures
     the vehicle's clock running ~4x ours before OFFBOARD and samples on it, so To is 50 ms of the

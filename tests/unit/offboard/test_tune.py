@@ -10,7 +10,7 @@ import time
 import pytest
 
 from offboard.cli import main
-from offboard.controller import load_controller
+from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
 from offboard.controller.design import MarginSpec
 from offboard.controller.tuning import design_for_vehicle, vehicle_values
 from offboard.demo import free_udp_ports, stop_process
@@ -85,6 +85,7 @@ def test_tune_to_stdout_and_a_margin_figure(tmp_path, capsys):
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--sensitivity-peak", "nan"), "--sensitivity-peak must be > 1, got nan"),
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--sensitivity-peak", "1.05"), "sensitivity peak 1.05"),
     (("--vehicle", str(PAPER_VEHICLE_FILE), "--output", "/nonexistent/dir/x.toml"), "--output /nonexistent/dir/x.toml"),
+    (("--vehicle", str(PAPER_VEHICLE_FILE), "--setpoint-output", "rates", "--search", "s.toml"), "searches --setpoint-output attitude only"),
 ])  # fmt: skip
 def test_bad_input_is_one_line(args, message, capsys):
     code, _, err = tune(capsys, *args)
@@ -159,6 +160,12 @@ def test_the_design_doc_quotes_what_offboard_tune_prints_for_px4(capsys):
     assert code == 0 and err.strip() == doc_blocks()[1]
 
 
+def test_the_design_doc_quotes_what_offboard_tune_prints_for_body_rates(capsys):
+    code, _, err = tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--setpoint-output", "rates")
+    quoted = [block for block in doc_blocks() if block.startswith("angles (rates)")]
+    assert code == 0 and quoted == [err.strip()]
+
+
 def test_the_velocity_integral_is_designed_unless_switched_off(capsys, tmp_path):
     on, off = tmp_path / "on.toml", tmp_path / "off.toml"
     assert tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--output", str(on))[0] == 0
@@ -167,3 +174,23 @@ def test_the_velocity_integral_is_designed_unless_switched_off(capsys, tmp_path)
     assert load_controller(off).velocity_integral_gain_per_s2 == 0.0
     # the same position and velocity gains: the integral is searched on top of them
     assert load_controller(on).gains.kx1 == load_controller(off).gains.kx1
+
+
+@pytest.mark.slow
+def test_tune_for_a_body_rate_output_designs_the_angle_gains_too(tmp_path, capsys):
+    """--setpoint-output rates: the law closes the attitude loop (kx7..kx10 designed, on the rate
+    loop; no tilt lead), said first in what it prints and in the file's comments."""
+    out = tmp_path / "rates.toml"
+    code, _, err = tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--setpoint-output", "rates", "--output", str(out))
+    assert code == 0, err
+    params = load_controller(out)
+    design = design_for_vehicle(vehicle_values(plant_values()), sample_time_s=0.05, body_rates=True)
+    angle, h = design.model.angle_gains, design.horizontal
+    assert angle is not None
+    g = params.gains
+    assert (g.kx7, g.kx8, g.kx9, g.kx10) == (angle.k_pos, angle.k_vel, angle.k_pos, angle.k_vel) != (0.7, 0.67, 0.7, 0.67)
+    assert (g.kx1, g.kx2) == (h.k_pos, h.k_vel) and params.tilt_lead == 0.0
+    assert (g.kx11, g.kx12) == (load_controller(PAPER_CONTROLLER_FILE).gains.kx11, load_controller(PAPER_CONTROLLER_FILE).gains.kx12)
+    lines = err.strip().splitlines()
+    assert lines[0].startswith("angles (rates) kx7 = kx9") and "phase margin" in lines[0]
+    assert "kx1..kx10 designed" in out.read_text() and "fly it with --output rates" in out.read_text()
