@@ -45,6 +45,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import Command, require
+from offboard.model.euler_lagrange import EulerRateForm
 from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
@@ -147,7 +148,7 @@ def measured_state(attitude: MAVLinkMessage, local_position: MAVLinkMessage) -> 
     )
 
 
-def euler_rate_form_for(model: str, controller_form: str) -> str:
+def euler_rate_form_for(model: str, controller_form: EulerRateForm) -> EulerRateForm:
     """The W_eta that matches what the vehicle reports.
 
     A rigid body (any real vehicle, PX4, ``sitl-plant --model rigid-body``) reports ZYX Euler
@@ -156,7 +157,7 @@ def euler_rate_form_for(model: str, controller_form: str) -> str:
     """
     if model not in VEHICLE_MODELS:
         raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {model!r}")
-    return "zyx" if model == "rigid-body" else controller_form
+    return EulerRateForm.ZYX if model == "rigid-body" else controller_form
 
 
 # --- outgoing: setpoints -------------------------------------------------------------------------

@@ -14,7 +14,7 @@ import numpy as np
 
 from offboard.controller.law import TrackingReference
 from offboard.trajectory.base import Reference
-from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.euler_lagrange import EulerRateForm, euler_rate_matrix
 from offboard.model.rotations import quat_from_euler
 
 
@@ -28,7 +28,7 @@ def ned_from_paper_position(xyz_up_m: np.ndarray) -> np.ndarray:
     return np.array([xyz_up_m[0], xyz_up_m[1], -xyz_up_m[2]])
 
 
-def body_rates_from_euler_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, form: str) -> np.ndarray:
+def body_rates_from_euler_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, form: EulerRateForm) -> np.ndarray:
     """omega = W_eta eta_dot (eq. 3)."""
     return euler_rate_matrix(np.asarray(euler_rad, dtype=float), form) @ np.asarray(euler_rate_rad_s, dtype=float)
 

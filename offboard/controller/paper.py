@@ -27,14 +27,16 @@ from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import body_rates_from_euler_rates, paper_state, setpoint_attitude, tracking_reference
-from offboard.model.euler_lagrange import body_torque_from_generalized, euler_rates_from_body_rates
+from offboard.model.euler_lagrange import EulerRateForm, body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
 
 def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def paper_state_of(state: StateEstimate, euler_rate_form: str, vel_ned_m_s: np.ndarray | None = None) -> tuple[float, ...]:
+def paper_state_of(
+    state: StateEstimate, euler_rate_form: EulerRateForm, vel_ned_m_s: np.ndarray | None = None
+) -> tuple[float, ...]:
     """The 12-state of eq. 22 (paper frame) of a NED/FRD estimate: Euler rates from the body rates
     by eq. 3 with ``euler_rate_form``'s W_eta (``vel_ned_m_s``: a velocity in place of the
     estimate's own)."""
