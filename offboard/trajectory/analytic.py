@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Reference
+from offboard.trajectory.base import PhaseKind, Reference
 from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
 
 YAW_MODES = ("fixed", "along-path", "center")
@@ -39,7 +39,7 @@ def _check_yaw_mode(yaw_mode: str, allowed: tuple[str, ...]) -> str:
 
 
 class Hold(Segment):
-    """Stay at a point with a fixed yaw (a position-control set point, kind ``"hold"``).
+    """Stay at a point with a fixed yaw (a position-control set point, kind ``hold``).
 
     Parameters
     ----------
@@ -54,7 +54,7 @@ class Hold(Segment):
     """
 
     def __init__(self, pos_ned_m: ArrayLike, yaw_rad: float, duration_s: float, name: str = "hold") -> None:
-        super().__init__(duration_s, name, "hold")
+        super().__init__(duration_s, name, PhaseKind.HOLD)
         self._ref = Reference(pos_ned_m=vec3(pos_ned_m, "pos_ned_m"), yaw_rad=finite(yaw_rad, "yaw_rad"))
 
     @property
@@ -100,7 +100,7 @@ class Line(Segment):
         length = float(np.linalg.norm(delta))
         if length < LENGTH_EPS_M:
             raise ValueError(f"{name}: start and end coincide; a line needs two distinct points")
-        super().__init__(length / speed, name, "track")
+        super().__init__(length / speed, name, PhaseKind.TRACK)
         self.start_ned_m = start
         self.end_ned_m = end
         self.length_m = length
@@ -152,7 +152,7 @@ class Helix(Segment):
         yaw_mode: str = "fixed",
         name: str = "helix",
     ) -> None:
-        super().__init__(duration_s, name, "track")
+        super().__init__(duration_s, name, PhaseKind.TRACK)
         self.center_ned_m = vec3(center_ned_m, "center_ned_m")
         self.radius_m = positive(radius_m, "radius_m")
         self.angular_rate_rad_s = finite(angular_rate_rad_s, "angular_rate_rad_s")
@@ -241,7 +241,7 @@ class Lissajous(Segment):
         yaw_mode: str = "fixed",
         name: str = "lissajous",
     ) -> None:
-        super().__init__(duration_s, name, "track")
+        super().__init__(duration_s, name, PhaseKind.TRACK)
         self.center_ned_m = vec3(center_ned_m, "center_ned_m")
         self.amplitude_m = vec3(amplitude_m, "amplitude_m")
         self.angular_rate_rad_s = vec3(angular_rate_rad_s, "angular_rate_rad_s")

@@ -12,7 +12,7 @@ from bisect import bisect_right
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Reference
+from offboard.trajectory.base import PhaseKind, Reference
 from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
 
 _ZERO3 = np.zeros(3)
@@ -70,7 +70,7 @@ class Polygon(Segment):
             raise ValueError(f"{name}: vertices {k} and {k + 1} coincide")
         durations = lengths / speed
         starts = np.concatenate([[0.0], np.cumsum(durations)])
-        super().__init__(float(starts[-1]), name, "track")
+        super().__init__(float(starts[-1]), name, PhaseKind.TRACK)
         verts.setflags(write=False)
         self.vertices_ned_m = verts
         self.speed_m_s = speed

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Phase, Reference
+from offboard.trajectory.base import Phase, PhaseKind, Reference
 from offboard.trajectory.profile import Trapezoid, boundary_speeds
 from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
 
@@ -266,7 +266,7 @@ class WaypointLegs(Segment):
             t += piece.profile.duration_s if isinstance(piece, (_Line, _Arc)) else piece.duration  # type: ignore[union-attr]
         if t <= 0.0:
             raise ValueError(f"{name}: nothing to fly: every waypoint is at the start point and asks for no hold or turn")
-        super().__init__(t, name, "track")
+        super().__init__(t, name, PhaseKind.TRACK)
         self._pieces = pieces
         self._starts = starts
         self._phases = self._make_phases(labels)
@@ -275,7 +275,7 @@ class WaypointLegs(Segment):
     # -- construction -------------------------------------------------------------------------
 
     def _build(self) -> tuple[list, list]:
-        """Pieces in time order, and for each its phase: ("track" or "hold", waypoint label or None)."""
+        """Pieces in time order, and for each its phase: (its kind, waypoint label or None)."""
         wps = self.waypoints
         n = len(wps)
         points = [self.start_ned_m] + [np.array(w.pos_ned_m) for w in wps]
@@ -425,7 +425,7 @@ class WaypointLegs(Segment):
                 v_max = max(v[k], v[k + 1]) if constant[k] else limits[k]
                 p.profile = Trapezoid(p.length, v[k], v[k + 1], max(v_max, 1e-9), self.accel_m_s2)
                 pieces.append(p)
-                labels.append(("track", stop_label))
+                labels.append((PhaseKind.TRACK, stop_label))
             last = run[-1][1]
             pos = vec3(last.point(last.length), "pos")
             yaw = self._end_yaw(last)
@@ -435,7 +435,7 @@ class WaypointLegs(Segment):
             nonlocal yaw
             if abs(target - yaw) > 1e-9:
                 pieces.append(_Still(pos, yaw, target, _turn_duration(target - yaw, self.max_yaw_rate_rad_s)))
-                labels.append(("track", None))
+                labels.append((PhaseKind.TRACK, None))
             yaw = target
 
         for e in events:
@@ -454,7 +454,7 @@ class WaypointLegs(Segment):
                 turn_to(yaw + wrap_pi(w.yaw_rad - yaw))  # only turns after a zero-length leg
             if w.hold_s > 0:
                 pieces.append(_Still(pos, yaw, yaw, w.hold_s))
-                labels.append(("hold", label(e[1])))
+                labels.append((PhaseKind.HOLD, label(e[1])))
         flush_run(label(len(self.waypoints) - 1))
         return pieces, labels
 
@@ -469,23 +469,23 @@ class WaypointLegs(Segment):
 
         Without holds the whole segment is one phase named ``name``.
         """
-        if all(kind == "track" for kind, _ in labels):
-            return [Phase(self.name, 0.0, self.duration_s, "track")]
+        if all(kind is PhaseKind.TRACK for kind, _ in labels):
+            return [Phase(self.name, 0.0, self.duration_s, PhaseKind.TRACK)]
         phases: list[Phase] = []
         ends = self._starts[1:] + [self.duration_s]
         k = 0
         while k < len(labels):
             kind, label = labels[k]
-            if kind == "hold":
-                phases.append(Phase(f"{self.name}:hold-{label}", self._starts[k], ends[k], "hold"))
+            if kind is PhaseKind.HOLD:
+                phases.append(Phase(f"{self.name}:hold-{label}", self._starts[k], ends[k], PhaseKind.HOLD))
                 k += 1
                 continue
             j = k
-            while j + 1 < len(labels) and labels[j + 1][0] == "track":
+            while j + 1 < len(labels) and labels[j + 1][0] is PhaseKind.TRACK:
                 j += 1
             names = [lab for _, lab in labels[k : j + 1] if lab is not None]
             suffix = f"to-{names[-1]}" if names else f"turn-{len(phases) + 1}"
-            phases.append(Phase(f"{self.name}:{suffix}", self._starts[k], ends[j], "track"))
+            phases.append(Phase(f"{self.name}:{suffix}", self._starts[k], ends[j], PhaseKind.TRACK))
             k = j + 1
         return phases
 
