@@ -8,6 +8,7 @@ contract of ``base.py``).
 
 from __future__ import annotations
 
+import enum
 import math
 from abc import ABC, abstractmethod
 from functools import cached_property
@@ -18,10 +19,23 @@ from numpy.typing import ArrayLike
 from offboard.trajectory.base import Phase, PhaseKind, Reference
 from offboard.model.rotations import wrap_pi
 
-__all__ = ["LENGTH_EPS_M", "PHASE_KINDS", "Segment", "finite", "heading_of", "positive", "vec3", "wrap_pi"]
+__all__ = ["LENGTH_EPS_M", "PHASE_KINDS", "Segment", "YawMode", "finite", "heading_of", "positive", "vec3", "wrap_pi"]
 
 #: The phase kinds by name, a moving reference first.
 PHASE_KINDS = tuple(k.value for k in PhaseKind)
+
+
+class YawMode(enum.StrEnum):
+    """Where a moving segment points the vehicle: one heading throughout (``fixed``), the heading
+    of the horizontal velocity (``along-path``), facing a helix's axis (``center``) or each
+    waypoint's own yaw, reached on the waypoint (``waypoint``). Each segment type takes those its
+    module's ``YAW_MODES`` name."""
+
+    FIXED = "fixed"
+    ALONG_PATH = "along-path"
+    CENTER = "center"
+    WAYPOINT = "waypoint"
+
 
 #: Below this (m) a displacement counts as none: a zero-length leg, a vertical line's heading.
 LENGTH_EPS_M = 1e-9
