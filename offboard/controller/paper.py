@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from offboard.controller.command import Command, StateEstimate
-from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity
@@ -45,7 +45,7 @@ def paper_state_of(
     return paper_state(state.pos_ned_m, vel, state.euler_rad, rates)
 
 
-def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: str) -> Command:
+def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: VehicleModel) -> Command:
     """The ``Command`` of one sample of the law (module docstring).
 
     Parameters
@@ -56,7 +56,7 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
         The measured attitude of sample n, where eq. 3 maps the Euler-rate references.
     params : ControllerParams
         The controller that produced ``out`` (its W_eta form, whether it is yaw-aware).
-    vehicle_model : str
+    vehicle_model : VehicleModel
         ``rigid-body`` or ``paper``.
     """
     if vehicle_model not in VEHICLE_MODELS:
@@ -67,7 +67,7 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
     q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, vehicle_model)
     rates = body_rates_from_euler_rates(euler_rad, np.asarray(law.euler_rate_ref_rad_s), form)  # eq. 3
     torque: np.ndarray | tuple[float, ...] = out.torques_nm
-    if vehicle_model == "rigid-body":
+    if vehicle_model == VehicleModel.RIGID_BODY:
         try:
             torque = body_torque_from_generalized(out.torques_nm, euler_rad, form)
         except np.linalg.LinAlgError:  # W_eta singular (pitch 90 deg): no torque to give
@@ -93,18 +93,20 @@ class PaperController:
     params : ControllerParams
         Gains, belief, limits and the switchable extensions (``offboard/controller/paper.toml``
         is the paper's law exactly).
-    vehicle_model : str
+    vehicle_model : VehicleModel
         ``rigid-body`` (default) or ``paper`` (module docstring).
     name : str
         How records and tables call it.
     """
 
-    def __init__(self, params: ControllerParams, *, vehicle_model: str = "rigid-body", name: str = "paper") -> None:
+    def __init__(
+        self, params: ControllerParams, *, vehicle_model: VehicleModel = VehicleModel.RIGID_BODY, name: str = "paper"
+    ) -> None:
         if vehicle_model not in VEHICLE_MODELS:
             raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
         self.name = name
         self.params = params
-        self.vehicle_model = vehicle_model
+        self.vehicle_model = VehicleModel(vehicle_model)  # a caller's word: its enum
         self.sample_time_s = params.sample_time_s
         self.law = RosalesController(params)
         self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s)
