@@ -322,13 +322,14 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
                                                   summary=None if args.controller is not None else summary_json)  # fmt: skip
     except ValueError as exc:
         raise ReplayArgumentError(f"--rerun: {exc}") from None
-    from offboard.controllers import CONTROLLER_KINDS
+    from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 
-    kind = str((summary_json or {}).get("controller_kind") or "paper") if args.controller is None else "paper"
-    if kind not in CONTROLLER_KINDS:
-        raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {kind!r} is none of {', '.join(CONTROLLER_KINDS)}")
+    named = str((summary_json or {}).get("controller_kind") or "paper") if args.controller is None else "paper"
+    if named not in CONTROLLER_KINDS:
+        raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {named!r} is none of {', '.join(CONTROLLER_KINDS)}")
+    kind = ControllerKind(named)
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind)
-    label = f"controller: {origin}{'' if kind == 'paper' else f', {kind}'}; model {model}"
+    label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}
     return result, text, payload, args.controller is None and result.exact

@@ -14,6 +14,7 @@ from offboard import codec
 from offboard.codec import Scaling, SetpointOutput
 from offboard.controller import ActionLimits, ControllerParams
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
+from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 from offboard.flight.config import FlightConfig
 from offboard.model.vehicle import VehicleModel
 
@@ -56,13 +57,13 @@ class ControllerChoice:
         plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
     velocity_integral : bool
         With ``tuned``: design the law's velocity integral too (``--no-integral``: without).
-    kind : str
+    kind : ControllerKind
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
     """
 
     base: ControllerParams
-    kind: str = "paper"
+    kind: ControllerKind = ControllerKind.PAPER
     from_file: bool = False
     tuned: bool = False
     latency_s: float | None = None
@@ -72,6 +73,11 @@ class ControllerChoice:
     thrust_min_fraction: float | None = None
     sample_time_s: float | None = None
     velocity_integral: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kind not in CONTROLLER_KINDS:
+            raise ValueError(f"controller must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
+        object.__setattr__(self, "kind", ControllerKind(self.kind))  # a caller's word: its enum
 
 
 #: Parameters read from the vehicle: name -> why.

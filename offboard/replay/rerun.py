@@ -14,7 +14,7 @@ from offboard import codec
 from offboard.codec import SetpointOutput
 from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
 from offboard.controller.params import ControllerParams
-from offboard.controllers import make_controller
+from offboard.controllers import ControllerKind, make_controller
 from offboard.errors import LogFormatError, ParameterFileError
 from offboard.flight import ControllerChoice, resolve_controller
 from offboard.model.rotations import euler_from_quat
@@ -113,7 +113,7 @@ def rerun_controller(
     scaling: codec.Scaling,
     model: VehicleModel = VehicleModel.RIGID_BODY,
     encoding: SetpointOutput | None = None,
-    kind: str = "paper",
+    kind: ControllerKind = ControllerKind.PAPER,
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
 
@@ -139,7 +139,7 @@ def rerun_controller(
         The vehicle's scaling the commands were normalised by.
     model : VehicleModel
         ``rigid-body`` or ``paper`` (the attitude and torque forms).
-    kind : str
+    kind : ControllerKind
         Which controller flew (``paper``, ``se3``, ``px4``).
     """
 
