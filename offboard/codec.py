@@ -45,7 +45,8 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.controller.command import Command, require
-from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.model.euler_lagrange import EulerRateForm
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
 from offboard.model.rotations import quat_from_euler
@@ -147,7 +148,7 @@ def measured_state(attitude: MAVLinkMessage, local_position: MAVLinkMessage) -> 
     )
 
 
-def euler_rate_form_for(model: str, controller_form: str) -> str:
+def euler_rate_form_for(model: VehicleModel, controller_form: EulerRateForm) -> EulerRateForm:
     """The W_eta that matches what the vehicle reports.
 
     A rigid body (any real vehicle, PX4, ``sitl-plant --model rigid-body``) reports ZYX Euler
@@ -156,7 +157,7 @@ def euler_rate_form_for(model: str, controller_form: str) -> str:
     """
     if model not in VEHICLE_MODELS:
         raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {model!r}")
-    return "zyx" if model == "rigid-body" else controller_form
+    return EulerRateForm.ZYX if model == VehicleModel.RIGID_BODY else controller_form
 
 
 # --- outgoing: setpoints -------------------------------------------------------------------------
@@ -222,7 +223,9 @@ def thrust_norm(thrust_n: float, scaling: Scaling) -> float:
 
 
 
-def command_setpoint(command: Command, scaling: Scaling, *, output: str, model: str, controller: str = "") -> AttitudeSetpoint | ActuatorSetpoint:
+def command_setpoint(
+    command: Command, scaling: Scaling, *, output: SetpointOutput, model: VehicleModel, controller: str = ""
+) -> AttitudeSetpoint | ActuatorSetpoint:
     """The setpoint of one mission sample: a controller's command as the message fields that carry it.
 
     The one encoding of a command: ``offboard.flight`` sends it, ``offboard.replay``'s re-run
@@ -250,7 +253,7 @@ def command_setpoint(command: Command, scaling: Scaling, *, output: str, model: 
     if model not in VEHICLE_MODELS:
         raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {model!r}")
     thrust = thrust_norm(command.thrust_n, scaling)
-    if output == "actuator":
+    if output == SetpointOutput.ACTUATOR:
         if scaling.torque_roll_pitch_max_nm is None or scaling.torque_yaw_max_nm is None:
             raise ValueError("the actuator output needs the vehicle's torque scaling (SIM_TQ_RP_MAX, SIM_TQ_Y_MAX)")
         tau = require(command, "torque_nm", controller)
@@ -258,10 +261,10 @@ def command_setpoint(command: Command, scaling: Scaling, *, output: str, model: 
         controls = (tau[0] / rp, tau[1] / rp, tau[2] / yw)
         clipped = tuple(min(max(float(c), -1.0), 1.0) for c in controls)
         return ActuatorSetpoint(controls=(clipped[0], clipped[1], clipped[2], thrust))
-    if output == "attitude" and model == "rigid-body":  # PX4: attitude + yaw-rate feed-forward
+    if output == SetpointOutput.ATTITUDE and model == VehicleModel.RIGID_BODY:  # PX4: attitude + yaw-rate feed-forward
         return AttitudeSetpoint(command.attitude_wxyz, (0.0, 0.0, float(command.yaw_rate_ff_rad_s)), thrust, RIGID_BODY_TYPE_MASK)
     rates = require(command, "body_rate_frd_rad_s", controller)
-    if output == "rates":
+    if output == SetpointOutput.RATES:
         q = quat_from_euler(*command.attitude_ref_euler_rad)
         q_wxyz = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
     else:

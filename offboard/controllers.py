@@ -17,7 +17,7 @@ import math
 
 from offboard.baselines import Px4Gains, Px4PositionController, SE3Controller
 from offboard.controller.command import Controller
-from offboard.model.vehicle import VehicleModel
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.paper import PaperController
 from offboard.controller.params import ControllerParams
 
@@ -51,9 +51,12 @@ def make_controller(
         kind = ControllerKind(kind)
     except ValueError:
         raise ValueError(f"controller must be one of {CONTROLLER_KINDS}, got {kind!r}") from None
+    if vehicle_model not in VEHICLE_MODELS:
+        raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
+    vehicle_model = VehicleModel(vehicle_model)
     if kind is ControllerKind.PAPER:
-        return PaperController(params, vehicle_model=str(vehicle_model))
-    if VehicleModel(vehicle_model) is not VehicleModel.RIGID_BODY:
+        return PaperController(params, vehicle_model=vehicle_model)
+    if vehicle_model is not VehicleModel.RIGID_BODY:
         raise ValueError(f"the {kind} controller flies a rigid body, not the paper's model")
     limits = params.limits
     thrust_min = limits.thrust_min_n if limits.thrust_min_n is not None else 0.0

@@ -15,6 +15,7 @@ import numpy as np
 from offboard.controller.law import TrackingReference
 from offboard.trajectory.base import Reference
 from offboard.model.rotations import quat_from_euler
+from offboard.model.vehicle import VehicleModel
 
 
 def paper_position_from_ned(pos_ned_m: np.ndarray) -> np.ndarray:
@@ -78,7 +79,9 @@ def tilt_about_heading(roll_rad: float, pitch_rad: float, heading_from_rad: floa
     return math.atan2(-vy, math.hypot(vx, vz)), math.atan2(vx, vz)
 
 
-def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: float, law_heading_rad: float, model: str) -> np.ndarray:
+def setpoint_attitude(
+    roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: float, law_heading_rad: float, model: VehicleModel
+) -> np.ndarray:
     """The setpoint quaternion (w, x, y, z) for the law's angle references.
 
     The law computes x7ez and x9ez about a heading: the measured yaw with the yaw-aware option, 0
@@ -89,6 +92,6 @@ def setpoint_attitude(roll_ref_rad: float, pitch_ref_rad: float, yaw_ref_rad: fl
     quaternion of (x7ez, x9ez, yaw_ref).
     """
     roll, pitch = roll_ref_rad, pitch_ref_rad
-    if model == "rigid-body":
+    if model == VehicleModel.RIGID_BODY:
         roll, pitch = tilt_about_heading(roll_ref_rad, pitch_ref_rad, law_heading_rad, yaw_ref_rad)
     return quat_from_euler(roll, pitch, yaw_ref_rad)

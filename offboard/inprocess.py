@@ -37,6 +37,7 @@ from offboard.controller import ControllerParams
 from offboard.controller.command import Command, Controller, require
 from offboard.controller.paper import PaperController
 from offboard.metrics import lost_reason
+from offboard.model.euler_lagrange import EulerRateForm
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel, VehicleParams
 from offboard.record import FlightRecord, FlightStatus, RecordBuilder, control_row
 from offboard.trajectory.base import ReferencePairs, Trajectory
@@ -79,7 +80,7 @@ class PaperInnerLoop:
     """``inner-loop``: tau~ held, eq. 16 at the physics rate with the believed inertia and W_eta."""
 
     believed_inertia_kg_m2: tuple[float, float, float]
-    euler_rate_form: str
+    euler_rate_form: EulerRateForm
     controller: str = "paper"
 
     def __post_init__(self) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 
 from offboard.controller.law import SETTLED_M, STEP_M
 from offboard.record import FlightRecord, FlightStatus
-from offboard.trajectory.base import Phase
+from offboard.trajectory.base import Phase, PhaseKind
 
 AXES = ("north", "east", "down")
 SETTLE_S = 5.0  # the "after the first 5 s" span of the tables
@@ -124,7 +124,7 @@ def summarize(record: FlightRecord, phases: list[Phase] | None = None) -> Summar
     for phase in phases:
         if not len(t) or phase.start_s >= t[-1]:
             continue  # the flight ended (or was cut short) before this phase began
-        rows.append(_phase_stats(record, phase.name, phase.start_s, phase.end_s, phase.kind == "hold"))
+        rows.append(_phase_stats(record, phase.name, phase.start_s, phase.end_s, phase.kind == PhaseKind.HOLD))
     euler = record["euler_rad"]
     tilt = np.degrees(np.arccos(np.clip(np.cos(euler[:, 0]) * np.cos(euler[:, 1]), -1, 1))) if len(euler) else np.zeros(1)
     thrust = record["thrust_n"] if len(record) else np.zeros(1)

@@ -46,7 +46,7 @@ from offboard.model.attitude import qmul as _qmul
 from offboard.model.attitude import qnormalize as _qnormalize
 from offboard.model.attitude import quat_between as _quat_between
 from offboard.model.attitude import quat_from_euler as _quat_from_euler
-from offboard.model.euler_lagrange import euler_rate_matrix
+from offboard.model.euler_lagrange import EulerRateForm, euler_rate_matrix
 from sitl_plant.autopilot import (
     ActuatorSetpoint,
     AttitudeSetpoint,
@@ -63,11 +63,11 @@ POSITION_LOOP_DT_S = 0.02  # PX4 runs mc_pos_control at 50 Hz
 _I_FACTOR_RATE = math.radians(400.0)  # PX4 RateControl: integrator fades for errors near 400 deg/s
 
 
-def model_euler_form(model: Model) -> str:
+def model_euler_form(model: Model) -> EulerRateForm:
     """The W_eta form of a model: the vehicle file's for the paper model, ZYX for a rigid body."""
     if isinstance(model, PaperModel):
         return model.params.euler_rate_form
-    return "zyx"
+    return EulerRateForm.ZYX
 
 
 def _is_rigid_body(model: Model) -> bool:

@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from offboard.model.euler_lagrange import euler_rate_matrix, real_torques
+from offboard.model.euler_lagrange import EulerRateForm, euler_rate_matrix, real_torques
 from offboard.model.rotations import quat_from_euler
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleParams
@@ -151,7 +151,7 @@ class EulerAccelActuation:
     thrust_n: float
     tau_tilde: np.ndarray
     believed_inertia: np.ndarray
-    form: str = "castillo"
+    form: EulerRateForm = EulerRateForm.CASTILLO
 
     def __call__(self, model: Model, x: np.ndarray) -> tuple[float, np.ndarray]:
         eta, eta_dot = model.euler(x)

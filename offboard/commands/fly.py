@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TextIO
 
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.controllers import ControllerKind
 from offboard.model.vehicle import VEHICLE_MODELS
 
 #: ``--controller paper``: Table I's gains (the paper's law as published), one word away.
@@ -218,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
 
     _check(args)
     mission = load_mission(args.mission)
-    kind = _baseline(args) or "paper"
+    kind = ControllerKind(_baseline(args) or ControllerKind.PAPER)
     from_file = args.controller is not None and str(args.controller) not in (PAPER_KEYWORD, *BASELINE_KEYWORDS)
     base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
     latency = 0.0 if args.lockstep and args.design_latency is None else args.design_latency

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from offboard import jsonout
-from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.errors import UserError
 from offboard.model.paths import output_folder
 
@@ -306,30 +306,30 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     except ValueError as exc:
         raise ReplayArgumentError(f"--rerun: the vehicle's scaling in the log is unusable: {exc}") from None
     model = args.model or (summary_json or {}).get("model") or "rigid-body"
-    if model not in VEHICLE_MODELS:
-        model = "rigid-body"
+    model = VehicleModel(model) if model in VEHICLE_MODELS else VehicleModel.RIGID_BODY
     output = str(record.meta.get("commands") or "attitude")
     # offboard fly --output rates travels in SET_ATTITUDE_TARGET too: summary.json says so, else the
     # mission's setpoints do (attitude ignored, type_mask 128, on a rigid body)
     flown_output = (summary_json or {}).get("output")
-    if flown_output is None and output == "attitude" and model == "rigid-body":
+    if flown_output is None and output == "attitude" and model is VehicleModel.RIGID_BODY:
         masks = replay.setpoints_for(scan, vehicle).values[np.asarray(record.meta["setpoint_rows"], dtype=np.int64), 0]
         if len(masks) and np.all(masks.astype(int) & codec.PAPER_TYPE_MASK):
             flown_output = "rates"
-    encoding = "rates" if flown_output == "rates" and output == "attitude" else None
+    encoding = codec.SetpointOutput.RATES if flown_output == "rates" and output == "attitude" else None
     try:
         params, origin = replay.flight_controller(params_log, scaling, model=model, output=encoding or output,
                                                   controller_file=args.controller,
                                                   summary=None if args.controller is not None else summary_json)  # fmt: skip
     except ValueError as exc:
         raise ReplayArgumentError(f"--rerun: {exc}") from None
-    from offboard.controllers import CONTROLLER_KINDS
+    from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 
-    kind = str((summary_json or {}).get("controller_kind") or "paper") if args.controller is None else "paper"
-    if kind not in CONTROLLER_KINDS:
-        raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {kind!r} is none of {', '.join(CONTROLLER_KINDS)}")
+    named = str((summary_json or {}).get("controller_kind") or "paper") if args.controller is None else "paper"
+    if named not in CONTROLLER_KINDS:
+        raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {named!r} is none of {', '.join(CONTROLLER_KINDS)}")
+    kind = ControllerKind(named)
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind)
-    label = f"controller: {origin}{'' if kind == 'paper' else f', {kind}'}; model {model}"
+    label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}
     return result, text, payload, args.controller is None and result.exact

@@ -41,6 +41,7 @@ from offboard.controller.tuning import (
 from offboard.errors import LinkTimeout, UserError
 from offboard.model.clihelp import HelpFormatter
 from offboard.model.paths import output_file, output_folder
+from offboard.model.vehicle import VehicleModel
 
 if TYPE_CHECKING:  # the search's module loads only with --search (Dask, pyarrow)
     from offboard.sweep.tune import Trial
@@ -225,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise TuneArgumentError(str(exc)) from None
     choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), sample_time_s=args.sample_time)
-    params, _ = resolve_controller(choice, "rigid-body", values, Scaling(values["SIM_THR_MAX"]))
+    params, _ = resolve_controller(choice, VehicleModel.RIGID_BODY, values, Scaling(values["SIM_THR_MAX"]))
     base = params
     params = tuned_params(base, design, values)
     text = controller_file_text(params, design, source=source)

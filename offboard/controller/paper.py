@@ -22,19 +22,21 @@ from __future__ import annotations
 import numpy as np
 
 from offboard.controller.command import Command, StateEstimate
-from offboard.model.vehicle import VEHICLE_MODELS
+from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import paper_state, setpoint_attitude, tracking_reference
-from offboard.model.euler_lagrange import body_rates_from_euler_rates, body_torque_from_generalized, euler_rates_from_body_rates
+from offboard.model.euler_lagrange import EulerRateForm, body_rates_from_euler_rates, body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
 
 def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def paper_state_of(state: StateEstimate, euler_rate_form: str, vel_ned_m_s: np.ndarray | None = None) -> tuple[float, ...]:
+def paper_state_of(
+    state: StateEstimate, euler_rate_form: EulerRateForm, vel_ned_m_s: np.ndarray | None = None
+) -> tuple[float, ...]:
     """The 12-state of eq. 22 (paper frame) of a NED/FRD estimate: Euler rates from the body rates
     by eq. 3 with ``euler_rate_form``'s W_eta (``vel_ned_m_s``: a velocity in place of the
     estimate's own)."""
@@ -43,7 +45,7 @@ def paper_state_of(state: StateEstimate, euler_rate_form: str, vel_ned_m_s: np.n
     return paper_state(state.pos_ned_m, vel, state.euler_rad, rates)
 
 
-def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: str) -> Command:
+def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: VehicleModel) -> Command:
     """The ``Command`` of one sample of the law (module docstring).
 
     Parameters
@@ -54,7 +56,7 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
         The measured attitude of sample n, where eq. 3 maps the Euler-rate references.
     params : ControllerParams
         The controller that produced ``out`` (its W_eta form, whether it is yaw-aware).
-    vehicle_model : str
+    vehicle_model : VehicleModel
         ``rigid-body`` or ``paper``.
     """
     if vehicle_model not in VEHICLE_MODELS:
@@ -65,7 +67,7 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
     q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, vehicle_model)
     rates = body_rates_from_euler_rates(euler_rad, law.euler_rate_ref_rad_s, form)  # eq. 3
     torque: np.ndarray | tuple[float, ...] = out.torques_nm
-    if vehicle_model == "rigid-body":
+    if vehicle_model == VehicleModel.RIGID_BODY:
         try:
             torque = body_torque_from_generalized(out.torques_nm, euler_rad, form)
         except np.linalg.LinAlgError:  # W_eta singular (pitch 90 deg): no torque to give
@@ -91,18 +93,20 @@ class PaperController:
     params : ControllerParams
         Gains, belief, limits and the switchable extensions (``offboard/controller/paper.toml``
         is the paper's law exactly).
-    vehicle_model : str
+    vehicle_model : VehicleModel
         ``rigid-body`` (default) or ``paper`` (module docstring).
     name : str
         How records and tables call it.
     """
 
-    def __init__(self, params: ControllerParams, *, vehicle_model: str = "rigid-body", name: str = "paper") -> None:
+    def __init__(
+        self, params: ControllerParams, *, vehicle_model: VehicleModel = VehicleModel.RIGID_BODY, name: str = "paper"
+    ) -> None:
         if vehicle_model not in VEHICLE_MODELS:
             raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
         self.name = name
         self.params = params
-        self.vehicle_model = vehicle_model
+        self.vehicle_model = VehicleModel(vehicle_model)  # a caller's word: its enum
         self.sample_time_s = params.sample_time_s
         self.law = RosalesController(params)
         self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s)

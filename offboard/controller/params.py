@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
+from offboard.model.euler_lagrange import EulerRateForm
 from offboard.model.tomlfile import Fields, read_toml
 from offboard.model.vehicle import EULER_RATE_FORMS
 
@@ -107,7 +108,7 @@ class ControllerParams:
         To, the sample time (eq. 21), seconds.
     mass_kg, arm_length_m, inertia_kg_m2, gravity_m_s2 : float
         The vehicle as the controller believes it (Table II makes these differ from the truth).
-    euler_rate_form : str
+    euler_rate_form : EulerRateForm
         W_eta used for eq. 16 (see ``offboard.model.euler_lagrange``).
     drag_to_thrust_m : float
         Rotor drag coefficient c = k_m/k_f for the rotor forces of eq. 9-11.
@@ -162,7 +163,7 @@ class ControllerParams:
     arm_length_m: float = 0.24
     inertia_kg_m2: tuple[float, float, float] = (3.8e-3, 3.8e-3, 7.1e-3)
     gravity_m_s2: float = 9.81
-    euler_rate_form: str = "castillo"
+    euler_rate_form: EulerRateForm = EulerRateForm.CASTILLO
     drag_to_thrust_m: float = 0.016
     gains: ControllerGains = field(default_factory=ControllerGains)
     yaw_aware: bool = False
@@ -204,6 +205,7 @@ class ControllerParams:
             raise ValueError(f"reference_lead_s2 must be 2 finite numbers, got {self.reference_lead_s2}")
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
+        object.__setattr__(self, "euler_rate_form", EulerRateForm(self.euler_rate_form))  # a caller's word: its enum
 
     def with_changes(self, **changes: Any) -> ControllerParams:
         return replace(self, **changes)
@@ -243,7 +245,7 @@ def controller_from_table(f: Fields) -> ControllerParams:
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]
         gravity_m_s2=model.number("gravity_m_s2", 9.81, gt=0),
-        euler_rate_form=model.string("euler_rate_form", "castillo", choices=EULER_RATE_FORMS),
+        euler_rate_form=EulerRateForm(model.string("euler_rate_form", EulerRateForm.CASTILLO, choices=EULER_RATE_FORMS)),
         drag_to_thrust_m=model.number("drag_to_thrust_m", 0.016, gt=0),
         linear_drag_n_s_m=model.number("linear_drag_n_s_m", 0.0, ge=0),
         gains=gains,

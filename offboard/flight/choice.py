@@ -11,10 +11,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from offboard import codec
-from offboard.codec import Scaling
+from offboard.codec import Scaling, SetpointOutput
 from offboard.controller import ActionLimits, ControllerParams
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
+from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 from offboard.flight.config import FlightConfig
+from offboard.model.vehicle import VehicleModel
 
 #: Tilt limit on x7ez, x9ez when neither the command line nor the controller file gives one (deg).
 DEFAULT_TILT_MAX_DEG = 35.0
@@ -58,13 +60,13 @@ class ControllerChoice:
     body_rates : bool
         With ``tuned``: design for a body-rate output (``--output rates``: the law closes the
         attitude loop, its kx7..kx10 designed too).
-    kind : str
+    kind : ControllerKind
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
     """
 
     base: ControllerParams
-    kind: str = "paper"
+    kind: ControllerKind = ControllerKind.PAPER
     from_file: bool = False
     tuned: bool = False
     latency_s: float | None = None
@@ -75,6 +77,11 @@ class ControllerChoice:
     sample_time_s: float | None = None
     velocity_integral: bool = True
     body_rates: bool = False
+
+    def __post_init__(self) -> None:
+        if self.kind not in CONTROLLER_KINDS:
+            raise ValueError(f"controller must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
+        object.__setattr__(self, "kind", ControllerKind(self.kind))  # a caller's word: its enum
 
 
 #: Parameters read from the vehicle: name -> why.
@@ -104,7 +111,7 @@ def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_gi
     optional = ["COM_OF_LOSS_T"] + (["PAP_TO"] if family == "SIM" else [])
     if not thrust_max_given:
         required.append("SIH_T_MAX" if family == "SIH" else "SIM_THR_MAX")
-    if config.output == "actuator":
+    if config.output == SetpointOutput.ACTUATOR:
         required += ["SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX"]
     mass = "SIH_MASS" if family == "SIH" else "SIM_MASS"
     if not choice.from_file:
@@ -122,7 +129,7 @@ def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_gi
 
 
 def resolve_controller(
-    choice: ControllerChoice, model: str, vehicle: Mapping[str, float], scaling: Scaling
+    choice: ControllerChoice, model: VehicleModel, vehicle: Mapping[str, float], scaling: Scaling
 ) -> tuple[ControllerParams, list[str]]:
     """The controller flown, from the user's choice and the vehicle's parameters.
 
@@ -172,14 +179,14 @@ def resolve_controller(
     if choice.yaw_aware is not None:
         changes["yaw_aware"] = choice.yaw_aware
     elif not choice.from_file:
-        changes["yaw_aware"] = model == "rigid-body"
+        changes["yaw_aware"] = model == VehicleModel.RIGID_BODY
     limits = base.limits
     if choice.thrust_min_fraction is not None:
         thrust_min = choice.thrust_min_fraction * scaling.thrust_max_n
     elif limits.thrust_min_n is not None:
         thrust_min = max(limits.thrust_min_n, 0.0)
     else:
-        thrust_min = (RIGID_BODY_THRUST_MIN_FRACTION if model == "rigid-body" else 0.0) * scaling.thrust_max_n
+        thrust_min = (RIGID_BODY_THRUST_MIN_FRACTION if model == VehicleModel.RIGID_BODY else 0.0) * scaling.thrust_max_n
     thrust_max = scaling.thrust_max_n if limits.thrust_max_n is None else min(limits.thrust_max_n, scaling.thrust_max_n)
     if choice.tilt_max_deg is not None:
         tilt = None if choice.tilt_max_deg >= 90.0 else math.radians(choice.tilt_max_deg)

@@ -39,8 +39,9 @@ from pymavlink import mavutil
 
 from offboard.errors import MissionFormatError
 from offboard.missions.geo import LocalProjection
+from offboard.trajectory.segment import YawMode
 from offboard.trajectory.sequence import Sequence
-from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, VerticalMove, Waypoint, WaypointLegs
+from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, CornerMode, VerticalMove, Waypoint, WaypointLegs
 
 _MAV = mavutil.mavlink
 
@@ -290,11 +291,12 @@ def trajectory_from_items(
         nonlocal pos, yaw
         if not pending:
             return
-        yaw_mode = "waypoint" if any(w.yaw_rad is not None for w in pending) else "along-path"
+        yaw_mode = YawMode.WAYPOINT if any(w.yaw_rad is not None for w in pending) else YawMode.ALONG_PATH
         name = f"waypoints {pending_names[0]}" if len(pending) == 1 else f"waypoints {pending_names[0]}..{pending_names[-1]}"
         try:
             legs = WaypointLegs(
-                pos, pending, pending[0].speed_m_s or cruise, accel_m_s2, "blend", blend_radius_m, yaw_mode, yaw, name=name
+                pos, pending, pending[0].speed_m_s or cruise, accel_m_s2, CornerMode.BLEND, blend_radius_m, yaw_mode, yaw,
+                name=name,
             )
         except ValueError:  # only holds at the start point with no time: nothing to fly
             pending.clear()

@@ -49,9 +49,10 @@ from offboard.trajectory import (
     figure_eight,
     square,
 )
+from offboard.trajectory.polygon import FirstSide
 from offboard.trajectory.sampling import sample
-from offboard.trajectory.segment import Segment
-from offboard.trajectory.waypoints import DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S
+from offboard.trajectory.segment import Segment, YawMode
+from offboard.trajectory.waypoints import CORNER_MODES, DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S, CornerMode
 
 FRAMES = ("ned", "paper-zup")
 ANGLE_UNITS = ("rad", "deg")
@@ -122,17 +123,17 @@ def _position(ctx: _Context, f: MissionFields, key: str, default: Any = ...) -> 
     return ctx.to_ned(f.vector(key, 3))
 
 
-def _yaw_choice(ctx: _Context, f: MissionFields, modes: tuple[str, ...]) -> tuple[str, float]:
+def _yaw_choice(ctx: _Context, f: MissionFields, modes: tuple[YawMode, ...]) -> tuple[YawMode, float]:
     """``yaw`` key: an angle (fixed) or one of ``modes``; default: the previous yaw, fixed."""
     value = f.raw("yaw", None)
     if value is None:
-        return "fixed", ctx.yaw
+        return YawMode.FIXED, ctx.yaw
     if isinstance(value, str) and value in modes:
-        return value, ctx.yaw
+        return YawMode(value), ctx.yaw
     if isinstance(value, str) and _PI_EXPR.match(value) is None:
         unit = "radians" if ctx.angle_unit == "rad" else "degrees"
-        raise f.error("yaw", f"expected an angle in {unit} or one of {', '.join(repr(m) for m in modes)}, got {value!r}")
-    return "fixed", ctx.angle_value(f, "yaw", value)
+        raise f.error("yaw", f"expected an angle in {unit} or one of {', '.join(repr(m.value) for m in modes)}, got {value!r}")
+    return YawMode.FIXED, ctx.angle_value(f, "yaw", value)
 
 
 def _duration(ctx: _Context, f: MissionFields, extra: tuple[str, ...] = (), per_unit_s: dict[str, float] | None = None) -> float:
@@ -187,7 +188,7 @@ def _line(ctx: _Context, f: MissionFields, name: str) -> Line:
     start = _position(ctx, f, "from", ctx.pos)
     end = _position(ctx, f, "to")
     speed = f.number("speed_m_s", gt=0)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path",))
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
     if float(np.linalg.norm(end - start)) < 1e-9:
         raise f.error("to", "the line ends where it starts; expected a different point")
     return Line(start, end, speed, yaw, mode, name)
@@ -201,7 +202,7 @@ def _helix(ctx: _Context, f: MissionFields, name: str, climbs: bool = True) -> H
         raise f.error("angular_rate", "must be nonzero (the sign sets the direction)")
     climb = f.number("climb_rate_m_s") if climbs else 0.0
     phase = _angle(ctx, f, "phase", 0.0)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path", "center"))
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH, YawMode.CENTER))
     duration = _duration(ctx, f, ("turns",), {"turns": 2.0 * math.pi / abs(rate)})
     return Helix(center, radius, rate, climb, duration, phase, yaw, mode, name)
 
@@ -218,7 +219,7 @@ def _polygon(ctx: _Context, f: MissionFields, name: str) -> Polygon:
     speed = f.number("speed_m_s", gt=0)
     closed = f.boolean("closed", True)
     laps = _laps(f, closed)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path",))
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
     return Polygon(verts, speed, closed, laps, yaw, mode, name)
 
 
@@ -237,8 +238,8 @@ def _square(ctx: _Context, f: MissionFields, name: str) -> Polygon:
     speed = f.number("speed_m_s", gt=0)
     first = f.string("first_side", "x", choices=("x", "y"))
     laps = _laps(f)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path",))
-    return square(corner, side, speed, "north" if first == "x" else "east", laps, yaw, mode, name)
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
+    return square(corner, side, speed, FirstSide.NORTH if first == "x" else FirstSide.EAST, laps, yaw, mode, name)
 
 
 def _lissajous(ctx: _Context, f: MissionFields, name: str) -> Lissajous:
@@ -256,7 +257,7 @@ def _lissajous(ctx: _Context, f: MissionFields, name: str) -> Lissajous:
         raise f.error("amplitude_m", "no axis moves; expected an amplitude > 0 on an axis with a nonzero angular rate")
     if ctx.frame == "paper-zup":
         phase[2] += math.pi  # up = a sin(.) is down = a sin(. + pi)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path",))
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
     return Lissajous(center, amplitude, rates, phase, _duration(ctx, f), yaw, mode, name)
 
 
@@ -265,7 +266,7 @@ def _figure_eight(ctx: _Context, f: MissionFields, name: str) -> Lissajous:
     length = f.number("length_m", gt=0)
     width = f.number("width_m", gt=0)
     period = f.number("period_s", gt=0)
-    mode, yaw = _yaw_choice(ctx, f, ("along-path",))
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
     duration = _duration(ctx, f, ("laps",), {"laps": period})
     return figure_eight(center, length, width, period, duration, yaw, mode, name)
 
@@ -292,13 +293,13 @@ def _waypoints(ctx: _Context, f: MissionFields, name: str) -> WaypointLegs:
             waypoints.append(Waypoint(tuple(pos), wp_yaw, hold, speed, blend, stop, label))
     cruise = f.number("cruise_speed_m_s", gt=0)
     accel = f.number("accel_m_s2", gt=0)
-    corners = f.string("corners", "stop", choices=("stop", "blend"))
+    corners = CornerMode(f.string("corners", CornerMode.STOP, choices=CORNER_MODES))
     blend_radius = f.number("blend_radius_m", DEFAULT_BLEND_RADIUS_M, ge=0)
     max_rate = _angle(ctx, f, "max_yaw_rate", DEFAULT_MAX_YAW_RATE_RAD_S)
     if not max_rate > 0:
         raise f.error("max_yaw_rate", "must be > 0")
-    mode, yaw = _yaw_choice(ctx, f, ("along-path", "waypoint"))
-    if mode != "waypoint" and any(w.yaw_rad is not None for w in waypoints):
+    mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH, YawMode.WAYPOINT))
+    if mode is not YawMode.WAYPOINT and any(w.yaw_rad is not None for w in waypoints):
         raise f.error("yaw", "points give their own yaw; expected yaw = \"waypoint\"")
     return WaypointLegs(ctx.pos, waypoints, cruise, accel, corners, blend_radius, mode, ctx.yaw, yaw, max_rate, name)
 

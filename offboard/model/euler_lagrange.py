@@ -44,21 +44,21 @@ class EulerRateForm(enum.StrEnum):
 
 #: Each form's W_eta as (the angle its off-diagonal terms use: 0 phi, 2 psi; their sign): the one
 #: table the numpy maps here and the compiled kernels (``sitl_plant.dynamics.batch``) read.
-EULER_FORM_TERMS: dict[str, tuple[int, float]] = {
+EULER_FORM_TERMS: dict[EulerRateForm, tuple[int, float]] = {
     EulerRateForm.CASTILLO: (2, -1.0),
     EulerRateForm.PRINTED: (2, 1.0),
     EulerRateForm.ZYX: (0, -1.0),
 }
 
 
-def _angle_and_sign(form: str) -> tuple[int, float]:
+def _angle_and_sign(form: EulerRateForm) -> tuple[int, float]:
     try:
         return EULER_FORM_TERMS[form]
     except KeyError:
-        raise ValueError(f"unknown Euler-rate form {form!r}; expected one of {sorted(EULER_FORM_TERMS)}") from None
+        raise ValueError(f"unknown Euler-rate form {form!r}; expected one of {sorted(f.value for f in EulerRateForm)}") from None
 
 
-def euler_rate_matrix(eta: np.ndarray, form: str = "castillo") -> np.ndarray:
+def euler_rate_matrix(eta: np.ndarray, form: EulerRateForm = EulerRateForm.CASTILLO) -> np.ndarray:
     """W_eta of eq. 4: body angular velocity ``omega = W_eta @ eta_dot`` (eq. 3)."""
     index, sign = _angle_and_sign(form)
     theta = eta[1]
@@ -68,7 +68,7 @@ def euler_rate_matrix(eta: np.ndarray, form: str = "castillo") -> np.ndarray:
     return np.array([[1.0, 0.0, -st], [0.0, ca, ct * sa], [0.0, sign * sa, ct * ca]])
 
 
-def _w_terms(eta: Vec3Like, form: str) -> tuple[float, float, float, float, float]:
+def _w_terms(eta: Vec3Like, form: EulerRateForm) -> tuple[float, float, float, float, float]:
     """(sin theta, cos theta, sin a, cos a, sign) of W_eta (eq. 4) at ``eta``, as floats: the
     scalar maps below need only these, and math on floats is what makes them cheap per sample."""
     index, sign = _angle_and_sign(form)
@@ -116,7 +116,7 @@ def _rows(eta, eta_dot, form):
     return rows, rows_dot, g, (st, ct, sa, ca, sign)
 
 
-def generalized_inertia(eta: np.ndarray, inertia: np.ndarray, form: str = "castillo") -> np.ndarray:
+def generalized_inertia(eta: np.ndarray, inertia: np.ndarray, form: EulerRateForm = EulerRateForm.CASTILLO) -> np.ndarray:
     """J(eta) = W_eta^T I W_eta (eq. 5)."""
     w = euler_rate_matrix(eta, form)
     return w.T @ inertia @ w
@@ -140,7 +140,7 @@ def _moments(inertia: np.ndarray) -> tuple[float, float, float]:
 
 
 def coriolis_vector(
-    eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: str = "castillo"
+    eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: EulerRateForm = EulerRateForm.CASTILLO
 ) -> np.ndarray:
     """C(eta, eta_dot) eta_dot of eq. 14, computed from dJ/d eta (not assumed zero).
 
@@ -158,7 +158,7 @@ def real_torques(
     eta_dot: Vec3Like,
     tau_tilde: Vec3Like,
     inertia: np.ndarray,
-    form: str = "castillo",
+    form: EulerRateForm = EulerRateForm.CASTILLO,
 ) -> np.ndarray:
     """The generalised torques of eq. 16: ``tau = C(eta, eta_dot) eta_dot + J(eta) tau_tilde``."""
     rows, rows_dot, g, _ = _rows(eta, eta_dot, form)
@@ -179,7 +179,7 @@ def euler_acceleration(
     eta_dot: np.ndarray,
     tau: np.ndarray,
     inertia: np.ndarray,
-    form: str = "castillo",
+    form: EulerRateForm = EulerRateForm.CASTILLO,
 ) -> np.ndarray:
     """eta_ddot from eq. 13: ``J^-1 (tau - C eta_dot) = W^-1 I^-1 W^-T (tau - C eta_dot)``.
 
@@ -199,7 +199,9 @@ def euler_acceleration(
     return np.array([b1 + st * v3, v2, v3])
 
 
-def rotational_lagrangian(eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: str = "castillo") -> float:
+def rotational_lagrangian(
+    eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndarray, form: EulerRateForm = EulerRateForm.CASTILLO
+) -> float:
     """T_rot = 1/2 eta_dot^T J eta_dot (eq. 6), for tests of eq. 14 from first principles."""
     return 0.5 * float(eta_dot @ generalized_inertia(eta, inertia, form) @ eta_dot)
 
@@ -207,14 +209,14 @@ def rotational_lagrangian(eta: np.ndarray, eta_dot: np.ndarray, inertia: np.ndar
 # --- eq. 3 solved: Euler-angle rates of body rates, body torque of a generalised torque -------------
 
 
-def body_rates_from_euler_rates(euler_rad: Vec3Like, euler_rate_rad_s: Vec3Like, form: str) -> np.ndarray:
+def body_rates_from_euler_rates(euler_rad: Vec3Like, euler_rate_rad_s: Vec3Like, form: EulerRateForm) -> np.ndarray:
     """omega = W_eta eta_dot (eq. 3), W_eta in ``form``'s terms (module docstring)."""
     st, ct, sa, ca, k = _w_terms(euler_rad, form)
     d_phi, d_theta, d_psi = float(euler_rate_rad_s[0]), float(euler_rate_rad_s[1]), float(euler_rate_rad_s[2])
     return np.array((d_phi - st * d_psi, ca * d_theta + ct * sa * d_psi, k * sa * d_theta + ct * ca * d_psi))
 
 
-def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: str) -> np.ndarray:
+def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.ndarray, form: EulerRateForm) -> np.ndarray:
     """eta_dot = W_eta^-1 omega (eq. 3), solved in closed form (W's first column is (1, 0, 0)).
 
     With W = [[1, 0, -s_theta], [0, c_a, c_theta s_a], [0, k s_a, c_theta c_a]] (eq. 4, ``a`` and
@@ -232,7 +234,7 @@ def euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: np.n
     return np.array((p + st * psi_dot, theta_dot, psi_dot))
 
 
-def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: str) -> np.ndarray:
+def body_torque_from_generalized(tau_generalized_nm: np.ndarray, euler_rad: np.ndarray, form: EulerRateForm) -> np.ndarray:
     """Body FRD torque that exerts a generalised torque: ``solve(W_eta^T, tau_gen)`` in closed form.
 
     By virtual work ``tau_body . omega = tau_gen . eta_dot`` with ``omega = W_eta eta_dot``

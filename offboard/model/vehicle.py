@@ -74,7 +74,7 @@ class VehicleParams:
         First-order lag of each motor's speed (rigid-body model only; 0 = instant).
     linear_drag_n_s_m : tuple of 3 floats
         Aerodynamic drag force per unit air-relative velocity along body x, y, z (rigid body).
-    euler_rate_form : str
+    euler_rate_form : EulerRateForm
         Which W_eta (eq. 4) the paper model uses: ``castillo`` (the cited model, -sin psi in
         entry (3,2), det = cos theta), ``printed`` (eq. 4 as printed, singular at psi = pi/4)
         or ``zyx`` (a rigid body's true Euler-rate map, roll in those entries).
@@ -90,7 +90,7 @@ class VehicleParams:
     rotor_speed_max_rad_s: float = 700.0
     motor_time_constant_s: float = 0.02
     linear_drag_n_s_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    euler_rate_form: str = "castillo"
+    euler_rate_form: EulerRateForm = EulerRateForm.CASTILLO
     name: str = field(default="quadrotor", compare=False)
 
     def __post_init__(self) -> None:
@@ -105,6 +105,7 @@ class VehicleParams:
             raise ValueError("motor_time_constant_s must be >= 0")
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}")
+        object.__setattr__(self, "euler_rate_form", EulerRateForm(self.euler_rate_form))  # a caller's word: its enum
 
     @property
     def inertia_matrix(self) -> np.ndarray:
@@ -150,7 +151,7 @@ def vehicle_from_table(fields: Fields) -> VehicleParams:
         rotor_speed_max_rad_s=fields.number("rotor_speed_max_rad_s", defaults.rotor_speed_max_rad_s, gt=0),
         motor_time_constant_s=fields.number("motor_time_constant_s", defaults.motor_time_constant_s, ge=0),
         linear_drag_n_s_m=fields.vector("linear_drag_n_s_m", 3, defaults.linear_drag_n_s_m, ge=0),  # type: ignore[arg-type]
-        euler_rate_form=fields.string("euler_rate_form", defaults.euler_rate_form, choices=EULER_RATE_FORMS),
+        euler_rate_form=EulerRateForm(fields.string("euler_rate_form", defaults.euler_rate_form, choices=EULER_RATE_FORMS)),
     )
     if params.rotor_speed_min_rad_s >= params.rotor_speed_max_rad_s:
         raise fields.error("rotor_speed_min_rad_s", "must be below rotor_speed_max_rad_s")

@@ -11,12 +11,14 @@ from pathlib import Path
 import numpy as np
 
 from offboard import codec
+from offboard.codec import SetpointOutput
 from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
 from offboard.controller.params import ControllerParams
-from offboard.controllers import make_controller
+from offboard.controllers import ControllerKind, make_controller
 from offboard.errors import LogFormatError, ParameterFileError
 from offboard.flight import ControllerChoice, resolve_controller
 from offboard.model.rotations import euler_from_quat
+from offboard.model.vehicle import VehicleModel
 from offboard.record import FlightRecord, RecordBuilder, control_row
 from offboard.replay.record import _telemetry_rows, setpoints_for
 from offboard.replay.scan import LogScan
@@ -35,8 +37,8 @@ class RerunResult:
 
     Attributes
     ----------
-    output : str
-        ``attitude`` or ``actuator``: the commands compared.
+    output : SetpointOutput
+        ``attitude``, ``rates`` or ``actuator``: the commands compared, as ``offboard fly --output`` sent them.
     fields : tuple of str
         Names of the compared message fields (``RERUN_FIELDS``).
     logged, rerun : ndarray (samples, fields)
@@ -48,7 +50,7 @@ class RerunResult:
         Missing samples in the log (the controller in flight stepped on them; the re-run cannot).
     """
 
-    output: str
+    output: SetpointOutput
     fields: tuple[str, ...]
     t_s: np.ndarray
     logged: np.ndarray
@@ -109,9 +111,9 @@ def rerun_controller(
     params: ControllerParams,
     trajectory: Trajectory,
     scaling: codec.Scaling,
-    model: str = "rigid-body",
-    encoding: str | None = None,
-    kind: str = "paper",
+    model: VehicleModel = VehicleModel.RIGID_BODY,
+    encoding: SetpointOutput | None = None,
+    kind: ControllerKind = ControllerKind.PAPER,
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
 
@@ -135,9 +137,9 @@ def rerun_controller(
     trajectory : Trajectory
     scaling : offboard.codec.Scaling
         The vehicle's scaling the commands were normalised by.
-    model : str
+    model : VehicleModel
         ``rigid-body`` or ``paper`` (the attitude and torque forms).
-    kind : str
+    kind : ControllerKind
         Which controller flew (``paper``, ``se3``, ``px4``).
     """
 
@@ -145,6 +147,7 @@ def rerun_controller(
     if output not in RERUN_FIELDS:
         raise LogFormatError(f"{record.meta.get('source') or 'the log'}: no controller commands to compare with "
                              "(SET_ATTITUDE_TARGET or SET_ACTUATOR_CONTROL_TARGET)")
+    sent = SetpointOutput(encoding or output)  # the log's message kind is an output's name
     vehicle = record.meta["vehicle_sysid"]
     if not isinstance(vehicle, int):
         raise LogFormatError(f"{record.meta.get('source') or 'the log'}: no vehicle to re-run the controller against")
@@ -173,12 +176,12 @@ def rerun_controller(
         builder.append(**control_row(t, measured, ref_n, command))
         if not command.is_finite():
             continue
-        sp = codec.command_setpoint(command, scaling, output=encoding or output, model=model, controller=controller.name)
+        sp = codec.command_setpoint(command, scaling, output=sent, model=model, controller=controller.name)
         rerun[k] = np.array(codec.setpoint_fields(sp), dtype=np.float32)
     steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
     gaps = int(np.sum(np.maximum(steps - 1, 0)))
     rerun_record = builder.build(phases=record.phases, meta={**record.meta, "rerun": True})
-    return RerunResult(encoding or output, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
+    return RerunResult(sent, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
                        rerun_record, gaps)  # fmt: skip
 
 
@@ -208,7 +211,7 @@ def flight_controller(
     vehicle_params: dict[str, float],
     scaling: codec.Scaling,
     *,
-    model: str = "rigid-body",
+    model: VehicleModel = VehicleModel.RIGID_BODY,
     output: str = "attitude",
     controller_file: Path | None = None,
     summary: dict | None = None,
@@ -238,7 +241,7 @@ def flight_controller(
     flown_file = (summary or {}).get("controller_file")
     flown_choice = (summary or {}).get("controller_choice")
     # offboard fly's default designs the gains where the design applies (offboard.commands.fly)
-    default_tuned = model == "rigid-body" and output == "attitude"
+    default_tuned = model == VehicleModel.RIGID_BODY and output == SetpointOutput.ATTITUDE
     tuned = flown_choice == "tuned" or (flown_choice is None and default_tuned and not isinstance(recorded, dict))
     choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), tuned=tuned)
     file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values" + (", gains designed for it" if choice.tuned else "")
@@ -291,7 +294,7 @@ def rerun_panels(result: RerunResult, thrust_max_n: float) -> list[tuple[str, np
     scale = thrust_max_n if math.isfinite(thrust_max_n) else 1.0
     thrust_label = "u [N]" if math.isfinite(thrust_max_n) else "thrust (normalised)"
     logged, rerun = result.logged.astype(float), result.rerun.astype(float)
-    if result.output in ("attitude", "rates"):  # both SET_ATTITUDE_TARGET
+    if result.output in (SetpointOutput.ATTITUDE, SetpointOutput.RATES):  # both SET_ATTITUDE_TARGET
         a, b = euler_deg(logged), euler_deg(rerun)
         return [
             ("x7ez roll ref [deg]", a[:, 0], b[:, 0], ("roll",)),

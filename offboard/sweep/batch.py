@@ -39,6 +39,7 @@ from offboard.controller.params import GAIN_NAMES, ControllerGains
 from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import tracking_reference
 from offboard.metrics import lost, lost_reason
+from offboard.model.euler_lagrange import EulerRateForm
 from offboard.record import FlightStatus
 from offboard.sweep.flight import Series, fly_one, row_of
 from offboard.sweep.spec import FlightSetup, FlightSpec, SweepSpec, scenario_of
@@ -108,7 +109,7 @@ def _truth(x: np.ndarray) -> tuple[np.ndarray, ...]:
     return roll, pitch, yaw
 
 
-def _euler_rates(euler: tuple[np.ndarray, ...], rates: np.ndarray, form: str) -> tuple[np.ndarray, ...]:
+def _euler_rates(euler: tuple[np.ndarray, ...], rates: np.ndarray, form: EulerRateForm) -> tuple[np.ndarray, ...]:
     """``offboard.model.euler_lagrange.euler_rates_from_body_rates`` over the batch (eq. 3 solved in closed form)."""
     index, k = _EULER_FORMS[form]
     theta, a = euler[1], euler[int(index)]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from offboard.sweep.spec import PARAMETERS, SweepSpec
+from offboard.sweep.spec import PARAMETERS, ParameterKind, SweepSpec
 
 PERCENTILES = (5, 50, 95, 99)
 RMS = "rms_whole_m"
@@ -78,7 +78,7 @@ def summary(spec: SweepSpec, rows: dict[str, np.ndarray]) -> dict:
     failed = (~ok).astype(float)
     sensitivity: list[dict[str, Any]] = []
     for name in spec.swept:
-        if PARAMETERS[name].kind != "number":
+        if PARAMETERS[name].kind is not ParameterKind.NUMBER:
             continue
         x = rows[name].astype(float)
         rho_fail = spearman(x, failed) if 0 < failed.sum() < n else math.nan

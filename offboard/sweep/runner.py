@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from offboard.sweep.flight import phase_columns
-from offboard.sweep.spec import PARAMETERS, SweepSpec, flights
+from offboard.sweep.spec import PARAMETERS, ParameterKind, SweepSpec, flights
 
 ENGINES = ("batch", "one")
 #: The work a task aims at (s): inside Dask's 0.1-1 s guidance.
@@ -40,7 +40,7 @@ METRIC_COLUMNS_TAIL = ("final_error_m", "peak_tilt_deg", "peak_thrust_n", "flown
 def columns(spec: SweepSpec) -> list[tuple[str, str]]:
     """The Parquet columns (name, ``float``/``string``/``int``) of a sweep's rows, in order."""
     cols = [("flight", "int"), ("seed", "int")]
-    cols += [(d.name, "string" if PARAMETERS[d.name].kind == "spec" else "float") for d in spec.parameters]
+    cols += [(d.name, "string" if PARAMETERS[d.name].kind is ParameterKind.SPEC else "float") for d in spec.parameters]
     cols += [(c, "float") for c in phase_columns(spec.base.trajectory.phases())]
     cols += [(c, "string" if c in ("status", "detail") else "float") for c in METRIC_COLUMNS_TAIL]
     return cols

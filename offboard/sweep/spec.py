@@ -32,6 +32,7 @@ any number of workers, and adding a parameter leaves the others' draws as they w
 
 from __future__ import annotations
 
+import enum
 import itertools
 import math
 import zlib
@@ -49,12 +50,20 @@ from sitl_plant.dynamics.sensors import sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
 
 
+class ParameterKind(enum.StrEnum):
+    """What a swept parameter's values are: numbers (``number``) or whole sensor or wind spec
+    strings (``spec``), which take only a value, a choice or a grid and are never relative."""
+
+    NUMBER = "number"
+    SPEC = "spec"
+
+
 @dataclass(frozen=True)
 class Parameter:
     """What a sweep may vary: its kind and the bounds a value must keep."""
 
     help: str
-    kind: str = "number"  # number | spec (a sensor or wind spec string)
+    kind: ParameterKind = ParameterKind.NUMBER
     gt: float | None = None
     ge: float | None = None
     lt: float | None = None
@@ -95,11 +104,34 @@ PARAMETERS: dict[str, Parameter] = {
     "initial.down_m": Parameter("start offset down (m; < 0 starts in the air)", base=False),
     "initial.yaw_deg": Parameter("start yaw (deg)", base=False),
     "latency_s": Parameter("link latency (s): a command reaches the vehicle this long after its sample", ge=0, base=False),
-    "wind": Parameter("a whole wind spec (none | constant:N,E,D | dryden:SPEED | gust:...)", kind="spec", base=False),
-    "sensors": Parameter("a whole sensor spec (clean | paper:F | imu:...)", kind="spec", base=False),
+    "wind": Parameter("a whole wind spec (none | constant:N,E,D | dryden:SPEED | gust:...)", kind=ParameterKind.SPEC, base=False),
+    "sensors": Parameter("a whole sensor spec (clean | paper:F | imu:...)", kind=ParameterKind.SPEC, base=False),
 }
 DISTRIBUTIONS = ("uniform", "normal", "lognormal", "choice", "grid", "linspace")
 GUST_DURATION_S = 1.0
+
+
+class DistributionKind(enum.StrEnum):
+    """How a swept parameter's value comes per flight: one value for all (``fixed``: a file's plain
+    number or ``value``), drawn (``uniform`` [LO, HI], ``normal`` [MEAN, STD], ``lognormal`` [MU,
+    SIGMA] of the log, ``choice`` among the values) or every value of a ``grid`` (a file's ``grid``
+    or ``linspace``), crossed with the other grids."""
+
+    FIXED = "fixed"
+    UNIFORM = "uniform"
+    NORMAL = "normal"
+    LOGNORMAL = "lognormal"
+    CHOICE = "choice"
+    GRID = "grid"
+
+
+class Relative(enum.StrEnum):
+    """What a drawn value multiplies: nothing (``""``, the value itself), the scenario's own value
+    (``base``) or the flight's true vehicle's (``truth``: the controller's mass and inertia)."""
+
+    NONE = ""
+    BASE = "base"
+    TRUTH = "truth"
 
 
 @dataclass(frozen=True)
@@ -107,25 +139,29 @@ class Distribution:
     """One swept parameter: how its value is drawn (or gridded) per flight."""
 
     name: str
-    kind: str  # fixed | uniform | normal | lognormal | choice | grid
+    kind: DistributionKind
     args: tuple = ()
-    relative: str = ""  # "" | base | truth
+    relative: Relative = Relative.NONE
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", DistributionKind(self.kind))  # a caller's word: its enum
+        object.__setattr__(self, "relative", Relative(self.relative))
 
     @property
     def grid_size(self) -> int:
-        return len(self.args) if self.kind == "grid" else 1
+        return len(self.args) if self.kind is DistributionKind.GRID else 1
 
     def draw(self, rng: np.random.Generator, grid_index: int) -> float | str:
         k, a = self.kind, self.args
-        if k == "fixed":
+        if k is DistributionKind.FIXED:
             return a[0]
-        if k == "grid":
+        if k is DistributionKind.GRID:
             return a[grid_index]
-        if k == "choice":
+        if k is DistributionKind.CHOICE:
             return a[int(rng.integers(len(a)))]
-        if k == "uniform":
+        if k is DistributionKind.UNIFORM:
             return float(rng.uniform(a[0], a[1]))
-        if k == "normal":
+        if k is DistributionKind.NORMAL:
             return float(rng.normal(a[0], a[1]))
         return float(rng.lognormal(a[0], a[1]))
 
@@ -145,7 +181,7 @@ class SweepSpec:
 
     @property
     def grid(self) -> tuple[Distribution, ...]:
-        return tuple(d for d in self.parameters if d.kind == "grid")
+        return tuple(d for d in self.parameters if d.kind is DistributionKind.GRID)
 
     @property
     def grid_size(self) -> int:
@@ -154,7 +190,8 @@ class SweepSpec:
     @property
     def swept(self) -> tuple[str, ...]:
         """The names of the parameters that vary from flight to flight."""
-        return tuple(d.name for d in self.parameters if d.kind != "fixed" and not (d.kind == "grid" and d.grid_size == 1))
+        return tuple(d.name for d in self.parameters
+                     if d.kind is not DistributionKind.FIXED and not (d.kind is DistributionKind.GRID and d.grid_size == 1))
 
 
 @dataclass(frozen=True)
@@ -172,7 +209,7 @@ def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in table.items():
         name = f"{prefix}{key}"
-        known = name in PARAMETERS and PARAMETERS[name].kind == "number"  # "wind" is also the wind.* namespace
+        known = name in PARAMETERS and PARAMETERS[name].kind is ParameterKind.NUMBER  # "wind" is also the wind.* namespace
         if isinstance(value, Mapping) and not known and not (set(value) & {*DISTRIBUTIONS, "relative", "value"}):
             out.update(_flatten(value, name + "."))
         else:
@@ -198,15 +235,16 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
     if len(keys) != 1:
         raise ParameterFileError(f"{where}: expected one distribution ({', '.join(DISTRIBUTIONS)}), got "
                                  f"{', '.join(keys) or 'none'}")  # fmt: skip
-    kind, args = keys[0], value[keys[0]]
-    relative = value.get("relative", "")
-    if relative not in ("", "base", "truth"):
-        raise ParameterFileError(f"{where}.relative: expected \"base\" or \"truth\", got {relative!r}")
-    if relative and par.kind != "number":
+    kind, args = keys[0], value[keys[0]]  # a file's key: a DistributionKind's name, or value or linspace
+    raw_relative = value.get("relative", "")
+    if raw_relative not in tuple(Relative):
+        raise ParameterFileError(f"{where}.relative: expected \"base\" or \"truth\", got {raw_relative!r}")
+    relative = Relative(raw_relative)
+    if relative is not Relative.NONE and par.kind is not ParameterKind.NUMBER:
         raise ParameterFileError(f"{where}.relative: a spec string cannot be relative")
-    if relative == "base" and not par.base:
+    if relative is Relative.BASE and not par.base:
         raise ParameterFileError(f"{where}.relative: the scenario has no value of its own to be relative to")
-    if relative == "truth" and par.truth is None:
+    if relative is Relative.TRUTH and par.truth is None:
         raise ParameterFileError(f"{where}.relative: only the controller's mass and inertia are relative to the truth")
 
     def numbers(n: int | None) -> tuple[float, ...]:
@@ -219,14 +257,14 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
         return tuple(float(v) for v in args)
 
     def check_value(v: float | str, label: str) -> None:
-        if par.kind == "spec":
+        if par.kind is ParameterKind.SPEC:
             if not isinstance(v, str):
                 raise ParameterFileError(f"{where}.{label}: expected a spec string, got {v!r}")
             _check_spec(name, v, f"{where}.{label}")
             return
         if isinstance(v, str):
             raise ParameterFileError(f"{where}.{label}: expected a number, got {v!r}")
-        if relative:  # a factor: positive, the product is checked per flight
+        if relative is not Relative.NONE:  # a factor: positive, the product is checked per flight
             if not v > 0:
                 raise ParameterFileError(f"{where}.{label}: a relative factor must be > 0, got {v:g}")
             return
@@ -235,14 +273,14 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
             if bound is not None and not ok(bound):
                 raise ParameterFileError(f"{where}.{label}: must be {text} {bound:g}, got {v:g}")
 
-    if par.kind == "spec" and kind not in ("value", "choice", "grid"):
+    if par.kind is ParameterKind.SPEC and kind not in ("value", "choice", "grid"):
         raise ParameterFileError(f"{where}: a spec string takes value, choice or grid, not {kind}")
     if kind == "value":
-        v = args if par.kind == "spec" else _number(args, f"{where}.value" if isinstance(value, Mapping) and "value" in value else where)
+        v = args if par.kind is ParameterKind.SPEC else _number(args, f"{where}.value" if isinstance(value, Mapping) and "value" in value else where)
         check_value(v, "value")
-        return Distribution(name, "fixed", (v,), relative)
+        return Distribution(name, DistributionKind.FIXED, (v,), relative)
     if kind in ("choice", "grid"):
-        if par.kind == "spec":
+        if par.kind is ParameterKind.SPEC:
             if not isinstance(args, list) or not args:
                 raise ParameterFileError(f"{where}.{kind}: expected a list of spec strings, got {args!r}")
             values: tuple = tuple(args)
@@ -250,7 +288,7 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
             values = numbers(None)
         for j, v in enumerate(values):
             check_value(v, f"{kind}[{j}]")
-        return Distribution(name, kind, values, relative)
+        return Distribution(name, DistributionKind(kind), values, relative)
     if kind == "linspace":
         lo, hi, n = numbers(3)
         if n < 1 or n != int(n):
@@ -258,7 +296,7 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
         values = tuple(float(v) for v in np.linspace(lo, hi, int(n)))
         for j, v in enumerate(values):
             check_value(v, f"linspace[{j}]")
-        return Distribution(name, "grid", values, relative)
+        return Distribution(name, DistributionKind.GRID, values, relative)
     a, b = numbers(2)
     if kind == "uniform":
         if not a <= b:
@@ -267,7 +305,7 @@ def _distribution(name: str, value: Any, source: str) -> Distribution:
         check_value(b, "uniform[1]")
     elif not b >= 0:
         raise ParameterFileError(f"{where}.{kind}: the spread must be >= 0, got {b:g}")
-    return Distribution(name, kind, (a, b), relative)
+    return Distribution(name, DistributionKind(kind), (a, b), relative)
 
 
 def _number(value: Any, where: str) -> float:
@@ -391,10 +429,10 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
     # the truth first, so that a belief relative to the truth sees the flight's own truth
     for name in sorted(fl.values, key=lambda n: not n.startswith("vehicle.")):
         raw = fl.values[name]
-        rel = dist[name].relative if name in dist else ""
-        if rel == "base":
+        rel = dist[name].relative if name in dist else Relative.NONE
+        if rel is Relative.BASE:
             raw = float(raw) * _base_value(base, name)
-        elif rel == "truth":
+        elif rel is Relative.TRUTH:
             truth = PARAMETERS[name].truth
             assert truth is not None
             raw = float(raw) * float(values.get(truth, _base_value(base, truth)))
@@ -408,8 +446,8 @@ def scenario_of(spec: SweepSpec, fl: FlightSpec) -> FlightSetup:
     pos, yaw, latency = list(base.initial_pos_ned_m), base.initial_yaw_rad, 0.0
     for name, raw in values.items():
         par = PARAMETERS[name]
-        value = float(raw) if par.kind == "number" else math.nan  # a spec's string is ``raw``
-        if par.kind == "number":
+        value = float(raw) if par.kind is ParameterKind.NUMBER else math.nan  # a spec's string is ``raw``
+        if par.kind is ParameterKind.NUMBER:
             for bound, ok, text in ((par.gt, lambda b: value > b, ">"), (par.ge, lambda b: value >= b, ">="),
                                     (par.lt, lambda b: value < b, "<")):  # fmt: skip
                 if bound is not None and not ok(bound):

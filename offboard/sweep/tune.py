@@ -28,7 +28,7 @@ from offboard.metrics import SETTLE_S
 from offboard.inprocess import Drive
 from offboard.model.vehicle import VehicleModel, VehicleParams
 from offboard.sweep.runner import run_sweep
-from offboard.sweep.spec import Distribution, SweepSpec
+from offboard.sweep.spec import Distribution, DistributionKind, SweepSpec
 
 #: What a sweep may not vary for a search: what the search itself chooses.
 CHOSEN = ("controller.gains.", "controller.tilt_lead", "controller.velocity_integral", "controller.integral_gain_per_s",
@@ -83,7 +83,7 @@ def search_spec(spec: SweepSpec, vehicle: VehicleParams, params: ControllerParam
     base = replace(spec.base, vehicle=vehicle, controller=params, drive=Drive.PX4, model=VehicleModel.RIGID_BODY)
     parameters = spec.parameters
     if latency_s > 0.0 and not any(d.name == "latency_s" for d in parameters):
-        parameters = (*parameters, Distribution("latency_s", "fixed", (latency_s,)))
+        parameters = (*parameters, Distribution("latency_s", DistributionKind.FIXED, (latency_s,)))
     return replace(spec, base=base, parameters=parameters)
 
 

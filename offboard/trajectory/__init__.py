@@ -6,7 +6,7 @@ Segments (each one named phase): ``Hold``, ``Line``, ``Helix`` (``circle``), ``L
 """
 
 from offboard.trajectory.analytic import Helix, Hold, Line, Lissajous, circle, figure_eight
-from offboard.trajectory.base import Phase, Reference, Trajectory
+from offboard.trajectory.base import Phase, PhaseKind, Reference, Trajectory
 from offboard.trajectory.polygon import Polygon, square
 from offboard.trajectory.segment import Segment
 from offboard.trajectory.sequence import Sequence
@@ -18,6 +18,7 @@ __all__ = [
     "Line",
     "Lissajous",
     "Phase",
+    "PhaseKind",
     "Polygon",
     "Reference",
     "Segment",

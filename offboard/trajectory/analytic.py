@@ -23,23 +23,24 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Reference
-from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
+from offboard.trajectory.base import PhaseKind, Reference
+from offboard.trajectory.segment import LENGTH_EPS_M, Segment, YawMode, finite, heading_of, positive, vec3, wrap_pi
 
-YAW_MODES = ("fixed", "along-path", "center")
+#: The yaw modes of the moving segments here (``Line`` and ``Lissajous`` take the first two).
+YAW_MODES = (YawMode.FIXED.value, YawMode.ALONG_PATH.value, YawMode.CENTER.value)
 
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
 
-def _check_yaw_mode(yaw_mode: str, allowed: tuple[str, ...]) -> str:
+def _check_yaw_mode(yaw_mode: YawMode, allowed: tuple[str, ...]) -> YawMode:
     if yaw_mode not in allowed:
         raise ValueError(f"yaw_mode must be one of {allowed}, got {yaw_mode!r}")
-    return yaw_mode
+    return YawMode(yaw_mode)
 
 
 class Hold(Segment):
-    """Stay at a point with a fixed yaw (a position-control set point, kind ``"hold"``).
+    """Stay at a point with a fixed yaw (a position-control set point, kind ``hold``).
 
     Parameters
     ----------
@@ -54,7 +55,7 @@ class Hold(Segment):
     """
 
     def __init__(self, pos_ned_m: ArrayLike, yaw_rad: float, duration_s: float, name: str = "hold") -> None:
-        super().__init__(duration_s, name, "hold")
+        super().__init__(duration_s, name, PhaseKind.HOLD)
         self._ref = Reference(pos_ned_m=vec3(pos_ned_m, "pos_ned_m"), yaw_rad=finite(yaw_rad, "yaw_rad"))
 
     @property
@@ -90,7 +91,7 @@ class Line(Segment):
         end_ned_m: ArrayLike,
         speed_m_s: float,
         yaw_rad: float = 0.0,
-        yaw_mode: str = "fixed",
+        yaw_mode: YawMode = YawMode.FIXED,
         name: str = "line",
     ) -> None:
         start = vec3(start_ned_m, "start_ned_m")
@@ -100,14 +101,14 @@ class Line(Segment):
         length = float(np.linalg.norm(delta))
         if length < LENGTH_EPS_M:
             raise ValueError(f"{name}: start and end coincide; a line needs two distinct points")
-        super().__init__(length / speed, name, "track")
+        super().__init__(length / speed, name, PhaseKind.TRACK)
         self.start_ned_m = start
         self.end_ned_m = end
         self.length_m = length
         self._vel = delta / length * speed
         self._vel.setflags(write=False)
         yaw = finite(yaw_rad, "yaw_rad")
-        if _check_yaw_mode(yaw_mode, YAW_MODES[:2]) == "along-path":
+        if _check_yaw_mode(yaw_mode, YAW_MODES[:2]) is YawMode.ALONG_PATH:
             heading = heading_of(delta)
             yaw = yaw if heading is None else heading
         self.yaw_rad = yaw
@@ -149,10 +150,10 @@ class Helix(Segment):
         duration_s: float,
         phase_rad: float = 0.0,
         yaw_rad: float = 0.0,
-        yaw_mode: str = "fixed",
+        yaw_mode: YawMode = YawMode.FIXED,
         name: str = "helix",
     ) -> None:
-        super().__init__(duration_s, name, "track")
+        super().__init__(duration_s, name, PhaseKind.TRACK)
         self.center_ned_m = vec3(center_ned_m, "center_ned_m")
         self.radius_m = positive(radius_m, "radius_m")
         self.angular_rate_rad_s = finite(angular_rate_rad_s, "angular_rate_rad_s")
@@ -163,12 +164,12 @@ class Helix(Segment):
         self.yaw_mode = _check_yaw_mode(yaw_mode, YAW_MODES)
         yaw = finite(yaw_rad, "yaw_rad")
         # yaw = phi + offset in the moving modes: tangent is phi +- pi/2, facing the axis phi + pi.
-        if self.yaw_mode == "along-path":
+        if self.yaw_mode is YawMode.ALONG_PATH:
             offset = math.copysign(0.5 * math.pi, self.angular_rate_rad_s)
         else:
             offset = math.pi
-        self._yaw0 = yaw if self.yaw_mode == "fixed" else wrap_pi(self.phase_rad + offset)
-        self._yaw_rate = 0.0 if self.yaw_mode == "fixed" else self.angular_rate_rad_s
+        self._yaw0 = yaw if self.yaw_mode is YawMode.FIXED else wrap_pi(self.phase_rad + offset)
+        self._yaw_rate = 0.0 if self.yaw_mode is YawMode.FIXED else self.angular_rate_rad_s
 
     @property
     def length_m(self) -> float:
@@ -198,7 +199,7 @@ def circle(
     duration_s: float,
     phase_rad: float = 0.0,
     yaw_rad: float = 0.0,
-    yaw_mode: str = "fixed",
+    yaw_mode: YawMode = YawMode.FIXED,
     name: str = "circle",
 ) -> Helix:
     """A horizontal circle at the height of ``center_ned_m``: a helix that does not climb."""
@@ -238,10 +239,10 @@ class Lissajous(Segment):
         phase_rad: ArrayLike,
         duration_s: float,
         yaw_rad: float = 0.0,
-        yaw_mode: str = "fixed",
+        yaw_mode: YawMode = YawMode.FIXED,
         name: str = "lissajous",
     ) -> None:
-        super().__init__(duration_s, name, "track")
+        super().__init__(duration_s, name, PhaseKind.TRACK)
         self.center_ned_m = vec3(center_ned_m, "center_ned_m")
         self.amplitude_m = vec3(amplitude_m, "amplitude_m")
         self.angular_rate_rad_s = vec3(angular_rate_rad_s, "angular_rate_rad_s")
@@ -251,7 +252,7 @@ class Lissajous(Segment):
         self.yaw_mode = _check_yaw_mode(yaw_mode, YAW_MODES[:2])
         self.yaw_rad = finite(yaw_rad, "yaw_rad")
         self._table: np.ndarray | None = None
-        if self.yaw_mode == "along-path":
+        if self.yaw_mode is YawMode.ALONG_PATH:
             n = int(math.ceil(self.duration_s / self._TABLE_DT_S)) + 1
             t = np.linspace(0.0, self.duration_s, n)
             arg = self.angular_rate_rad_s[:2, None] * t + self.phase_rad[:2, None]
@@ -293,7 +294,7 @@ def figure_eight(
     period_s: float,
     duration_s: float,
     yaw_rad: float = 0.0,
-    yaw_mode: str = "fixed",
+    yaw_mode: YawMode = YawMode.FIXED,
     name: str = "figure-eight",
 ) -> Lissajous:
     """A horizontal figure eight: ``north = L/2 sin(w t)``, ``east = W/2 sin(2 w t)``, ``w = 2 pi / period``.

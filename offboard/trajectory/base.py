@@ -8,6 +8,7 @@ file chose and parameterised it is not the trajectory's business.
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
@@ -60,6 +61,14 @@ class Reference:
         object.__setattr__(self, "yaw_rate_rad_s", yaw_rate)
 
 
+class PhaseKind(enum.StrEnum):
+    """What a phase's reference does: moves (``track``: tracking errors) or stays on a fixed point
+    (``hold``: the steady-state errors a report gives apart)."""
+
+    TRACK = "track"
+    HOLD = "hold"
+
+
 @dataclass(frozen=True)
 class Phase:
     """A named time span of a trajectory, for reports (``start_s <= t < end_s``)."""
@@ -67,7 +76,10 @@ class Phase:
     name: str
     start_s: float
     end_s: float
-    kind: str = "track"  # "track" (moving reference) or "hold" (fixed point: steady-state errors)
+    kind: PhaseKind = PhaseKind.TRACK
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", PhaseKind(self.kind))  # a caller's word: its enum
 
 
 @runtime_checkable

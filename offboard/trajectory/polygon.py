@@ -7,16 +7,25 @@ generated at corners are the sharp variations in reference, which cause large co
 
 from __future__ import annotations
 
+import enum
 from bisect import bisect_right
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Reference
-from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
+from offboard.trajectory.base import PhaseKind, Reference
+from offboard.trajectory.segment import LENGTH_EPS_M, Segment, YawMode, finite, heading_of, positive, vec3, wrap_pi
 
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
+
+
+class FirstSide(enum.StrEnum):
+    """Which way a square leaves its corner: ``north`` (then east, south, west: clockwise seen from
+    above) or ``east`` (then north, west, south)."""
+
+    NORTH = "north"
+    EAST = "east"
 
 
 class Polygon(Segment):
@@ -46,7 +55,7 @@ class Polygon(Segment):
         closed: bool = True,
         laps: int = 1,
         yaw_rad: float = 0.0,
-        yaw_mode: str = "fixed",
+        yaw_mode: YawMode = YawMode.FIXED,
         name: str = "polygon",
     ) -> None:
         verts = np.array(vertices_ned_m, dtype=float)
@@ -58,7 +67,7 @@ class Polygon(Segment):
             raise ValueError(f"{name}: laps must be an integer >= 1, got {laps}")
         if laps > 1 and not closed:
             raise ValueError(f"{name}: more than one lap needs a closed polygon")
-        if yaw_mode not in ("fixed", "along-path"):
+        if yaw_mode not in (YawMode.FIXED, YawMode.ALONG_PATH):
             raise ValueError(f"{name}: yaw_mode must be 'fixed' or 'along-path', got {yaw_mode!r}")
         speed = positive(speed_m_s, "speed_m_s")
         path = np.vstack([verts, verts[:1]]) if closed else verts
@@ -70,7 +79,7 @@ class Polygon(Segment):
             raise ValueError(f"{name}: vertices {k} and {k + 1} coincide")
         durations = lengths / speed
         starts = np.concatenate([[0.0], np.cumsum(durations)])
-        super().__init__(float(starts[-1]), name, "track")
+        super().__init__(float(starts[-1]), name, PhaseKind.TRACK)
         verts.setflags(write=False)
         self.vertices_ned_m = verts
         self.speed_m_s = speed
@@ -86,7 +95,7 @@ class Polygon(Segment):
         yaw = finite(yaw_rad, "yaw_rad")
         self._yaws: list[float] = []
         for d in deltas:
-            heading = heading_of(d) if yaw_mode == "along-path" else None
+            heading = heading_of(d) if yaw_mode == YawMode.ALONG_PATH else None
             # unwrap against the previous side so the yaw steps by the turn, never by 2 pi
             yaw = yaw if heading is None else (heading if not self._yaws else yaw + wrap_pi(heading - yaw))
             self._yaws.append(yaw)
@@ -103,10 +112,10 @@ def square(
     corner_ned_m: ArrayLike,
     side_m: float,
     speed_m_s: float,
-    first_side: str = "north",
+    first_side: FirstSide = FirstSide.NORTH,
     laps: int = 1,
     yaw_rad: float = 0.0,
-    yaw_mode: str = "fixed",
+    yaw_mode: YawMode = YawMode.FIXED,
     name: str = "square",
 ) -> Polygon:
     """A horizontal square from ``corner_ned_m``, closed, at constant speed.
@@ -117,9 +126,9 @@ def square(
     """
     c = vec3(corner_ned_m, "corner_ned_m")
     a = positive(side_m, "side_m")
-    if first_side == "north":
+    if first_side == FirstSide.NORTH:
         offsets = [(0, 0), (a, 0), (a, a), (0, a)]
-    elif first_side == "east":
+    elif first_side == FirstSide.EAST:
         offsets = [(0, 0), (0, a), (a, a), (a, 0)]
     else:
         raise ValueError(f"{name}: first_side must be 'north' or 'east', got {first_side!r}")

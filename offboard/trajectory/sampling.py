@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from offboard.trajectory.base import Trajectory
+from offboard.trajectory.base import PhaseKind, Trajectory
 from offboard.trajectory.segment import wrap_pi
 from offboard.trajectory.sequence import Sequence
 
@@ -56,7 +57,7 @@ class SegmentSummary:
 
     name: str
     type: str
-    kind: str
+    kind: PhaseKind | Literal["mixed"]  # its one phase's; "mixed": phases of both kinds (a waypoint hold)
     start_s: float
     duration_s: float
     length_m: float
@@ -148,7 +149,7 @@ def summarize(traj: Trajectory, dt_s: float = DEFAULT_DT_S) -> Summary:
         accel = np.linalg.norm(s.acc_ned_m_s2, axis=1)
         length = float(np.linalg.norm(np.diff(s.pos_ned_m, axis=0), axis=1).sum())
         name = getattr(seg, "name", type(seg).__name__)
-        kind = seg.phases()[0].kind if len(seg.phases()) == 1 else "mixed"
+        kind: PhaseKind | Literal["mixed"] = seg.phases()[0].kind if len(seg.phases()) == 1 else "mixed"
         rows.append(
             SegmentSummary(
                 name, type(seg).__name__, kind, t0, seg.duration_s, length,

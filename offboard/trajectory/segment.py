@@ -8,6 +8,7 @@ contract of ``base.py``).
 
 from __future__ import annotations
 
+import enum
 import math
 from abc import ABC, abstractmethod
 from functools import cached_property
@@ -15,12 +16,26 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Phase, Reference
+from offboard.trajectory.base import Phase, PhaseKind, Reference
 from offboard.model.rotations import wrap_pi
 
-__all__ = ["LENGTH_EPS_M", "PHASE_KINDS", "Segment", "finite", "heading_of", "positive", "vec3", "wrap_pi"]
+__all__ = ["LENGTH_EPS_M", "PHASE_KINDS", "Segment", "YawMode", "finite", "heading_of", "positive", "vec3", "wrap_pi"]
 
-PHASE_KINDS = ("track", "hold")
+#: The phase kinds by name, a moving reference first.
+PHASE_KINDS = tuple(k.value for k in PhaseKind)
+
+
+class YawMode(enum.StrEnum):
+    """Where a moving segment points the vehicle: one heading throughout (``fixed``), the heading
+    of the horizontal velocity (``along-path``), facing a helix's axis (``center``) or each
+    waypoint's own yaw, reached on the waypoint (``waypoint``). Each segment type takes those its
+    module's ``YAW_MODES`` name."""
+
+    FIXED = "fixed"
+    ALONG_PATH = "along-path"
+    CENTER = "center"
+    WAYPOINT = "waypoint"
+
 
 #: Below this (m) a displacement counts as none: a zero-length leg, a vertical line's heading.
 LENGTH_EPS_M = 1e-9
@@ -35,11 +50,11 @@ class Segment(ABC):
         Length of the segment in time, > 0.
     name : str
         Name of its phase in reports (``"helix"``, ``"hold-12m"``).
-    kind : {"track", "hold"}
-        ``"hold"`` for a fixed point (steady-state errors), ``"track"`` otherwise.
+    kind : PhaseKind
+        ``hold`` for a fixed point (steady-state errors), ``track`` otherwise.
     """
 
-    def __init__(self, duration_s: float, name: str, kind: str) -> None:
+    def __init__(self, duration_s: float, name: str, kind: PhaseKind) -> None:
         duration_s = float(duration_s)
         if not (math.isfinite(duration_s) and duration_s > 0.0):
             raise ValueError(f"{name}: duration_s must be finite and > 0, got {duration_s}")
@@ -47,7 +62,7 @@ class Segment(ABC):
             raise ValueError(f"{name}: kind must be one of {PHASE_KINDS}, got {kind!r}")
         self._duration_s = duration_s
         self.name = str(name)
-        self.kind = kind
+        self.kind = PhaseKind(kind)
 
     @property
     def duration_s(self) -> float:

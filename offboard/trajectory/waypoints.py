@@ -31,6 +31,7 @@ Yaw (``yaw_mode``):
 
 from __future__ import annotations
 
+import enum
 import math
 from bisect import bisect_right
 from collections.abc import Sequence
@@ -39,12 +40,24 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from offboard.trajectory.base import Phase, Reference
+from offboard.trajectory.base import Phase, PhaseKind, Reference
 from offboard.trajectory.profile import Trapezoid, boundary_speeds
-from offboard.trajectory.segment import LENGTH_EPS_M, Segment, finite, heading_of, positive, vec3, wrap_pi
+from offboard.trajectory.segment import LENGTH_EPS_M, Segment, YawMode, finite, heading_of, positive, vec3, wrap_pi
 
-CORNER_MODES = ("stop", "blend")
-YAW_MODES = ("fixed", "along-path", "waypoint")
+
+
+class CornerMode(enum.StrEnum):
+    """What the legs do at an interior waypoint (module docstring): come to rest on it (``stop``)
+    or cut it by an arc tangent to both legs (``blend``)."""
+
+    STOP = "stop"
+    BLEND = "blend"
+
+
+#: The corner modes by name, the default first.
+CORNER_MODES = tuple(c.value for c in CornerMode)
+#: The yaw modes of waypoint legs.
+YAW_MODES = (YawMode.FIXED.value, YawMode.ALONG_PATH.value, YawMode.WAYPOINT.value)
 
 #: Turns sharper than this (rad) are always stopped at: the arc would be a U-turn on the spot.
 MAX_BLEND_TURN_RAD = math.radians(179.0)
@@ -230,9 +243,9 @@ class WaypointLegs(Segment):
         waypoints: Sequence[Waypoint],
         cruise_speed_m_s: float,
         accel_m_s2: float,
-        corners: str = "stop",
+        corners: CornerMode = CornerMode.STOP,
         blend_radius_m: float = DEFAULT_BLEND_RADIUS_M,
-        yaw_mode: str = "fixed",
+        yaw_mode: YawMode = YawMode.FIXED,
         start_yaw_rad: float = 0.0,
         yaw_rad: float | None = None,
         max_yaw_rate_rad_s: float = DEFAULT_MAX_YAW_RATE_RAD_S,
@@ -248,11 +261,11 @@ class WaypointLegs(Segment):
         self.waypoints = tuple(waypoints)
         self.cruise_speed_m_s = positive(cruise_speed_m_s, "cruise_speed_m_s")
         self.accel_m_s2 = positive(accel_m_s2, "accel_m_s2")
-        self.corners = corners
+        self.corners = CornerMode(corners)
         self.blend_radius_m = finite(blend_radius_m, "blend_radius_m")
         if self.blend_radius_m < 0:
             raise ValueError(f"{name}: blend_radius_m must be >= 0, got {self.blend_radius_m:g}")
-        self.yaw_mode = yaw_mode
+        self.yaw_mode = YawMode(yaw_mode)
         self.start_yaw_rad = finite(start_yaw_rad, "start_yaw_rad")
         self.fixed_yaw_rad = self.start_yaw_rad if yaw_rad is None else finite(yaw_rad, "yaw_rad")
         self.max_yaw_rate_rad_s = positive(max_yaw_rate_rad_s, "max_yaw_rate_rad_s")
@@ -266,7 +279,7 @@ class WaypointLegs(Segment):
             t += piece.profile.duration_s if isinstance(piece, (_Line, _Arc)) else piece.duration  # type: ignore[union-attr]
         if t <= 0.0:
             raise ValueError(f"{name}: nothing to fly: every waypoint is at the start point and asks for no hold or turn")
-        super().__init__(t, name, "track")
+        super().__init__(t, name, PhaseKind.TRACK)
         self._pieces = pieces
         self._starts = starts
         self._phases = self._make_phases(labels)
@@ -275,7 +288,7 @@ class WaypointLegs(Segment):
     # -- construction -------------------------------------------------------------------------
 
     def _build(self) -> tuple[list, list]:
-        """Pieces in time order, and for each its phase: ("track" or "hold", waypoint label or None)."""
+        """Pieces in time order, and for each its phase: (its kind, waypoint label or None)."""
         wps = self.waypoints
         n = len(wps)
         points = [self.start_ned_m] + [np.array(w.pos_ned_m) for w in wps]
@@ -291,14 +304,14 @@ class WaypointLegs(Segment):
             lengths.append(length)
             units.append(delta / length if length >= LENGTH_EPS_M else None)
 
-        path_yaw = self.yaw_mode == "along-path"
+        path_yaw = self.yaw_mode is YawMode.ALONG_PATH
         # Corner k joins leg k (ending at waypoint k) and leg k + 1.
         arcs: list[tuple | None] = [None] * n
         stops = [True] * n
         for k in range(n - 1):
             w = wps[k]
             u1, u2 = units[k], units[k + 1]
-            if self.corners == "stop" or w.hold_s > 0 or w.stop or u1 is None or u2 is None:
+            if self.corners is CornerMode.STOP or w.hold_s > 0 or w.stop or u1 is None or u2 is None:
                 continue
             theta = math.acos(min(1.0, max(-1.0, float(u1 @ u2))))
             if theta < 1e-9:
@@ -361,11 +374,11 @@ class WaypointLegs(Segment):
     def _assign_yaw(self, events: list[tuple]) -> None:
         """Set yaw0/yaw_slope (and path_heading) on every motion piece; record turn targets."""
         moves = [e[1] for e in events if e[0] == "move"]
-        if self.yaw_mode == "fixed":
+        if self.yaw_mode is YawMode.FIXED:
             for p in moves:
                 p.yaw0 = self.fixed_yaw_rad
             return
-        if self.yaw_mode == "along-path":
+        if self.yaw_mode is YawMode.ALONG_PATH:
             headings = [heading_of(p.u) if isinstance(p, _Line) else heading_of(p.tangent(0.0)) for p in moves]
             # vertical pieces take the heading of the next piece that has one (else the last one)
             nxt: float | None = None
@@ -406,7 +419,7 @@ class WaypointLegs(Segment):
         pieces: list = []
         labels: list = []
         run: list[tuple] = []
-        yaw = self.start_yaw_rad if self.yaw_mode != "fixed" else self.fixed_yaw_rad
+        yaw = self.start_yaw_rad if self.yaw_mode is not YawMode.FIXED else self.fixed_yaw_rad
         pos = self.start_ned_m
 
         def label(k: int) -> str:
@@ -425,7 +438,7 @@ class WaypointLegs(Segment):
                 v_max = max(v[k], v[k + 1]) if constant[k] else limits[k]
                 p.profile = Trapezoid(p.length, v[k], v[k + 1], max(v_max, 1e-9), self.accel_m_s2)
                 pieces.append(p)
-                labels.append(("track", stop_label))
+                labels.append((PhaseKind.TRACK, stop_label))
             last = run[-1][1]
             pos = vec3(last.point(last.length), "pos")
             yaw = self._end_yaw(last)
@@ -435,7 +448,7 @@ class WaypointLegs(Segment):
             nonlocal yaw
             if abs(target - yaw) > 1e-9:
                 pieces.append(_Still(pos, yaw, target, _turn_duration(target - yaw, self.max_yaw_rate_rad_s)))
-                labels.append(("track", None))
+                labels.append((PhaseKind.TRACK, None))
             yaw = target
 
         for e in events:
@@ -450,11 +463,11 @@ class WaypointLegs(Segment):
             # a stop at waypoint e[1]
             flush_run(label(e[1]))
             w = self.waypoints[e[1]]
-            if self.yaw_mode == "waypoint" and w.yaw_rad is not None:
+            if self.yaw_mode is YawMode.WAYPOINT and w.yaw_rad is not None:
                 turn_to(yaw + wrap_pi(w.yaw_rad - yaw))  # only turns after a zero-length leg
             if w.hold_s > 0:
                 pieces.append(_Still(pos, yaw, yaw, w.hold_s))
-                labels.append(("hold", label(e[1])))
+                labels.append((PhaseKind.HOLD, label(e[1])))
         flush_run(label(len(self.waypoints) - 1))
         return pieces, labels
 
@@ -469,23 +482,23 @@ class WaypointLegs(Segment):
 
         Without holds the whole segment is one phase named ``name``.
         """
-        if all(kind == "track" for kind, _ in labels):
-            return [Phase(self.name, 0.0, self.duration_s, "track")]
+        if all(kind is PhaseKind.TRACK for kind, _ in labels):
+            return [Phase(self.name, 0.0, self.duration_s, PhaseKind.TRACK)]
         phases: list[Phase] = []
         ends = self._starts[1:] + [self.duration_s]
         k = 0
         while k < len(labels):
             kind, label = labels[k]
-            if kind == "hold":
-                phases.append(Phase(f"{self.name}:hold-{label}", self._starts[k], ends[k], "hold"))
+            if kind is PhaseKind.HOLD:
+                phases.append(Phase(f"{self.name}:hold-{label}", self._starts[k], ends[k], PhaseKind.HOLD))
                 k += 1
                 continue
             j = k
-            while j + 1 < len(labels) and labels[j + 1][0] == "track":
+            while j + 1 < len(labels) and labels[j + 1][0] is PhaseKind.TRACK:
                 j += 1
             names = [lab for _, lab in labels[k : j + 1] if lab is not None]
             suffix = f"to-{names[-1]}" if names else f"turn-{len(phases) + 1}"
-            phases.append(Phase(f"{self.name}:{suffix}", self._starts[k], ends[j], "track"))
+            phases.append(Phase(f"{self.name}:{suffix}", self._starts[k], ends[j], PhaseKind.TRACK))
             k = j + 1
         return phases
 
@@ -532,7 +545,8 @@ class VerticalMove(WaypointLegs):
         end = (float(start[0]), float(start[1]), finite(to_down_m, "to_down_m"))
         if abs(end[2] - start[2]) < LENGTH_EPS_M:
             raise ValueError(f"{name}: already at down = {end[2]:g} m; nothing to climb or descend")
-        yaw_mode = "fixed" if end_yaw_rad is None else "waypoint"
+        yaw_mode = YawMode.FIXED if end_yaw_rad is None else YawMode.WAYPOINT
         super().__init__(
-            start, [Waypoint(end, yaw_rad=end_yaw_rad)], speed_m_s, accel_m_s2, "stop", 0.0, yaw_mode, yaw_rad, yaw_rad, name=name
+            start, [Waypoint(end, yaw_rad=end_yaw_rad)], speed_m_s, accel_m_s2, CornerMode.STOP, 0.0, yaw_mode, yaw_rad, yaw_rad,
+            name=name,
         )

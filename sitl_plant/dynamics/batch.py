@@ -35,7 +35,7 @@ import os
 
 import numpy as np
 
-from offboard.model.euler_lagrange import EULER_FORM_TERMS
+from offboard.model.euler_lagrange import EULER_FORM_TERMS, EulerRateForm
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 from sitl_plant.dynamics import rigid_body
@@ -781,7 +781,7 @@ def advance_many(
     thrust_n: np.ndarray,
     tau_tilde_rad_s2: np.ndarray,
     believed_inertia_kg_m2: np.ndarray,
-    euler_rate_form: str,
+    euler_rate_form: EulerRateForm,
     params: np.ndarray,
     winds: np.ndarray,
     ground: bool,

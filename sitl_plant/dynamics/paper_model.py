@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from offboard.model.euler_lagrange import euler_acceleration
+from offboard.model.euler_lagrange import EulerRateForm, euler_acceleration
 
 STATE_SIZE = 12
 POSITION = [0, 2, 4]
@@ -43,7 +43,7 @@ def derivative(
     mass_kg: float,
     inertia: np.ndarray,
     gravity_m_s2: float,
-    form: str = "castillo",
+    form: EulerRateForm = EulerRateForm.CASTILLO,
 ) -> np.ndarray:
     """x_dot for the paper model (eq. 13 and 18): a pure function of state and inputs.
 
@@ -57,7 +57,7 @@ def derivative(
         Generalised torques (tau_phi, tau_theta, tau_psi), N m.
     mass_kg, inertia, gravity_m_s2
         The true vehicle's m, I (3x3), g.
-    form : str
+    form : EulerRateForm
         W_eta form, see ``euler_lagrange``.
     """
     xdot = np.empty(STATE_SIZE)
