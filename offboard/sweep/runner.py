@@ -3,7 +3,7 @@
 Flights are cut into chunks of consecutive indices (``flights_per_task``, by default sized to
 about 0.8 s of work: Dask's own guidance is ~1 ms of overhead a task, so tasks of 0.1-1 s
 keep it under 1 %); each chunk is one task, flown by ``fly_chunk`` on a worker, which returns its
-rows. The client writes each chunk's rows as a row group of ``flights.parquet`` as it arrives,
+rows as Parquet columns. The client writes each chunk as a row group of ``flights.parquet`` as it arrives,
 and keeps no more than a few tasks per worker in flight, so the memory stays flat in the number
 of flights. A flight depends only on the sweep and its index (``spec.flight``), so the rows are
 the same on one worker or fifty and in any chunking; they arrive in completion order (the
@@ -23,6 +23,8 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from offboard.sweep.flight import phase_columns
 from offboard.sweep.spec import PARAMETERS, ParameterKind, SweepSpec, flights
@@ -88,11 +90,24 @@ def _warm_up(spec: SweepSpec, engine: str) -> None:
     fly_chunk(replace(spec, base=replace(spec.base, duration_s=0.1)), 0, 1, engine)
 
 
-def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[list[dict], float]:
-    """A Dask task: ``fly_chunk`` and the seconds it took on the worker."""
+def row_columns(rows: list[dict], cols: list[tuple[str, str]]) -> dict[str, list | np.ndarray]:
+    """``rows`` as the columns of ``cols`` (``columns``): floats as one float64 array each (a
+    missing value NaN), integers and strings as lists."""
+    out: dict[str, list | np.ndarray] = {}
+    for name, kind in cols:
+        values = [r.get(name) for r in rows]
+        out[name] = np.array([math.nan if v is None else float(v) for v in values]) if kind == "float" else values
+    return out
+
+
+def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[dict[str, list | np.ndarray], int, float]:
+    """A Dask task: ``fly_chunk``'s rows as Parquet columns, their number, and the seconds it took
+    on the worker. The worker builds the columns: the client, which shares a machine's cores
+    with the workers of a local cluster, only writes them (and a task's pickle is a few arrays,
+    not a dict per flight)."""
     started = time.perf_counter()
     rows = fly_chunk(spec, start, stop, engine)
-    return rows, time.perf_counter() - started
+    return row_columns(rows, columns(spec)), len(rows), time.perf_counter() - started
 
 
 def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
@@ -171,15 +186,10 @@ class ParquetRows:
         self.writer = pq.ParquetWriter(path, self.schema)
         self.rows = 0
 
-    def write(self, rows: list[dict]) -> None:
-        arrays = {}
-        for name, kind in self.cols:
-            values = [r.get(name) for r in rows]
-            if kind == "float":
-                values = [math.nan if v is None else float(v) for v in values]
-            arrays[name] = values
-        self.writer.write_table(self._pa.Table.from_pydict(arrays, schema=self.schema))
-        self.rows += len(rows)
+    def write(self, columns: dict[str, list | np.ndarray], count: int) -> None:
+        """``count`` rows given as columns (``row_columns``), as one row group."""
+        self.writer.write_table(self._pa.Table.from_pydict(columns, schema=self.schema))
+        self.rows += count
 
     def close(self) -> None:
         self.writer.close()
@@ -245,11 +255,11 @@ def run_sweep(
             done = 0
             compute_s = 0.0
             for future in window:
-                rows, seconds = future.result()
+                cols, count, seconds = future.result()
                 compute_s += seconds
                 future.release()
-                out.write(rows)
-                done += len(rows)
+                out.write(cols, count)
+                done += count
                 if progress is not None:
                     progress(done, total, time.perf_counter() - started)
                 nxt = next(pending, None)

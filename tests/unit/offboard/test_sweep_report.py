@@ -11,7 +11,7 @@ import pytest
 from helpers.sweeps import write_sweep
 from offboard import jsonout
 from offboard.sweep.report import format_report, read_rows, spearman, summary, write_plots
-from offboard.sweep.runner import ParquetRows, chunks, columns, fly_chunk
+from offboard.sweep.runner import ParquetRows, chunks, columns, fly_chunk, row_columns
 from offboard.sweep.spec import load_sweep
 
 
@@ -38,8 +38,9 @@ def test_rows_go_to_parquet_one_a_flight_and_make_a_report(tmp_path):
     assert names[:5] == ["flight", "seed", "controller.mass_kg", "controller.gains.kx1", "wind"]
     assert {"rms_whole_m", "max_helix_m", "final_error_m", "peak_tilt_deg", "peak_thrust_n", "status", "converge_s"} <= set(names)
     out = ParquetRows(tmp_path / "flights.parquet", columns(spec))
-    out.write(fly_chunk(spec, 2, 3))  # in any order: the report sorts by flight
-    out.write(fly_chunk(spec, 0, 2))
+    for start, stop in ((2, 3), (0, 2)):  # in any order: the report sorts by flight
+        rows = fly_chunk(spec, start, stop)
+        out.write(row_columns(rows, columns(spec)), len(rows))  # as a task hands them over
     out.close()
     rows = read_rows(tmp_path / "flights.parquet")
     assert rows["flight"].tolist() == [0, 1, 2] and rows["controller.mass_kg"].tolist() == [0.3, 0.5, 0.7]
