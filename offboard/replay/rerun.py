@@ -226,8 +226,8 @@ def flight_controller(
       values) resolved as ``offboard fly`` resolved it, then overridden by the resolved
       controller the summary records, field by field (older summaries lack some fields);
     - else ``offboard fly``'s default: the paper's file believing the vehicle's SIM_* values,
-      read back from the PARAM_VALUE messages in the log, with (attitude output on a rigid body)
-      the gains designed for the vehicle's inner loop from the same parameters.
+      read back from the PARAM_VALUE messages in the log, with (attitude or rates output on a
+      rigid body) the gains designed for the vehicle's inner loop from the same parameters.
 
     Returns
     -------
@@ -241,9 +241,9 @@ def flight_controller(
     flown_file = (summary or {}).get("controller_file")
     flown_choice = (summary or {}).get("controller_choice")
     # offboard fly's default designs the gains where the design applies (offboard.commands.fly)
-    default_tuned = model == VehicleModel.RIGID_BODY and output == SetpointOutput.ATTITUDE
+    default_tuned = model == VehicleModel.RIGID_BODY and output in (SetpointOutput.ATTITUDE, SetpointOutput.RATES)
     tuned = flown_choice == "tuned" or (flown_choice is None and default_tuned and not isinstance(recorded, dict))
-    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), tuned=tuned)
+    choice = ControllerChoice(base=load_controller(PAPER_CONTROLLER_FILE), tuned=tuned, body_rates=output == SetpointOutput.RATES)
     file_note = f"{PAPER_CONTROLLER_FILE.name} believing the vehicle's SIM_* values" + (", gains designed for it" if choice.tuned else "")
     if isinstance(flown_file, str) and flown_file:
         if Path(flown_file).is_file():
