@@ -337,7 +337,7 @@ class Plant:
         return x[self._position_index]
 
     def _apply_task(self) -> None:
-        self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)  # type: ignore[assignment]
+        self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)
 
     # -- incoming --------------------------------------------------------------------------------
 
