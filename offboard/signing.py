@@ -40,6 +40,10 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pymavlink.dialects.v20.common import MAVLink
 
 KEY_BYTES = 32
 PX4_KEY_FILE_BYTES = 40  # the key, then the timestamp (uint64, little-endian)
@@ -223,10 +227,10 @@ class SigningSession:
         self.check.timestamp = max(self.check.timestamp, self._sent)
         return self._sent
 
-    def stamp(self, packer: object) -> None:
+    def stamp(self, packer: MAVLink) -> None:
         """Ready pymavlink's packer to sign the next frame with :meth:`now` (it signs with
         ``signing.timestamp`` and then adds one)."""
-        signing = packer.signing  # type: ignore[attr-defined]
+        signing = packer.signing
         signing.secret_key = self.key.secret
         signing.link_id = self.link_id
         signing.sign_outgoing = True

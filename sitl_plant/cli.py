@@ -25,7 +25,7 @@ from sitl_plant.link import Endpoint, Link, parse_address
 from sitl_plant.params import plant_params
 from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
 from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
-from sitl_plant.server import Plant, PlantConfig, run_lockstep, run_realtime
+from sitl_plant.server import Plant, PlantConfig, RunStats, run_lockstep, run_realtime
 from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
 from sitl_plant.dynamics.wind import WindField, wind_from_spec
 from offboard.model.vehicle import VEHICLE_MODELS
@@ -341,14 +341,14 @@ def _banner(args: argparse.Namespace, plant: Plant, link: Link) -> None:
     print("\n".join(lines), file=sys.stderr, flush=True)
 
 
-def _summary(plant: Plant, link: Link, stats: object) -> None:
+def _summary(plant: Plant, link: Link, stats: RunStats) -> None:
     c = plant.counters
     api = link.endpoints[0].counters
     bad = sum(e.counters.bad_packets for e in link.endpoints)
-    wall = getattr(stats, "wall_s", 0.0)
-    periods = getattr(stats, "periods", 0)
+    wall = stats.wall_s
+    periods = stats.periods
     rate = f", {periods / wall:.0f} periods/s" if wall > 0 else ""
-    overruns = getattr(stats, "overruns", 0)
+    overruns = stats.overruns
     if overruns:
         rate += f", fell behind real time {overruns} times"
     print(

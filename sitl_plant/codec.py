@@ -33,6 +33,8 @@ from sitl_plant.autopilot import (
     PositionSetpoint,
     Status,
 )
+from sitl_plant.mission import Out
+from sitl_plant.navigator import Frame
 
 MAVLink: TypeAlias = mavlink.MAVLink
 
@@ -672,21 +674,22 @@ _MISSION_CONSTRUCTORS = {
 }
 
 
-def mission_message(out: object) -> MAVLinkMessage:
+def mission_message(out: Out) -> MAVLinkMessage:
     """The pymavlink message of a ``mission.Out`` (target system and component first, for the
     messages that have them)."""
-    kind, target, fields = out.kind, out.target, out.fields  # type: ignore[attr-defined]
+    kind, target, fields = out.kind, out.target, out.fields
     if kind == "MISSION_CURRENT":
         return mavlink.MAVLink_mission_current_message(*fields)
     if kind == "MISSION_ITEM_REACHED":
         return mavlink.MAVLink_mission_item_reached_message(*fields)
+    assert target is not None  # the others are addressed
     return _MISSION_CONSTRUCTORS[kind](target[0], target[1], *fields)
 
 
 _UNSET_E7 = (0, 2**31 - 1)  # COMMAND_INT x/y that mean "here" (0, or INT32_MAX as PX4's "not set")
 
 
-def command_position_ned(msg: MAVLinkMessage, frame: object, here_ned_m: np.ndarray) -> tuple[float, float, float] | None:
+def command_position_ned(msg: MAVLinkMessage, frame: Frame, here_ned_m: np.ndarray) -> tuple[float, float, float] | None:
     """The position of a DO_REPOSITION / DO_ORBIT command in local NED (m), or None for a frame
     the plant does not take. ``frame`` is the autopilot's ``navigator.Frame``.
 
@@ -710,7 +713,7 @@ def command_position_ned(msg: MAVLinkMessage, frame: object, here_ned_m: np.ndar
         lat, lon, alt = float(msg.param5), float(msg.param6), float(msg.param7)
     if not (unset or (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0)):
         return None
-    n, e, d = frame.to_ned(0.0 if unset else lat, 0.0 if unset else lon, alt if math.isfinite(alt) else 0.0, False)  # type: ignore[attr-defined]
+    n, e, d = frame.to_ned(0.0 if unset else lat, 0.0 if unset else lon, alt if math.isfinite(alt) else 0.0, False)
     if unset:
         n, e = here[0], here[1]
     if not math.isfinite(alt):

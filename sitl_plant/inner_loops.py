@@ -35,7 +35,7 @@ itself, so these modes work at any heading.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -54,10 +54,14 @@ from sitl_plant.autopilot import (
     OffboardTask,
     PositionSetpoint,
     PositionTask,
+    Setpoint,
     Task,
 )
 from sitl_plant.params import ParamTable
-from sitl_plant.simulation import IDLE, EulerAccelActuation, HeldActuation, Model, PaperModel
+from sitl_plant.simulation import IDLE, Actuation, EulerAccelActuation, HeldActuation, Model, PaperModel
+
+if TYPE_CHECKING:
+    from sitl_plant.dynamics.batch import FastRigidBodySim
 
 POSITION_LOOP_DT_S = 0.02  # PX4 runs mc_pos_control at 50 Hz
 _I_FACTOR_RATE = math.radians(400.0)  # PX4 RateControl: integrator fades for errors near 400 deg/s
@@ -366,7 +370,7 @@ class Px4Loop:
         self.last_output = (self._thrust_n, torque)
         return self.last_output
 
-    def advance_rigid_body(self, sim: object, n_steps: int, winds: np.ndarray) -> bool:
+    def advance_rigid_body(self, sim: FastRigidBodySim, n_steps: int, winds: np.ndarray) -> bool:
         """Fly ``n_steps`` of a ``FastRigidBodySim`` in one compiled call (``px4_kernel``), the
         same operations as calling this loop at every step; False (nothing done) outside the
         attitude and rate modes or on another model, where the caller steps as usual."""
@@ -383,13 +387,13 @@ class Px4Loop:
         rate_int = np.array(self._rate_int, dtype=float)
         prev = np.zeros(3) if self._prev_rates is None else np.array(self._prev_rates, dtype=float)
         resting, count, has_prev, thrust = px4_kernel.advance_px4(
-            sim.x, n_steps, sim.physics_dt_s, winds, sim.ground, sim._last_xdot, sim._cmd, sim._p,  # type: ignore[attr-defined]
+            sim.x, n_steps, sim.physics_dt_s, winds, sim.ground, sim._last_xdot, sim._cmd, sim._p,
             self._every, self._step_count, self._mode == "attitude", np.array(self._q_sp, dtype=float),
             np.array(self._rates_sp, dtype=float), float(self._yaw_ff), float(self._thrust_n), float(self.last_output[0]),
             self._yaw_w, self._kernel_gains, self._kernel_rate_max, self._kernel_tq_max, bool(self.landed), rate_int, prev,
             self._prev_rates is not None, torque,
         )  # fmt: skip
-        sim.on_ground = bool(resting)  # type: ignore[attr-defined]
+        sim.on_ground = bool(resting)
         self._step_count = int(count)
         self._rate_int = rate_int.tolist()
         self._prev_rates = tuple(prev.tolist()) if has_prev else None
@@ -481,15 +485,15 @@ class InnerLoops:
         self.kind = kind
         self.px4 = Px4Loop(params, model, physics_dt_s)
         self.model = model
-        self._current: object = IDLE
-        self._setpoint: object = None
+        self._current: Actuation = IDLE
+        self._setpoint: Setpoint | None = None
         self.failures = 0
 
     def bind(self, model: Model) -> None:
         self.model = model
         self.px4.bind(model)
 
-    def actuation_for(self, task: Task, x: np.ndarray, landed: bool) -> object:
+    def actuation_for(self, task: Task, x: np.ndarray, landed: bool) -> Actuation:
         """The actuation to fly ``task`` from state ``x``; reuses the current one when unchanged."""
         if self.params.version != self.px4._version:
             self.px4.reload()
@@ -549,4 +553,4 @@ class InnerLoops:
         current = self._current
         if current is self.px4:
             return self.px4.last_output
-        return current(self.model, x)  # type: ignore[operator]
+        return current(self.model, x)

@@ -37,6 +37,7 @@ from sitl_plant.autopilot import (
     PositionTask,
     Reply,
     Setpoint,
+    Status,
     StatusText,
 )
 from sitl_plant.codec import Home, Refused, mavlink
@@ -268,7 +269,7 @@ class Plant:
         self.logs = [LogServer(config.log_path), LogServer(config.log_path)]
         self.shells = [shell.Shell(params, lambda: codec.PX4_FLIGHT_SW_VERSION) for _ in range(2)]
         self._statustext_id = 0
-        self._heartbeat_status: object = None  # the status the latest heartbeat reported
+        self._heartbeat_status: Status | None = None  # the status the latest heartbeat reported
         self._truth = self.sim.truth()
         self._measured: VehicleState | None = None
         self._rigid = not isinstance(model, PaperModel)
@@ -337,7 +338,7 @@ class Plant:
         return x[self._position_index]
 
     def _apply_task(self) -> None:
-        self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)  # type: ignore[assignment]
+        self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)
 
     # -- incoming --------------------------------------------------------------------------------
 

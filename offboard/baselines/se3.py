@@ -32,12 +32,16 @@ from collections.abc import Sequence
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from offboard.controller.command import Command, StateEstimate
 from offboard.trajectory.base import Reference
 from offboard.model.rotations import euler_from_quat
+
+if TYPE_CHECKING:  # the simulator's side of SE3Actuation: offboard fly never loads it
+    from sitl_plant.simulation import Model
 
 Vec3 = tuple[float, float, float]
 
@@ -274,7 +278,7 @@ class SE3Actuation:
         self.controller = controller
         self.target = target
 
-    def __call__(self, model: object, x: np.ndarray) -> tuple[float, np.ndarray]:
+    def __call__(self, model: Model, x: np.ndarray) -> tuple[float, np.ndarray]:
         q = x[6:10]
         q = q / math.sqrt(float(q @ q))
         thrust, torque = self.controller.thrust_and_torque(q, x[10:13], self.target)

@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                         help="a running Dask scheduler to fly on (default: a local cluster of this machine's cores)")
     parser.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster (default: the cores)")
-    parser.add_argument("--engine", choices=("batch", "one"), default="batch",
+    parser.add_argument("--engine", choices=("batch", "one"), default="batch",  # runner.SweepEngine, imported only to fly
                         help="batch: N flights stepped together; one: offboard simulate's loop per flight (the reference)")
     parser.add_argument("--flights-per-task", type=int, default=None, metavar="N",
                         help="flights a Dask task flies (default: about 0.8 s of work, timed on a few flights)")
@@ -97,17 +97,18 @@ def run(args: argparse.Namespace) -> int:
         raise MissingDependency(f"{exc.name} is not installed: offboard sweep needs Dask and pyarrow "
                                 "(pip install 'rosales-offboard[sweep]')") from None  # fmt: skip
     from offboard.sweep.report import format_report, read_rows, summary, write_plots
-    from offboard.sweep.runner import run_sweep
+    from offboard.sweep.runner import SweepEngine, run_sweep
 
     from sitl_plant.dynamics.batch import NUMBA
 
-    if args.engine == "batch" and not NUMBA and not args.quiet:
+    engine = SweepEngine(args.engine)
+    if engine is SweepEngine.BATCH and not NUMBA and not args.quiet:
         print("offboard sweep: numba is not installed here: the batched engine runs interpreted (the same flights, "
               "tens of times slower; pip install 'rosales-offboard[sweep]')", file=sys.stderr)  # fmt: skip
     run_dir = output_folder(args.run_dir or Path("runs") / f"sweep-{spec.name}-{time.strftime('%Y%m%d-%H%M%S')}", "--run-dir")
     progress = None if args.quiet else _progress(spec.name, 2.0)
     try:
-        result = run_sweep(spec, run_dir, scheduler=args.scheduler, workers=args.workers, engine=args.engine,
+        result = run_sweep(spec, run_dir, scheduler=args.scheduler, workers=args.workers, engine=engine,
                            flights_per_task=args.flights_per_task, limit=args.limit, progress=progress)  # fmt: skip
     except OSError as exc:  # the scheduler cannot be reached
         raise UserError(f"--scheduler {args.scheduler}: {exc}") from None

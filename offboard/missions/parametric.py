@@ -24,6 +24,7 @@ which case the reference jumps there, as the paper's does.
 
 from __future__ import annotations
 
+import enum
 import math
 import re
 from dataclasses import dataclass
@@ -54,8 +55,24 @@ from offboard.trajectory.sampling import sample
 from offboard.trajectory.segment import Segment, YawMode
 from offboard.trajectory.waypoints import CORNER_MODES, DEFAULT_BLEND_RADIUS_M, DEFAULT_MAX_YAW_RATE_RAD_S, CornerMode
 
-FRAMES = ("ned", "paper-zup")
-ANGLE_UNITS = ("rad", "deg")
+
+class MissionFrame(enum.StrEnum):
+    """The frame a mission file's positions are in: ``ned`` (x north, y east, z down) or the
+    paper's ``paper-zup`` (x north, y east, z up)."""
+
+    NED = "ned"
+    PAPER_ZUP = "paper-zup"
+
+
+class AngleUnit(enum.StrEnum):
+    """The unit of a mission file's angles and angular rates."""
+
+    RAD = "rad"
+    DEG = "deg"
+
+
+FRAMES = tuple(f.value for f in MissionFrame)
+ANGLE_UNITS = tuple(u.value for u in AngleUnit)
 SEGMENT_TYPES = (
     "hold", "line", "helix", "circle", "polygon", "square", "lissajous", "figure-eight",
     "waypoints", "takeoff", "descent", "land",
@@ -81,7 +98,7 @@ class ParsedMission:
 class _Context:
     """Frame, units and the running state (time, where the last segment ended)."""
 
-    def __init__(self, frame: str, angle_unit: str) -> None:
+    def __init__(self, frame: MissionFrame, angle_unit: AngleUnit) -> None:
         self.frame = frame
         self.angle_unit = angle_unit
         self.t_s = 0.0
@@ -90,13 +107,13 @@ class _Context:
 
     def to_ned(self, xyz: tuple[float, ...]) -> np.ndarray:
         v = np.array(xyz, dtype=float)
-        return (ned_from_paper_position(v) if self.frame == "paper-zup" else v) + 0.0  # no -0.0 in reports
+        return (ned_from_paper_position(v) if self.frame is MissionFrame.PAPER_ZUP else v) + 0.0  # no -0.0 in reports
 
     def angle_value(self, f: MissionFields, key: str, value: Any) -> float:
         if isinstance(value, str):
             m = _PI_EXPR.match(value)
-            if m is None or self.angle_unit != "rad":
-                want = "a number of radians or an expression like 'pi/2'" if self.angle_unit == "rad" else "a number of degrees"
+            if m is None or self.angle_unit is not AngleUnit.RAD:
+                want = "a number of radians or an expression like 'pi/2'" if self.angle_unit is AngleUnit.RAD else "a number of degrees"
                 raise f.error(key, f"expected {want}, got {value!r}")
             sign = -1.0 if m.group(1) == "-" else 1.0
             factor = float(m.group(2)) if m.group(2) else 1.0
@@ -105,7 +122,7 @@ class _Context:
                 raise f.error(key, f"division by zero in {value!r}")
             return sign * factor * math.pi / divisor
         f._check_number(key, value)
-        return math.radians(value) if self.angle_unit == "deg" else float(value)
+        return math.radians(value) if self.angle_unit is AngleUnit.DEG else float(value)
 
 
 def _angle(ctx: _Context, f: MissionFields, key: str, default: Any = ...) -> Any:
@@ -131,7 +148,7 @@ def _yaw_choice(ctx: _Context, f: MissionFields, modes: tuple[YawMode, ...]) -> 
     if isinstance(value, str) and value in modes:
         return YawMode(value), ctx.yaw
     if isinstance(value, str) and _PI_EXPR.match(value) is None:
-        unit = "radians" if ctx.angle_unit == "rad" else "degrees"
+        unit = "radians" if ctx.angle_unit is AngleUnit.RAD else "degrees"
         raise f.error("yaw", f"expected an angle in {unit} or one of {', '.join(repr(m.value) for m in modes)}, got {value!r}")
     return YawMode.FIXED, ctx.angle_value(f, "yaw", value)
 
@@ -255,7 +272,7 @@ def _lissajous(ctx: _Context, f: MissionFields, name: str) -> Lissajous:
     phase = np.array([ctx.angle_value(f, f"phase[{k}]", v) for k, v in enumerate(raw_phase)])
     if not np.any(amplitude * np.abs(rates) > 0):
         raise f.error("amplitude_m", "no axis moves; expected an amplitude > 0 on an axis with a nonzero angular rate")
-    if ctx.frame == "paper-zup":
+    if ctx.frame is MissionFrame.PAPER_ZUP:
         phase[2] += math.pi  # up = a sin(.) is down = a sin(. + pi)
     mode, yaw = _yaw_choice(ctx, f, (YawMode.ALONG_PATH,))
     return Lissajous(center, amplitude, rates, phase, _duration(ctx, f), yaw, mode, name)
@@ -372,13 +389,13 @@ def parse_mission_table(table: Any, source: str, prefix: str = "mission.", defau
     f = MissionFields(table, source, prefix)
     name = f.string("name", default_name)
     description = f.string("description", "")
-    frame = f.string("frame", choices=FRAMES)
-    angle_unit = f.string("angle_unit", choices=ANGLE_UNITS)
+    frame = MissionFrame(f.string("frame", choices=FRAMES))
+    angle_unit = AngleUnit(f.string("angle_unit", choices=ANGLE_UNITS))
     ctx = _Context(frame, angle_unit)
     start = _position(ctx, f, "start", np.zeros(3))
     start_yaw = _angle(ctx, f, "start_yaw", 0.0)
     ground_z = f.number("ground_z_m", 0.0)
-    ground_down = -ground_z if frame == "paper-zup" else ground_z
+    ground_down = -ground_z if frame is MissionFrame.PAPER_ZUP else ground_z
     home = None
     if f.has("home"):
         lat, lon, alt = f.vector("home", 3)

@@ -17,6 +17,7 @@ workers must have this project installed, at the same version.
 
 from __future__ import annotations
 
+import enum
 import math
 import os
 import time
@@ -29,7 +30,16 @@ import numpy as np
 from offboard.sweep.flight import phase_columns
 from offboard.sweep.spec import PARAMETERS, ParameterKind, SweepSpec, flights
 
-ENGINES = ("batch", "one")
+
+class SweepEngine(enum.StrEnum):
+    """How a task flies its flights: ``batch`` (stepped together, ``offboard.sweep.batch``) or
+    ``one`` (``offboard.inprocess.simulate`` per flight, the reference)."""
+
+    BATCH = "batch"
+    ONE = "one"
+
+
+ENGINES = tuple(e.value for e in SweepEngine)
 #: The work a task aims at (s): inside Dask's 0.1-1 s guidance.
 TASK_TARGET_S = 0.8
 #: At most this share of a batched task goes to its fixed part (the law's numpy calls per sample).
@@ -48,11 +58,11 @@ def columns(spec: SweepSpec) -> list[tuple[str, str]]:
     return cols
 
 
-def fly_chunk(spec: SweepSpec, start: int, stop: int, engine: str = "batch") -> list[dict]:
+def fly_chunk(spec: SweepSpec, start: int, stop: int, engine: SweepEngine | str = SweepEngine.BATCH) -> list[dict]:
     """Flights ``start`` to ``stop`` of ``spec``: one row each (what a Dask task runs)."""
     fls = flights(spec, start, stop)
     _one_thread_per_worker()
-    if engine == "batch":
+    if SweepEngine(engine) is SweepEngine.BATCH:
         from offboard.sweep.batch import fly_batch
 
         rows = fly_batch(spec, fls)
@@ -82,7 +92,7 @@ def _one_thread_per_worker() -> None:
         numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))  # set at import
 
 
-def _warm_up(spec: SweepSpec, engine: str) -> None:
+def _warm_up(spec: SweepSpec, engine: SweepEngine) -> None:
     """On a worker: one flight of 0.1 s, so that its imports and compiled kernels
     are loaded (a second or more) before its first task."""
     from dataclasses import replace
@@ -100,7 +110,7 @@ def row_columns(rows: list[dict], cols: list[tuple[str, str]]) -> dict[str, list
     return out
 
 
-def _task(spec: SweepSpec, start: int, stop: int, engine: str) -> tuple[dict[str, list | np.ndarray], int, float]:
+def _task(spec: SweepSpec, start: int, stop: int, engine: SweepEngine) -> tuple[dict[str, list | np.ndarray], int, float]:
     """A Dask task: ``fly_chunk``'s rows as Parquet columns, their number, and the seconds it took
     on the worker. The worker builds the columns: the client, which shares a machine's cores
     with the workers of a local cluster, only writes them (and a task's pickle is a few arrays,
@@ -115,7 +125,7 @@ def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
         yield start, min(start + size, total)
 
 
-def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
+def estimate_flights_per_task(spec: SweepSpec, engine: SweepEngine) -> int:
     """Flights a task of ``TASK_TARGET_S`` holds, from timing a few short flights here (which also
     loads the compiled kernels before the workers need them).
 
@@ -123,7 +133,7 @@ def estimate_flights_per_task(spec: SweepSpec, engine: str) -> int:
     physics): both are measured, on 8 and on 128 flights of half a second, and scaled to the
     flight's duration. Where the fixed part alone nears the target (long flights), the task
     holds enough flights for the fixed part to stay within ``FIXED_SHARE`` of it."""
-    if engine == "one":
+    if engine is SweepEngine.ONE:
         return 1  # a one-vehicle flight is seconds of work already
     from dataclasses import replace
 
@@ -201,7 +211,7 @@ def run_sweep(
     *,
     scheduler: str | None = None,
     workers: int | None = None,
-    engine: str = "batch",
+    engine: SweepEngine | str = SweepEngine.BATCH,
     flights_per_task: int | None = None,
     limit: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
@@ -214,7 +224,7 @@ def run_sweep(
         ``tcp://HOST:PORT`` of a running Dask scheduler; None starts a local cluster.
     workers : int, optional
         The local cluster's worker processes (default: the machine's cores).
-    engine : str
+    engine : SweepEngine or str
         ``batch`` (N flights stepped together, ``offboard.sweep.batch``) or ``one``
         (``simulate`` per flight, the reference).
     flights_per_task : int, optional
@@ -228,6 +238,7 @@ def run_sweep(
 
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    engine = SweepEngine(engine)
     total = spec.flights if limit is None else max(0, min(limit, spec.flights))
     started = time.perf_counter()
     size = flights_per_task or estimate_flights_per_task(spec, engine)

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import math
 import os
+import types
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -822,15 +824,23 @@ def advance_many(
                          index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
 
 
-def is_cached(*kernels: object) -> bool:
+class CompiledKernel(Protocol):
+    """What ``is_cached`` reads of a kernel: a numba dispatcher compiled with ``cache=True`` (numba
+    ships no types, so its cache is ``Any``)."""
+
+    py_func: types.FunctionType
+    _cache: Any
+
+
+def is_cached(*kernels: CompiledKernel) -> bool:
     """Whether numba's on-disk cache holds these compiled kernels, newer than their source: then
     loading them takes a fraction of a second, where compiling takes seconds (first run)."""
     if not NUMBA:
         return False
     try:
         for kernel in kernels:
-            index = kernel._cache._cache_file._index_path  # type: ignore[attr-defined]
-            source = kernel.py_func.__code__.co_filename  # type: ignore[attr-defined]
+            index = kernel._cache._cache_file._index_path
+            source = kernel.py_func.__code__.co_filename
             if not os.path.isfile(index) or os.path.getmtime(index) < os.path.getmtime(source):
                 return False
     except (AttributeError, OSError):
