@@ -26,6 +26,7 @@ from pathlib import Path
 from offboard.controller.params import controller_from_table, load_controller
 from offboard.errors import ParameterFileError
 from offboard.inprocess import SCENARIO_DRIVES, Scenario
+from offboard.missions import resolve_mission
 from offboard.model.tomlfile import Fields, read_toml
 from offboard.model.vehicle import VEHICLE_MODELS, load_vehicle, vehicle_from_table
 from sitl_plant.dynamics.sensors import sensors_from_spec
@@ -44,8 +45,6 @@ def _table_or_file(top: Fields, key: str, base_dir: Path, from_table, from_file)
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read a scenario file; every error names the file and field."""
-    from offboard.missions import resolve_mission
-
     path = Path(path)
     source = path.name
     top = Fields(read_toml(path), source)

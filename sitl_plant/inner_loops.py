@@ -57,6 +57,7 @@ from sitl_plant.autopilot import (
     Setpoint,
     Task,
 )
+from sitl_plant.dynamics.rigid_body import QUAT, RATES, RigidBodyModel
 from sitl_plant.params import ParamTable
 from sitl_plant.simulation import IDLE, Actuation, EulerAccelActuation, HeldActuation, Model, PaperModel
 
@@ -75,10 +76,6 @@ def model_euler_form(model: Model) -> EulerRateForm:
 
 
 def _is_rigid_body(model: Model) -> bool:
-    try:
-        from sitl_plant.dynamics.rigid_body import RigidBodyModel
-    except ImportError:  # pragma: no cover - the rigid body ships with the package
-        return False
     return isinstance(model, RigidBodyModel)
 
 
@@ -89,7 +86,6 @@ def _state_reader(model: Model) -> Callable[[np.ndarray], tuple[Quat, Vec3, tupl
     """A function x -> (quaternion wxyz, body rates FRD, Euler angles) for this model (the
     rigid body's Euler angles are not computed: its loops use the quaternion)."""
     if _is_rigid_body(model):
-        from sitl_plant.dynamics.rigid_body import QUAT, RATES
 
         def read_rigid(x: np.ndarray) -> tuple[Quat, Vec3, tuple[float, float, float]]:
             # the quaternion loop needs no Euler angles: skip them on this hot path

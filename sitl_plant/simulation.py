@@ -26,6 +26,7 @@ from offboard.model.state import VehicleState
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleParams
 from sitl_plant.dynamics import paper_model
 from sitl_plant.dynamics.integrate import rk4_step
+from sitl_plant.dynamics.rigid_body import RigidBodyModel
 from sitl_plant.dynamics.wind import WindField
 
 __all__ = ["VehicleState", "VehicleSim", "PaperModel", "HeldActuation", "EulerAccelActuation", "Model"]
@@ -120,8 +121,6 @@ def make_model(kind: str, vehicle: VehicleParams) -> Model:
     if kind == "paper":
         return PaperModel(vehicle)
     if kind == "rigid-body":
-        from sitl_plant.dynamics.rigid_body import RigidBodyModel
-
         return RigidBodyModel(vehicle)
     raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {kind!r}")
 

@@ -41,7 +41,7 @@ from offboard.controller.tuning import (
 from offboard.errors import LinkTimeout, UserError
 from offboard.model.clihelp import HelpFormatter
 from offboard.model.paths import output_file, output_folder
-from offboard.model.vehicle import VehicleModel
+from offboard.model.vehicle import VehicleModel, load_vehicle
 
 if TYPE_CHECKING:  # the search's module loads only with --search (Dask, pyarrow)
     from offboard.sweep.tune import Trial
@@ -137,7 +137,6 @@ def read_params_file(path: Path) -> dict[str, float]:
 def read_vehicle_file(path: Path) -> dict[str, float]:
     """The parameters a sitl-plant flying this vehicle file publishes."""
     from sitl_plant.params import plant_params  # the simulator's vehicle file: only for this option
-    from offboard.model.vehicle import load_vehicle
 
     table = plant_params(load_vehicle(path))
     return {name: table[name] for name in table}
@@ -263,7 +262,6 @@ def _search(args: argparse.Namespace, design: Design, params_of: Callable[[Desig
         import pyarrow  # noqa: F401
     except ImportError as exc:
         raise TuneArgumentError(f"--search needs Dask and pyarrow (pip install -e '.[sweep]'): {exc}") from None
-    from offboard.model.vehicle import load_vehicle
     from offboard.sweep import tune as sweep_tune
     from offboard.sweep.spec import load_sweep
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
+from offboard.missions.geo import mission_offset_ned
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
 from offboard.replay.reader import TlogReader
@@ -353,8 +354,6 @@ def logged_mission_offset(scan: LogScan, sysid: int, mission_home: tuple[float, 
     mission before it streams and arms; PX4 may move its home when it arms), else the first.
     None when the log holds no HOME_POSITION from the vehicle.
     """
-    from offboard.missions.geo import mission_offset_ned
-
     homes = scan.home_positions.get(sysid)
     if not homes:
         return None

@@ -46,6 +46,7 @@ import numpy as np
 from offboard.errors import ParameterFileError
 from offboard.inprocess import Scenario
 from offboard.model.tomlfile import Fields, near_name, read_toml
+from offboard.scenario import load_scenario
 from sitl_plant.dynamics.sensors import sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
 
@@ -328,8 +329,6 @@ def _check_spec(name: str, spec: str, where: str) -> None:
 
 def load_sweep(path: str | Path) -> SweepSpec:
     """Read and validate a sweep file; every error is one line naming the file and the field."""
-    from offboard.scenario import load_scenario
-
     path = Path(path)
     source = path.name
     top = Fields(read_toml(path), source)
