@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from helpers import REPO
 
 
@@ -16,6 +17,7 @@ def test_ruff_finds_nothing():
     assert checked.returncode == 0, checked.stdout + checked.stderr
 
 
+@pytest.mark.slow  # 15-20 s of a cold mypy: in make test, not in make test-fast's minute
 def test_mypy_finds_nothing_in_the_packages(tmp_path):
     checked = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path / "mypy")], cwd=REPO,
                              capture_output=True, text=True, timeout=300)  # fmt: skip
