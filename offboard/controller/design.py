@@ -189,33 +189,8 @@ def inner_loop_from_params(params: Mapping[str, float], latency_s: float = 0.0) 
 # --- linear models -------------------------------------------------------------------------------
 
 
-def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of one horizontal axis, states (p, v, theta, omega, rate integral, torque).
-
-    Input: the acceleration command a_c (m/s^2), flown as the tilt setpoint a_c / g; the vehicle's
-    linear drag ``drag_per_s`` (delta = d / m) slows v.
-    """
-    g = gravity_m_s2
-    tm = max(loop.motor_time_constant_s, 1e-4)  # no lag: a lag far above every other pole
-    i = loop.inertia_kg_m2
-    t1 = loop.torque_per_unit_nm
-    kp, ki, kd, patt = loop.rate_p, loop.rate_i, loop.rate_d, loop.attitude_p_per_s
-    a = np.zeros((6, 6))
-    b = np.zeros((6, 1))
-    a[0, 1] = 1.0
-    a[1, 1] = -drag_per_s
-    a[1, 2] = g
-    a[2, 3] = 1.0
-    a[3, 5] = 1.0 / i
-    # omega_sp - omega = patt (theta_sp - theta) - omega, theta_sp = a_c / g
-    a[4, 2], a[4, 3], b[4, 0] = -patt, -1.0, patt / g
-    # tau_c = t1 (kp (omega_sp - omega) + ki int - kd tau / I)
-    a[5, 2] = t1 * kp * (-patt) / tm
-    a[5, 3] = t1 * kp * (-1.0) / tm
-    a[5, 4] = t1 * ki / tm
-    a[5, 5] = (-t1 * kd / i - 1.0) / tm
-    b[5, 0] = t1 * kp * patt / g / tm
-    return a, b
+#: Where ``rate_axis_plant``'s tilt and body rate sit in its state.
+TILT_STATE, RATE_STATE = 2, 3
 
 
 def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -242,8 +217,17 @@ def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per
     return a, b
 
 
-#: Where ``rate_axis_plant``'s tilt and body rate sit in its state.
-TILT_STATE, RATE_STATE = 2, 3
+def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of one horizontal axis, states (p, v, theta, omega, rate integral, torque).
+
+    Input: the acceleration command a_c (m/s^2), flown as the tilt setpoint a_c / g; the vehicle's
+    linear drag ``drag_per_s`` (delta = d / m) slows v. It is ``rate_axis_plant`` with the
+    attitude P in front: omega_sp = P_att (a_c / g - theta).
+    """
+    a, b = rate_axis_plant(loop, gravity_m_s2, drag_per_s)
+    patt = loop.attitude_p_per_s
+    a[:, TILT_STATE] -= patt * b[:, 0]
+    return a, b * (patt / gravity_m_s2)
 
 
 def vertical_plant(thrust_time_constant_s: float, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
