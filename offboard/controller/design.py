@@ -198,7 +198,7 @@ def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per
     integral, torque) as ``tilt_axis_plant``; input the body-rate setpoint omega_sp (rad/s), which
     the rate loop flies with no attitude P in front of it (PX4 with a rate setpoint)."""
     g = gravity_m_s2
-    tm = max(loop.motor_time_constant_s, 1e-4)
+    tm = max(loop.motor_time_constant_s, 1e-4)  # no lag: a lag far above every other pole
     i = loop.inertia_kg_m2
     t1 = loop.torque_per_unit_nm
     kp, ki, kd = loop.rate_p, loop.rate_i, loop.rate_d
@@ -210,6 +210,7 @@ def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per
     a[2, 3] = 1.0
     a[3, 5] = 1.0 / i
     a[4, 3], b[4, 0] = -1.0, 1.0  # the integral of omega_sp - omega
+    # tau_dot = (tau_c - tau) / tau_m, tau_c = t1 (kp (omega_sp - omega) + ki int - kd tau / I)
     a[5, 3] = -t1 * kp / tm
     a[5, 4] = t1 * ki / tm
     a[5, 5] = (-t1 * kd / i - 1.0) / tm
