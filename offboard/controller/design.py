@@ -723,8 +723,12 @@ class Design:
 def rate_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant]:
     """(north, east) discrete plants flown by body rates (``rate_axis_plant``): input omega_sp."""
     drag = model.drag_per_s
-    return tuple(discretise(*rate_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=TILT_STATE,  # type: ignore[return-value]
-                            drag_per_s=drag) for loop in (model.pitch, model.roll))  # fmt: skip
+
+    def plant(loop: TiltLoop) -> DiscretePlant:
+        return discretise(*rate_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=TILT_STATE,
+                          drag_per_s=drag)  # fmt: skip
+
+    return plant(model.pitch), plant(model.roll)
 
 
 def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant, DiscretePlant]:
@@ -856,7 +860,8 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
 
 def angle_stage_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePlant, DiscretePlant]:
     """(pitch, roll) as the law's angle stage sees them (``angle_stage_plant``)."""
-    return tuple(angle_stage_plant(p, sample_time_s) for p in rate_plants(model, sample_time_s))  # type: ignore[return-value]
+    pitch, roll = rate_plants(model, sample_time_s)
+    return angle_stage_plant(pitch, sample_time_s), angle_stage_plant(roll, sample_time_s)
 
 
 def design_angle_gains(model: InnerLoopModel, sample_time_s: float, spec: MarginSpec) -> AxisGains:
