@@ -8,21 +8,12 @@ test is about PX4: marked ``e2e`` here, whatever the file says). Helpers are ``t
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from helpers import FakeClock
-
-# Two test workers share two cores (make test: -n 2), and numba's parallel kernels (the batched
-# sweep, step_many) run on GNU OpenMP, whose idle threads spin by default: measured, two
-# processes flying batches at once with numba's 2 threads each flew 0.25-0.63 times the flights
-# a second of one process alone (1.9 times with idle threads sleeping), and the other worker's
-# real-time flights and PX4 lose their core meanwhile. Idle threads sleep instead, here and in
-# every process a test starts.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 E2E_DIR = Path(__file__).resolve().parent / "e2e"
 
