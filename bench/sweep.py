@@ -9,14 +9,20 @@
   memory (RSS) when 2 000 flights are done and when all are, and the growth between (flat: rows
   are streamed to Parquet), and its peak;
 - **scaling**: the same spec, in the same tasks, on 1 worker against the sweep's 2 (issue 15's
-  target compares the two on the same spec; a smaller spec would mostly time the start-up).
+  target compares the two on the same spec; a smaller spec would mostly time the start-up);
+- **the machine's ceiling**: the same flights flown by plain processes with no Dask, one alone,
+  then two at once (one numba thread each, as the workers): what two independent processes gain
+  on this machine's cores, against which the 2-worker figure can be read. On a machine whose two
+  cores do not run two processes at twice the rate of one, no scheduler can.
 
     python bench/sweep.py [--flights 10000] [--quick]
+    python bench/sweep.py --chunk START STOP [--flight-s S]   (one ceiling process; prints its seconds)
 """
 
 from __future__ import annotations
 
 import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -44,16 +50,60 @@ def _rss_mib() -> float:
     return psutil.Process().memory_info().rss / 2**20
 
 
+def _spec(duration_s: float, flights: int):  # noqa: ANN202
+    from offboard.sweep.spec import load_sweep
+
+    spec = load_sweep(SPEC)
+    return replace(spec, base=replace(spec.base, duration_s=duration_s), flights=max(flights, spec.flights))
+
+
+def fly_chunk_timed(start: int, stop: int, duration_s: float) -> float:
+    """In a ceiling process: flights ``start`` to ``stop`` flown as one Dask task flies them (the
+    batched engine, one numba thread), after a warm-up that loads the kernels; their seconds."""
+    from offboard.sweep.runner import fly_chunk
+    from sitl_plant.dynamics.batch import NUMBA
+
+    if NUMBA:
+        import numba
+
+        numba.set_num_threads(1)  # as _one_thread_per_worker does on a 1-thread worker
+    spec = _spec(duration_s, stop)
+    fly_chunk(replace(spec, base=replace(spec.base, duration_s=0.1)), 0, 1)
+    started = time.perf_counter()
+    fly_chunk(spec, start, stop)
+    return time.perf_counter() - started
+
+
+def ceiling(flights: int, duration_s: float) -> dict:
+    """What two plain processes gain over one on this machine: ``flights`` flown by one process
+    alone, then the same number by each of two processes started together (each its own flights).
+    Throughput ratio = 2 x (alone s) / (the slower of the pair's s)."""
+
+    def start(first: int) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--chunk", str(first), str(first + flights),
+                                 "--flight-s", repr(duration_s)], stdout=subprocess.PIPE, text=True)  # fmt: skip
+
+    def seconds(process: subprocess.Popen) -> float:
+        out, _ = process.communicate(timeout=1800)
+        if process.returncode != 0:
+            raise RuntimeError(f"a ceiling process exited {process.returncode}")
+        return float(out.split()[-1])
+
+    alone = seconds(start(0))
+    pair = [start(flights), start(2 * flights)]
+    both = [seconds(p) for p in pair]
+    return {"flights": flights, "alone_s": alone, "pair_s": both, "speedup": 2 * alone / max(both)}
+
+
 def measure(quick: bool = False, flights: int | None = None, say=lambda text: None) -> dict:  # noqa: ANN001
     from offboard.sweep.flight import fly_one
     from offboard.sweep.runner import run_sweep
-    from offboard.sweep.spec import flight, load_sweep
+    from offboard.sweep.spec import flight
     from sitl_plant.dynamics.batch import NUMBA
 
-    spec = load_sweep(SPEC)
     duration = _size("duration_s", quick)
     n = flights or _size("flights", quick)
-    spec = replace(spec, base=replace(spec.base, duration_s=duration), flights=max(n, spec.flights))
+    spec = _spec(duration, n)
     out: dict = {"spec": SPEC.name, "flight_s": duration, "numba": NUMBA}
 
     k = _size("one_at_a_time", quick)
@@ -93,6 +143,9 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
         one, two = sweep(n, 1, size), out["sweep"]
         out["scaling"] = {"one_worker": one, "two_workers": two, "speedup": two["flights_per_s"] / one["flights_per_s"],
                           "flying_speedup": two["flying_flights_per_s"] / one["flying_flights_per_s"]}  # fmt: skip
+    count = 5 * out["sweep"]["flights_per_task"]  # a few tasks' worth: long enough to time, short beside the sweep
+    say(f"sweep: the machine's ceiling, {count} flights in one process alone, then in each of two at once")
+    out["ceiling"] = ceiling(count, duration)
     return out
 
 
@@ -121,6 +174,14 @@ def markdown(r: dict) -> str:
         lines += ["", f"2 workers against 1: {sc['speedup']:.2f}× in wall time; {sc['flying_speedup']:.2f}× from the first task "
                   f"to the last row (start-up, the cluster and every worker's kernels loaded: "
                   f"{sc['one_worker']['startup_s']:.1f} s on 1 worker, {sc['two_workers']['startup_s']:.1f} s on 2)."]  # fmt: skip
+    c = r.get("ceiling")
+    if c:
+        lines += ["", f"The machine's ceiling: {c['flights']} of the same flights in plain processes (no Dask, one numba "
+                  f"thread each) took {c['alone_s']:.2f} s alone and {c['pair_s'][0]:.2f} s / {c['pair_s'][1]:.2f} s for "
+                  f"two at once: two processes fly {c['speedup']:.2f}× one on this machine's cores."]  # fmt: skip
+        if sc:
+            lines[-1] += (f" The 2-worker sweep's {sc['flying_speedup']:.2f}× is {sc['flying_speedup'] / c['speedup']:.0%} "
+                          "of that; issue 15's 1.8× target is out of reach of any scheduler where the ceiling is below it.")
     m = r["client_rss_mib"]
     lines += ["", *tail]
     lines += ["", f"Client memory (RSS) at {m['at_flights'][0]} flights done: {m['mib'][0]:.0f} MiB; at {m['at_flights'][1]}: "
@@ -136,7 +197,12 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(prog="bench/sweep.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--flights", type=int, default=None)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--chunk", type=int, nargs=2, metavar=("START", "STOP"), help="fly these flights, print the seconds")
+    parser.add_argument("--flight-s", type=float, default=12.0)
     args = parser.parse_args()
+    if args.chunk:
+        print(f"{fly_chunk_timed(args.chunk[0], args.chunk[1], args.flight_s):.6f}")
+        sys.exit(0)
     result = measure(args.quick, args.flights, say=lambda text: print(text, file=sys.stderr, flush=True))
     print(json.dumps(result, indent=1))
     print(markdown(result))

@@ -66,6 +66,10 @@ def test_sweep_part_flies_its_flights(quick_run):
     rss = s["client_rss_mib"]  # the client's memory part way and at the end, for the flat-memory claim
     assert rss["at_flights"] == [4, 8] and all(_finite_positive(m) for m in rss["mib"])
     assert rss["growth_mib"] == pytest.approx(rss["mib"][1] - rss["mib"][0])
+    c = s["ceiling"]  # two plain processes against one: the machine's own bound on the workers' scaling
+    assert c["flights"] == 5 * s["sweep"]["flights_per_task"] and len(c["pair_s"]) == 2
+    assert all(_finite_positive(x) for x in (c["alone_s"], *c["pair_s"]))
+    assert c["speedup"] == pytest.approx(2 * c["alone_s"] / max(c["pair_s"]))
 
 
 def test_tracking_flies_every_controller_in_every_condition(quick_run):
