@@ -28,22 +28,22 @@ def ned_from_paper_position(xyz_up_m: np.ndarray) -> np.ndarray:
     return np.array([xyz_up_m[0], xyz_up_m[1], -xyz_up_m[2]])
 
 
-def _floats3(values: np.ndarray) -> list[float]:
-    """Three Python floats (``tolist`` is the cheap way out of a float array, per sample)."""
+def floats3(values: np.ndarray | tuple[float, ...] | list[float]) -> tuple[float, float, float]:
+    """Three Python floats of a 3-vector (``tolist`` is the cheap way out of a float array, per sample)."""
     out = np.asarray(values, dtype=float).tolist()
     if len(out) != 3:
         raise ValueError(f"expected 3 components, got {len(out)}")
-    return out
+    return out[0], out[1], out[2]
 
 
 def paper_state(
     pos_ned_m: np.ndarray, vel_ned_m_s: np.ndarray, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray
 ) -> tuple[float, ...]:
     """The 12-state of eq. 22 (paper frame) from NED position/velocity and Euler angles/rates."""
-    n, e, d = _floats3(pos_ned_m)
-    vn, ve, vd = _floats3(vel_ned_m_s)
-    phi, theta, psi = _floats3(euler_rad)
-    dphi, dtheta, dpsi = _floats3(euler_rate_rad_s)
+    n, e, d = floats3(pos_ned_m)
+    vn, ve, vd = floats3(vel_ned_m_s)
+    phi, theta, psi = floats3(euler_rad)
+    dphi, dtheta, dpsi = floats3(euler_rate_rad_s)
     return (n, vn, e, ve, -d, -vd, phi, dphi, theta, dtheta, psi, dpsi)
 
 

@@ -26,13 +26,9 @@ from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
 from offboard.controller.velocity import ConsistentVelocity
-from offboard.frames import paper_state, setpoint_attitude, tracking_reference
+from offboard.frames import floats3, paper_state, setpoint_attitude, tracking_reference
 from offboard.model.euler_lagrange import EulerRateForm, body_rates_from_euler_rates, body_torque_from_generalized, euler_rates_from_body_rates
 from offboard.trajectory.base import Reference
-
-def _floats(values: np.ndarray | tuple[float, ...]) -> tuple[float, float, float]:
-    return (float(values[0]), float(values[1]), float(values[2]))
-
 
 def paper_state_of(
     state: StateEstimate, euler_rate_form: EulerRateForm, vel_ned_m_s: np.ndarray | None = None
@@ -77,10 +73,10 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
         attitude_wxyz=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
         yaw_rate_ff_rad_s=float(law.yaw_rate_ff_rad_s),
         attitude_ref_euler_rad=(law.roll_ref_rad, law.pitch_ref_rad, law.yaw_ref_rad),
-        body_rate_frd_rad_s=_floats(rates),
-        torque_nm=_floats(torque),
+        body_rate_frd_rad_s=floats3(rates),
+        torque_nm=floats3(torque),
         euler_accel_rad_s2=law.tau_tilde,
-        generalized_torque_nm=_floats(out.torques_nm),
+        generalized_torque_nm=floats3(out.torques_nm),
         law=out,
     )
 
