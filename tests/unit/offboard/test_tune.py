@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import time
 
@@ -11,7 +12,7 @@ import pytest
 
 from offboard.cli import main
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
-from offboard.controller.design import MarginSpec
+from offboard.controller.design import AxisGains, MarginSpec, analyse_axis, axis_plants
 from offboard.controller.tuning import design_for_vehicle, vehicle_values
 from offboard.demo import free_udp_ports, stop_process
 from sitl_plant.params import plant_params
@@ -164,6 +165,26 @@ def test_the_design_doc_quotes_what_offboard_tune_prints_for_body_rates(capsys):
     code, _, err = tune(capsys, "--vehicle", str(PAPER_VEHICLE_FILE), "--setpoint-output", "rates")
     quoted = [block for block in doc_blocks() if block.startswith("angles (rates)")]
     assert code == 0 and quoted == [err.strip()]
+
+
+def test_the_design_doc_quotes_the_proportional_loops_settling_without_the_integral():
+    """docs/controller-design.md, the body-rate output: "without it the loops settle as the attitude
+    output's do: 2 % in A s horizontally (attitude output B s) and C s vertically", each the 2 %
+    settling time of the designed loop with its velocity integral off (what ``step_hold_s`` reads)."""
+    quoted = re.search(r"2 % in ([0-9.]+) s horizontally \(attitude output ([0-9.]+) s\) and ([0-9.]+) s vertically",
+                       " ".join(DOC.read_text().split()))  # fmt: skip
+    assert quoted, "the sentence is gone from docs/controller-design.md"
+    values = vehicle_values(plant_values())
+
+    def settling(body_rates: bool, vertical: bool) -> float:
+        design = design_for_vehicle(values, sample_time_s=0.05, body_rates=body_rates)
+        north, _, up = axis_plants(design.model, design.sample_time_s)
+        plant, axis = (up, design.up) if vertical else (north, design.north)
+        g = axis.gains
+        return analyse_axis(plant, AxisGains(g.k_pos, g.k_vel, g.lead), design.sample_time_s).settling_time_s
+
+    computed = (settling(True, False), settling(False, False), settling(True, True))
+    assert [float(x) for x in quoted.groups()] == [round(t, 1) for t in computed]
 
 
 def test_the_velocity_integral_is_designed_unless_switched_off(capsys, tmp_path):
