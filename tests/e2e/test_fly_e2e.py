@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 
 import numpy as np
@@ -319,6 +320,14 @@ def test_the_body_rate_output_flies_its_own_design(tmp_path):
     print(f"\nbody rates, designed: helix 5-11.9 s RMS {helix_rms:.4f} m, hold tilt max {hold_tilt:.3f} deg, "
           f"peak tilt {tilt.max():.1f} deg")
     assert helix_rms < 0.05 and hold_tilt < 3.0  # flown: 0.009 m, 0.01 deg
+    # what docs/controller-design.md says of this flight (lockstep: the same figures every run)
+    doc = " ".join((PAPER_VEHICLE_FILE.parents[2] / "docs" / "controller-design.md").read_text().split())
+    quoted = re.search(r"on sitl-plant in lockstep the helix's 5–11\.9 s at ([0-9.]+) m RMS .*? the hold's second half "
+                       r"within ([0-9.]+)° of tilt", doc)  # fmt: skip
+    assert quoted, "the rates flight's sentence is gone from docs/controller-design.md"
+    assert float(quoted[1]) == round(helix_rms, 3) and hold_tilt <= float(quoted[2])
+    peak = re.search(r"the vehicle tilts to ([0-9]+)° for 0\.2 s against the 35° bound", doc)
+    assert peak and int(peak[1]) == round(float(tilt.max())), "the doc's peak tilt at the helix's end"
     table1 = fly(tmp_path, HELIX, fly_args=("--output", "rates", "--controller", "paper"), name="rates-table1")
     assert table1.summary["status"] == "diverged", table1.summary["status"]
 
