@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.px4sitl import SKIP_REASON, px4_launcher
 from helpers import FakeClock
 
 E2E_DIR = Path(__file__).resolve().parent / "e2e"
@@ -36,6 +37,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.e2e)
         if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or path.stem.startswith("test_px4"):
             item.add_marker(pytest.mark.realtime)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A ``px4`` test without a PX4 SITL is skipped from here, so that ``-ra`` folds every such skip
+    into one line saying how to point the tests at a PX4 (a ``skipif`` mark in each module gave a
+    line per test)."""
+    if item.get_closest_marker("px4") is not None and px4_launcher() is None:
+        pytest.skip(SKIP_REASON)
 
 
 @pytest.fixture

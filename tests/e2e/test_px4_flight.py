@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 
 from offboard.missions import MISSIONS_DIR
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import running_px4
 from helpers.flights import ENV, PY
 
-pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
-              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 
 def test_the_paper_helix_flies_smoothly_through_px4s_attitude_loop(tmp_path):

@@ -14,14 +14,13 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import running_px4
 from helpers import REPO
 from helpers.mission_client import MAV, Item, MissionClient, fly_mission, items_from_file, quiet_streams, start_plant
 from offboard.demo import stop_process
 from offboard.missions import MISSIONS_DIR
 
-pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
-              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 
 @pytest.fixture(scope="module")

@@ -19,13 +19,12 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import running_px4
 from helpers.flights import ENV, PY
 from offboard.demo import free_udp_ports
 from offboard.link import MavLink
 
-pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
-              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 LISTEN_S = 4.0  # wall seconds of each capture (x speed of vehicle time)
 SPEED = 2.0

@@ -18,10 +18,10 @@ from bench import px4sitl
 from bench.px4sitl import INSTANCES, WORKER_SHARES, choose_instance, instance_free, instance_ports, running_px4
 
 
+@pytest.mark.px4
 def test_the_probed_ports_are_those_px4_binds_for_its_instance():
     launcher = px4sitl.px4_launcher()
-    if launcher is None:
-        pytest.skip(px4sitl.SKIP_REASON)
+    assert launcher is not None  # a px4 test: skipped without one (tests/conftest.py)
     script = (launcher.parent / "etc" / "init.d-posix" / "px4-rc.mavlink").read_text()
     local = sorted(int(base) for base in re.findall(r"_port_local=\$\(\((\d+)\+px4_instance\)\)", script))
     assert sorted(port - 7 for port in instance_ports(7)) == local
