@@ -236,6 +236,7 @@ def _run(args: argparse.Namespace) -> int:
         start_epoch_s=LOCKSTEP_EPOCH_S if args.lockstep else time.time(),
         log_path=args.log,
         ftp_root=_ftp_root(args),
+        signing=args.signing_key is not None,
     )
     params = plant_params(vehicle, sysid=args.sysid)
     autopilot = Autopilot(params, home_alt_amsl_m=home.alt_m, failures=failures)
@@ -372,6 +373,9 @@ def _summary(plant: Plant, link: Link, stats: RunStats) -> None:
         whys = ", ".join(f"{why} {n}" for why, n in sorted(refused.items()))
         whos = ", ".join(f"system {who}: {n}" for who, n in sorted(senders.items()))
         print(f"sitl-plant: refused {sum(refused.values())} frames before handling ({whys}; {whos})", file=sys.stderr)
+    if c.ignored:
+        kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(c.ignored.items()))
+        print(f"sitl-plant: ignored {sum(c.ignored.values())} messages as PX4 v1.16 does ({kinds}: the plant does not sign)", file=sys.stderr)
     if c.breakdowns:
         print(f"sitl-plant: the simulation broke down {c.breakdowns} times (state not finite)", file=sys.stderr)
     if c.internal_errors:
