@@ -274,7 +274,7 @@ def _run(args: argparse.Namespace) -> int:
     link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else wall_clock_us, lockstep=args.lockstep)
     for direction, spec in (("in", impair_in), ("out", impair_out)):
         if spec is not None:
-            link.note(f"link {direction}: {spec.describe()} (seed {args.seed})")
+            link.note(f"sitl-plant --link-{direction} {spec.as_option()} --seed {args.seed}: {spec.describe()}")
 
     stopping = {"flag": False}
 
