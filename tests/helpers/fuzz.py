@@ -136,13 +136,18 @@ class Fuzzer:
 FUZZ_FRAMES = 100_000
 
 
-def fuzz_the_offboard(ctx) -> None:  # noqa: ANN001
+#: System ids of everyone but the vehicle (1): a fuzz from strangers (the offboard's own 245 too).
+STRANGERS = (2, 200, 245, 255)
+
+
+def fuzz_the_offboard(ctx, *, sysid_choices: tuple[int, ...] = (1, 2, 200, 245, 255)) -> None:  # noqa: ANN001
     """FUZZ_FRAMES frames of every kind at the offboard of a flight (``helpers.flights.fly``'s
     context), while it waits for its vehicle (during the flight they would be a flood that starves
-    it: that is not what is tested)."""
+    it: that is not what is tested); valid frames from ``sysid_choices`` (the vehicle's 1 among
+    them by default: forged, as far as an unsigned offboard can tell)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        fuzz = Fuzzer(14).datagrams(FUZZ_FRAMES)
+        fuzz = Fuzzer(14, sysid_choices=sysid_choices).datagrams(FUZZ_FRAMES)
         for start in range(0, len(fuzz), 200):
             for datagram in fuzz[start:start + 200]:
                 sock.sendto(datagram, ("127.0.0.1", ctx.offboard_port))
