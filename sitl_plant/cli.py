@@ -358,6 +358,9 @@ def _summary(plant: Plant, link: Link, stats: RunStats) -> None:
         f"foreign {c.foreign}, unhandled {c.unhandled}",
         file=sys.stderr,
     )
+    for e in link.endpoints[1:]:  # the ground-station link's traffic (the API link's is above)
+        g = e.counters
+        print(f"sitl-plant: {e.name} link in {g.packets_in} out {g.packets_out}; bad packets {g.bad_packets}", file=sys.stderr)
     for e in link.endpoints:
         for direction, impair in (("in", e.impair_in), ("out", e.impair_out)):
             if impair is not None:
