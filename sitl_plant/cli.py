@@ -236,6 +236,7 @@ def _run(args: argparse.Namespace) -> int:
         start_epoch_s=LOCKSTEP_EPOCH_S if args.lockstep else time.time(),
         log_path=args.log,
         ftp_root=_ftp_root(args),
+        signing=args.signing_key is not None,
     )
     params = plant_params(vehicle, sysid=args.sysid)
     autopilot = Autopilot(params, home_alt_amsl_m=home.alt_m, failures=failures)
@@ -273,7 +274,7 @@ def _run(args: argparse.Namespace) -> int:
     link = Link(endpoints, tlog, plant.epoch_us if args.log_clock == "sim" else wall_clock_us, lockstep=args.lockstep)
     for direction, spec in (("in", impair_in), ("out", impair_out)):
         if spec is not None:
-            link.note(f"link {direction}: {spec.describe()} (seed {args.seed})")
+            link.note(f"sitl-plant --link-{direction} {spec.as_option()} --seed {args.seed}: {spec.describe()}")
 
     stopping = {"flag": False}
 
@@ -357,6 +358,9 @@ def _summary(plant: Plant, link: Link, stats: RunStats) -> None:
         f"foreign {c.foreign}, unhandled {c.unhandled}",
         file=sys.stderr,
     )
+    for e in link.endpoints[1:]:  # the ground-station link's traffic (the API link's is above)
+        g = e.counters
+        print(f"sitl-plant: {e.name} link in {g.packets_in} out {g.packets_out}; bad packets {g.bad_packets}", file=sys.stderr)
     for e in link.endpoints:
         for direction, impair in (("in", e.impair_in), ("out", e.impair_out)):
             if impair is not None:
@@ -372,6 +376,9 @@ def _summary(plant: Plant, link: Link, stats: RunStats) -> None:
         whys = ", ".join(f"{why} {n}" for why, n in sorted(refused.items()))
         whos = ", ".join(f"system {who}: {n}" for who, n in sorted(senders.items()))
         print(f"sitl-plant: refused {sum(refused.values())} frames before handling ({whys}; {whos})", file=sys.stderr)
+    if c.ignored:
+        kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(c.ignored.items()))
+        print(f"sitl-plant: ignored {sum(c.ignored.values())} messages as PX4 v1.16 does ({kinds}: the plant does not sign)", file=sys.stderr)
     if c.breakdowns:
         print(f"sitl-plant: the simulation broke down {c.breakdowns} times (state not finite)", file=sys.stderr)
     if c.internal_errors:

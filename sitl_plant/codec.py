@@ -430,11 +430,15 @@ def system_time(unix_us: int, t_ms: int) -> MAVLinkMessage:
 
 
 def statustext(severity: int, text: str, chunk_id: int = 0) -> list[MAVLinkMessage]:
-    """STATUSTEXT, split into 50-byte chunks sharing ``chunk_id`` when longer (MAVLink 2)."""
+    """STATUSTEXT, split into 50-byte chunks sharing ``chunk_id`` when longer (MAVLink 2). A
+    chunk shorter than 50 bytes (its text NUL-terminated) is the last, as the spec says; a text
+    of a whole number of chunks ends with an empty one, so a reader knows it is complete."""
     data = text.encode("utf-8", "replace")
     if len(data) <= 50:
         return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
     chunks = [data[i : i + 50] for i in range(0, len(data), 50)]
+    if len(data) % 50 == 0:
+        chunks.append(b"")
     return [mavlink.MAVLink_statustext_message(severity, c, chunk_id, n) for n, c in enumerate(chunks)]
 
 

@@ -58,12 +58,22 @@ class ImpairmentSpec:
     def active(self) -> bool:
         return any(getattr(self, f.name) > 0 for f in fields(self))
 
+    def as_option(self) -> str:
+        """The spec as ``--link`` takes it (``delay=80,jitter=30,...``, the active keys only;
+        ``parse_impairment`` reads it back to an equal spec)."""
+        return ",".join(f"{f.name}={_number(getattr(self, f.name))}" for f in fields(self) if getattr(self, f.name)) or "loss=0"
+
     def describe(self) -> str:
         parts = [f"loss {self.loss:g} %"] if self.loss else []
         if self.delay or self.jitter:
             parts.append(f"delay {self.delay:g}+-{self.jitter:g} ms")
         parts += [f"{k} {getattr(self, k):g} %" for k in ("duplicate", "reorder", "corrupt") if getattr(self, k)]
         return ", ".join(parts) or "none"
+
+
+def _number(value: float) -> str:
+    """``80`` for 80.0, else the float's shortest exact form (``0.1``)."""
+    return str(int(value)) if value == int(value) else repr(value)
 
 
 def parse_impairment(text: str, option: str = "--link") -> ImpairmentSpec:

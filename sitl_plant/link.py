@@ -39,6 +39,7 @@ from offboard.model import mavfast
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter
 from offboard.signing import SigningKey, SigningSession, Verdict, persist, save_key
+from sitl_plant import codec
 from sitl_plant.impairment import DelayLine, Impairment
 
 MAX_DATAGRAM = 1400  # bytes of MAVLink packed into one UDP datagram (below a typical MTU)
@@ -306,6 +307,7 @@ class Link:
         self.tlog = tlog
         self.log_time_us = log_time_us
         self._socks = [e.sock for e in endpoints]
+        self._note_id = 65535  # the next note's STATUSTEXT id (note)
 
     def wait(self, timeout_s: float) -> bool:
         """Block until a socket is readable or the timeout passes; whether one is readable."""
@@ -340,13 +342,18 @@ class Link:
         return f" link: {dropped} dropped, {duplicated} duplicated, {corrupted} corrupted"
 
     def note(self, text: str) -> None:
-        """Record ``text`` in the tlog as a STATUSTEXT of ours that is not sent (what the log was
-        recorded under, such as the link's impairment); no sequence number is spent."""
+        """Record ``text`` in the tlog as STATUSTEXT of ours that is not sent (what the log was
+        recorded under, such as the link's impairment); no sequence number is spent. A text
+        longer than one STATUSTEXT's 50 bytes goes whole, in chunks sharing an ``id`` (MAVLink 2,
+        as PX4 sends long texts and QGroundControl joins them); notes count their ids down from
+        65535, away from the plant's own, which count up from 1."""
         if self.tlog is not None and self.endpoints:
             e = self.endpoints[0]
             packer = mavlink.MAVLink(None, srcSystem=e.packer.srcSystem, srcComponent=e.packer.srcComponent)
-            msg = mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_NOTICE, text[:50].encode())
-            self.tlog.write(self.log_time_us(), msg.pack(packer))
+            self._note_id -= 1
+            t = self.log_time_us()
+            for msg in codec.statustext(mavlink.MAV_SEVERITY_NOTICE, text, self._note_id + 1):
+                self.tlog.write(t, msg.pack(packer))
 
     def receive(self) -> list[tuple[int, mavlink.MAVLink_message]]:
         """Messages waiting on every endpoint, as (endpoint index, message); not yet logged."""

@@ -192,6 +192,9 @@ class PlantConfig:
     start_epoch_s: float = 0.0  # tlog / SYSTEM_TIME origin; offboard.model.tlog.LOCKSTEP_EPOCH_S in lockstep
     log_path: Path | None = None  # the tlog (--log), served by log download
     ftp_root: Path | None = None  # the folder MAVLink FTP serves, read-only (--ftp-root)
+    #: whether the links sign (--signing-key): without, SETUP_SIGNING is ignored, as PX4 v1.16
+    #: (which has no signing) ignores it
+    signing: bool = False
 
 
 #: A setpoint stamped this little before the newest of its sender is a reordered or duplicated
@@ -209,6 +212,8 @@ class Counters:
     internal_errors: int = 0
     last_error: str = ""
     refusals: dict[str, int] = field(default_factory=dict)
+    #: messages taken but ignored, by type, as PX4 v1.16 ignores them (SETUP_SIGNING without signing)
+    ignored: dict[str, int] = field(default_factory=dict)
     statustexts_in: int = 0
 
 
@@ -264,6 +269,8 @@ class Plant:
         self._newest_setpoint_ms: dict[tuple[int, int], int] = {}  # per sender (system, component)
         #: a SETUP_SIGNING key accepted, for the loop to apply to the links (then None)
         self.signing_change: SigningKey | None = None
+        #: whether the links sign now (from --signing-key; off once SETUP_SIGNING switched it off)
+        self.signing = config.signing
         # PX4's services, one of each per link as PX4 has per MAVLink instance (docs/parity/services.md)
         self.ftp = [FtpServer(config.ftp_root), FtpServer(config.ftp_root)]
         self.logs = [LogServer(config.log_path), LogServer(config.log_path)]
@@ -608,13 +615,24 @@ class Plant:
 
     def _on_setup_signing(self, index: int, msg: mavlink.MAVLink_message) -> None:
         """A new signing key for every link (applied by the loop, which owns the links); refused
-        while armed, as a key change in flight would cut the link to the vehicle."""
+        while armed, as a key change in flight would cut the link to the vehicle.
+
+        Only a plant that signs takes it (then only signed with the current key, so only the
+        key's owner can send it). A plant that does not sign ignores it, as PX4 v1.16 does
+        (it has no signing: measured, ``tests/e2e/test_px4_parity_signing.py``): else anyone's
+        unsigned SETUP_SIGNING would switch signing on with the sender's key and lock the owner
+        out. Counted in ``counters.ignored``."""
+        if not self.signing:
+            self.counters.ignored["SETUP_SIGNING"] = self.counters.ignored.get("SETUP_SIGNING", 0) + 1
+            return
         if self.autopilot.armed:
             self.counters.refusals["SETUP_SIGNING"] = self.counters.refusals.get("SETUP_SIGNING", 0) + 1
             self._announce(StatusText(mavlink.MAV_SEVERITY_WARNING, "SETUP_SIGNING refused: vehicle armed"))
             return
         self.signing_change = SigningKey(bytes(msg.secret_key), int(msg.initial_timestamp))
+        self.signing = not self.signing_change.disables
         self._announce(StatusText(mavlink.MAV_SEVERITY_INFO, "MAVLink signing " + ("disabled" if self.signing_change.disables else "key updated via SETUP_SIGNING")))
+
     # -- services: FTP, log download, shell, STATUSTEXT in -----------------------------------------
 
     def _on_ftp(self, index: int, msg: mavlink.MAVLink_message) -> None:
@@ -998,6 +1016,7 @@ def run_lockstep(
                 link.log_received(msg)
                 echo = index == API and plant.lockstep_echo(msg)
                 plant.handle(index, msg)
+                _apply_signing_change(d)
                 if echo:
                     plant.advance(steps)
                     stats.periods += 1
@@ -1020,11 +1039,17 @@ def _dispatch(d: _Driver, received: list[tuple[int, mavlink.MAVLink_message]]) -
     for index, msg in received:
         d.link.log_received(msg)
         d.plant.handle(index, msg)
-        key = d.plant.signing_change
-        if key is not None:
-            d.flush_outbox()  # the answer goes out under the old key, as the sender expects
-            if key.disables:
-                d.link.unsign()
-            else:
-                d.link.rekey(key)
-            d.plant.signing_change = None
+        _apply_signing_change(d)
+
+
+def _apply_signing_change(d: _Driver) -> None:
+    """A SETUP_SIGNING the plant took: the new key (or signing off) on every link, after the
+    replies so far went out under the old key, as their receiver expects."""
+    key = d.plant.signing_change
+    if key is not None:
+        d.flush_outbox()
+        if key.disables:
+            d.link.unsign()
+        else:
+            d.link.rekey(key)
+        d.plant.signing_change = None

@@ -25,7 +25,7 @@ E2E_DIR = Path(__file__).resolve().parent / "e2e"
 #: PX4 or bench fixture starts once, and a flight shares the cores with at most one other test.
 REALTIME_MODULES = frozenset({
     "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fuzz",
-    "test_killed", "test_lost_track", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
+    "test_killed", "test_lost_track", "test_plant_cli_faults", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
     "test_plant_services_e2e",
 })  # fmt: skip
 

@@ -106,3 +106,4 @@ def test_faults_quick_flies_the_lossy_link_and_fails_safe_in_time(quick_run):
     assert [r["seed"] for r in lossy["runs"]] == [1] and lossy["complete"] == 1, lossy["runs"]
     assert kill["trials"] == 1 and kill["within_bound"] == 1, kill
     assert kill["max_s"] <= kill["bound_s"] == pytest.approx(1.05)
+    assert results["faults"]["shortfalls"] == []  # the report says all was met (and would flag what was not)

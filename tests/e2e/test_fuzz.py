@@ -1,19 +1,22 @@
-"""10^5 fuzzed frames of every kind at the plant's receiving socket (issue 14): no crash, no state
+"""10^5 fuzzed frames of every kind at each of the plant's receiving sockets (issue 14): no crash, no state
 change of the disarmed vehicle, still answering; without signing and with it (every fuzzed frame
-then refused before handling, and counted). (The offboard's: tests/e2e/test_signing_e2e.py.)"""
+then refused before handling, and counted). At an unsigned offboard too, and another autopilot's
+heartbeat during its flight. (The signed offboard's: tests/e2e/test_signing_e2e.py.)"""
 
 from __future__ import annotations
 
 import socket
 import subprocess
 import time
+from functools import partial
 
 import pytest
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from helpers.flights import ENV, PY, arc_mission, fly, free_udp_ports
-from helpers.fuzz import FUZZ_FRAMES, Fuzzer, fuzz_the_offboard
+from helpers.fuzz import FUZZ_FRAMES, STRANGERS, Fuzzer, fuzz_the_offboard
+from offboard.replay import TlogReader
 
 WATCHED = ("MPC_XY_VEL_MAX", "COM_OF_LOSS_T", "SIM_MASS", "MAV_SYS_ID")
 
@@ -36,7 +39,7 @@ class Client:
     def send(self, msg) -> None:
         self.sock.sendto(msg.pack(self.mav), self.address)
 
-    def wait_for(self, kind: str, timeout_s: float = 5.0, where=lambda m: True):
+    def wait_for(self, kind: str, timeout_s: float = 10.0, where=lambda m: True):  # a loaded machine: slow, not wrong
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             try:
@@ -59,13 +62,13 @@ class Client:
 
 @pytest.mark.parametrize("signed", [False, True], ids=["unsigned", "signed"])
 def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
-    (port,) = free_udp_ports(1)
+    port, gcs_port = free_udp_ports(2)
     signing: list[str] = []
     if signed:
         (tmp_path / "key.bin").write_bytes(KEY)
         signing = ["--signing-key", str(tmp_path / "key.bin")]
     plant = subprocess.Popen([PY, "-m", "sitl_plant.cli", "--api-bind", f"127.0.0.1:{port}", "--api-remote", "none",
-                              "--gcs-bind", "none", *signing], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              "--gcs-bind", f"127.0.0.1:{gcs_port}", "--gcs-remote", "none", *signing], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                              env=ENV)  # fmt: skip
     client = Client(port, KEY if signed else None)
     fuzzer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -74,13 +77,18 @@ def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
         client.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
         before = client.state()
         assert not before["base_mode"] & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        datagrams = Fuzzer(20).datagrams(FUZZ_FRAMES)
-        for start in range(0, len(datagrams), 200):
-            for d in datagrams[start:start + 200]:
-                fuzzer.sendto(d, ("127.0.0.1", port))
-            # paced: the kernel's buffer holds a few hundred datagrams (a signing plant checks a
-            # hash a frame, and reads them more slowly)
-            time.sleep(0.06 if signed else 0.03)
+        # at the API link; unsigned, at the ground station's too, in turns (a signing plant
+        # refuses what the fuzz sends either link by the same check: once is enough)
+        datagrams = {port: Fuzzer(20).datagrams(FUZZ_FRAMES)}
+        if not signed:
+            datagrams[gcs_port] = Fuzzer(21).datagrams(FUZZ_FRAMES)
+        for start in range(0, len(datagrams[port]), 200):
+            for to, batches in datagrams.items():
+                for d in batches[start:start + 200]:
+                    fuzzer.sendto(d, ("127.0.0.1", to))
+                # paced: the kernel's buffer holds a few hundred datagrams, and the plant reads
+                # one link after the other (a signing plant checks a hash a frame, more slowly)
+                time.sleep(0.06 if signed else 0.03)
         client.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))  # talk last: the plant answers us
         after = client.state()  # still answering
         assert after == before  # disarmed, same mode, same parameters
@@ -92,24 +100,54 @@ def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
     assert plant.returncode == 0, err
     assert "Traceback" not in err and "raised an error" not in err, err
     print(f"\n{err.strip()}")
-    bad = int(err.split("bad packets ")[1].split(",")[0])
-    assert bad > (0 if signed else FUZZ_FRAMES // 10)  # the fuzz got there
+    bad = int(err.split("bad packets ")[1].split(",")[0])  # both links'
+    gcs_bad = int(err.split("sitl-plant: gcs link in ")[1].split("bad packets ")[1].split()[0])
+    assert bad - gcs_bad > (0 if signed else FUZZ_FRAMES // 10)  # the fuzz got there
+    assert signed or gcs_bad > FUZZ_FRAMES // 10
     if signed:  # what parsed was refused before handling (the fuzz holds no frame signed with the key)
         refused = int(err.split("sitl-plant: refused ")[1].split(" frames")[0])
         assert refused > FUZZ_FRAMES // 50 and bad + refused > FUZZ_FRAMES // 10
 
 
-def test_an_unsigned_offboard_survives_the_fuzz(tmp_path):
-    """10^5 frames at an unsigned offboard waiting for its vehicle: no crash. Without signing a
-    fuzzed autopilot HEARTBEAT may be taken for the vehicle (docs/plant.md, 'Who may talk to the
-    vehicle'): the flight then ends on one line saying why, or flies when the real vehicle's
-    frames win; never a traceback."""
-    flown = fly(tmp_path, arc_mission(tmp_path / "arc.toml"), name="fuzzed", before_plant=fuzz_the_offboard)
-    assert flown.returncode >= 0, flown.stderr  # not killed by a signal
+STRANGER = 7  # another autopilot's system id
+HOLD = 4 << 16 | 3 << 24  # PX4's custom mode Auto/Hold
+ROUNDS = 5
+
+
+def stranger(ctx) -> None:
+    """Once armed, at the offboard: another autopilot (system 7) announcing itself armed in
+    Hold, then disarmed, and acknowledging a mode change."""
+    ctx.wait_for("armed: flying the mission")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other = mavlink.MAVLink(None, srcSystem=STRANGER, srcComponent=1)
+    frames = [
+        mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0x81 | 0x40, HOLD, 4, 3),
+        mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0x01, HOLD, 3, 3),
+        mavlink.MAVLink_command_ack_message(176, 0, 0, 0, 245, 191),
+    ]
+    try:
+        for _ in range(ROUNDS):
+            for msg in frames:
+                sock.sendto(msg.pack(other), ("127.0.0.1", ctx.offboard_port))
+            time.sleep(0.01)
+    finally:
+        sock.close()
+
+
+def test_an_unsigned_offboard_survives_the_fuzz_and_ignores_a_stranger(tmp_path):
+    """10^5 frames from strangers' system ids at an unsigned offboard waiting for its vehicle
+    (``--target-system 1``): no crash, and it still answers: the flight completes. During the
+    flight, another autopilot's HEARTBEATs (armed in Hold, then disarmed) and COMMAND_ACK reach
+    it: its own filter (offboard/flight/mission.py, ``from_vehicle``) takes none of them for the
+    vehicle's, and the mission goes on. (Without signing, frames forged with the vehicle's ids
+    are the vehicle's as far as the offboard can tell (docs/plant.md, 'Who may talk to the
+    vehicle'); the signed flight of tests/e2e/test_signing_e2e.py takes the fuzz with them too.)"""
+    flown = fly(tmp_path, arc_mission(tmp_path / "arc.toml"), name="fuzzed", fly_args=("--target-system", "1"),
+                before_plant=partial(fuzz_the_offboard, sysid_choices=STRANGERS), during=stranger)  # fmt: skip
+    assert flown.returncode == 0 and flown.status == "complete" and flown.summary["disarmed"], flown.stderr
     assert "Traceback" not in flown.stderr, flown.stderr
-    if flown.returncode != 0:
-        last = flown.stderr.strip().splitlines()[-1]
-        assert last.startswith("offboard fly: ") and flown.status != "complete", flown.stderr
     m = flown.summary["messages"]
-    print(f"\nthe unsigned offboard under fuzz: exit {flown.returncode}, bad {m['bad']}, received {m['received']}")
+    print(f"\nthe unsigned offboard under fuzz: bad {m['bad']}, received {m['received']}")
     assert m["bad"] + sum(m["refused"].values()) + m["duplicates"] > FUZZ_FRAMES // 10  # the fuzz reached it
+    heard = [r for r in TlogReader(flown.tlog) if r.msg.get_srcSystem() == STRANGER]
+    assert len(heard) == ROUNDS * len(("armed", "disarmed", "ack"))  # the stranger's reached it (logged), and changed nothing

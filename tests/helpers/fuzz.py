@@ -24,8 +24,6 @@ _FLOATS = (0.0, -0.0, 1.0, -1.0, 1e-30, 3.4e38, float("nan"), float("inf"), floa
 def _value(rng: random.Random, ftype: str):
     if ftype in ("float", "double"):
         return rng.choice(_FLOATS) if rng.random() < 0.3 else rng.uniform(-1e6, 1e6)
-    if ftype == "char":
-        return rng.randbytes(rng.randrange(60))
     lo, hi = _INT_RANGES[ftype]
     return rng.choice((lo, hi, 0, 1)) if rng.random() < 0.3 else rng.randint(lo, hi)
 
@@ -33,14 +31,23 @@ def _value(rng: random.Random, ftype: str):
 _CLASSES = list(mavlink.mavlink_map.values())
 
 
-def random_message(rng: random.Random, nprng: np.random.Generator | None = None) -> mavlink.MAVLink_message:
-    """A message of a random common.xml type with random field values (within their types)."""
-    nprng = nprng or np.random.default_rng(rng.randrange(2**32))
-    cls = rng.choice(_CLASSES)
+def _array_lengths(cls: type) -> dict[str, int]:
+    """Each field's array length (0: a scalar) by name: pymavlink keeps ``array_lengths`` in wire
+    order (``ordered_fieldnames``) but ``fieldtypes`` and the constructor's arguments in
+    declaration order (``fieldnames``), which differ wherever a message's fields are not sorted by
+    size or it has extension fields."""
+    return dict(zip(cls.ordered_fieldnames, cls.array_lengths))
+
+
+def random_fields(rng: random.Random, cls: type, nprng: np.random.Generator) -> list:
+    """Random values (within their types) for the fields of message class ``cls``, in the order
+    its constructor takes them."""
+    lengths = _array_lengths(cls)
     args = []
-    for ftype, length in zip(cls.fieldtypes, cls.array_lengths):
-        if ftype == "char":
-            args.append(_value(rng, "char")[: length or 60])
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
+        length = lengths[name]
+        if ftype == "char":  # a string: up to its array length of any bytes (one byte if a scalar)
+            args.append(rng.randbytes(rng.randrange(length + 1 if length else 2)))
         elif length:  # arrays: drawn at once
             if ftype in ("float", "double"):
                 args.append(nprng.uniform(-1e6, 1e6, length).tolist())
@@ -50,7 +57,15 @@ def random_message(rng: random.Random, nprng: np.random.Generator | None = None)
                 args.append([int(v) for v in nprng.integers(lo, hi, length, dtype=dtype, endpoint=True)])
         else:
             args.append(_value(rng, ftype))
-    return cls(*args)
+    return args
+
+
+def random_message(rng: random.Random, nprng: np.random.Generator | None = None, cls: type | None = None) -> mavlink.MAVLink_message:
+    """A message of a random common.xml type (or of ``cls``) with random field values (within
+    their types)."""
+    nprng = nprng or np.random.default_rng(rng.randrange(2**32))
+    cls = cls or rng.choice(_CLASSES)
+    return cls(*random_fields(rng, cls, nprng))
 
 
 class Fuzzer:
@@ -121,13 +136,18 @@ class Fuzzer:
 FUZZ_FRAMES = 100_000
 
 
-def fuzz_the_offboard(ctx) -> None:  # noqa: ANN001
+#: System ids of everyone but the vehicle (1): a fuzz from strangers (the offboard's own 245 too).
+STRANGERS = (2, 200, 245, 255)
+
+
+def fuzz_the_offboard(ctx, *, sysid_choices: tuple[int, ...] = (1, 2, 200, 245, 255)) -> None:  # noqa: ANN001
     """FUZZ_FRAMES frames of every kind at the offboard of a flight (``helpers.flights.fly``'s
     context), while it waits for its vehicle (during the flight they would be a flood that starves
-    it: that is not what is tested)."""
+    it: that is not what is tested); valid frames from ``sysid_choices`` (the vehicle's 1 among
+    them by default: forged, as far as an unsigned offboard can tell)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        fuzz = Fuzzer(14).datagrams(FUZZ_FRAMES)
+        fuzz = Fuzzer(14, sysid_choices=sysid_choices).datagrams(FUZZ_FRAMES)
         for start in range(0, len(fuzz), 200):
             for datagram in fuzz[start:start + 200]:
                 sock.sendto(datagram, ("127.0.0.1", ctx.offboard_port))

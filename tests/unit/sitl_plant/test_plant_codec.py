@@ -139,6 +139,8 @@ def test_statustext_chunks_long_texts():
     parts = [wire(m) for m in codec.statustext(2, long_text, 7)]
     assert len(parts) == 3 and {p.id for p in parts} == {7} and [p.chunk_seq for p in parts] == [0, 1, 2]
     assert "".join(p.text for p in parts) == long_text
+    whole = [wire(m) for m in codec.statustext(2, "y" * 100, 8)]  # two whole chunks: an empty one ends it
+    assert [(p.chunk_seq, p.text) for p in whole] == [(0, "y" * 50), (1, "y" * 50), (2, "")]
 
 
 def test_servo_outputs_scale_with_rotor_speed():

@@ -11,7 +11,7 @@ from offboard.signing import SigningKey, SigningSession, load_key, save_key
 from sitl_plant.autopilot import Autopilot
 from sitl_plant.link import Endpoint, Link
 from sitl_plant.params import plant_params
-from sitl_plant.server import API, Plant, PlantConfig, _dispatch, _Driver
+from sitl_plant.server import API, Plant, PlantConfig, _dispatch, _Driver, run_lockstep
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 
 KEY = bytes(range(1, 33))
@@ -19,10 +19,10 @@ NEW_KEY = bytes(range(50, 82))
 EPOCH_US = 1_796_000_000_000_000
 
 
-def make_plant() -> Plant:
+def make_plant(*, signing: bool = True) -> Plant:
     vehicle = load_vehicle(PAPER_VEHICLE_FILE)
     params = plant_params(vehicle)
-    return Plant(PlantConfig(lockstep=True, start_epoch_s=EPOCH_US / 1e6), vehicle, params, Autopilot(params))
+    return Plant(PlantConfig(lockstep=True, start_epoch_s=EPOCH_US / 1e6, signing=signing), vehicle, params, Autopilot(params))
 
 
 class Client:
@@ -129,6 +129,69 @@ def test_setup_signing_is_refused_armed_and_rekeys_every_link_disarmed(tmp_path)
         owner.send(arm())  # still signed with the old key: refused now
         serve(plant, link)
         assert not plant.autopilot.armed and endpoints[API].counters.refused.get("bad_signature") == 1
+    finally:
+        link.close()
+        owner.close()
+
+
+def test_a_plant_without_signing_ignores_setup_signing_as_px4_v1_16():
+    """Issue 14's audit: an unsigned SETUP_SIGNING switched signing on with the sender's key and
+    locked the owner out. PX4 v1.16 has no signing and ignores it (its outgoing frames stay
+    unsigned, unsigned commands are still taken: tests/e2e/test_px4_parity_signing.py); so
+    does the plant, counting it."""
+    plant = make_plant(signing=False)
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1)
+    link = Link([endpoint], None, plant.epoch_us)
+    stranger, owner = Client(endpoint.local_address, sysid=200), Client(endpoint.local_address, sysid=245)
+    try:
+        stranger.send(mavlink.MAVLink_setup_signing_message(1, 1, list(NEW_KEY), 10**12))
+        serve(plant, link)
+        assert endpoint.signing is None and not plant.signing and plant.signing_change is None
+        assert plant.counters.ignored == {"SETUP_SIGNING": 1}
+        owner.send(arm())  # unsigned, as before
+        serve(plant, link)
+        assert plant.autopilot.armed
+        reply = owner.sock.recv(65535)
+        assert not reply[2] & 1  # what the plant sends is still unsigned
+    finally:
+        link.close()
+        stranger.close()
+        owner.close()
+
+
+def test_setup_signing_switches_signing_off_and_then_is_ignored():
+    """An all-zero key switches signing off; from then on the plant is one that does not sign,
+    and ignores SETUP_SIGNING (as PX4 v1.16), so nobody can switch it on again unsigned."""
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us))
+    link = Link([endpoint], None, plant.epoch_us)
+    owner = Client(endpoint.local_address, secret=KEY)
+    stranger = Client(endpoint.local_address, sysid=200)
+    try:
+        owner.send(mavlink.MAVLink_setup_signing_message(1, 1, [0] * 32, 0))
+        serve(plant, link)
+        assert endpoint.signing is None and not plant.signing
+        stranger.send(mavlink.MAVLink_setup_signing_message(1, 1, list(NEW_KEY), 10**12))
+        serve(plant, link)
+        assert endpoint.signing is None and plant.counters.ignored == {"SETUP_SIGNING": 1}
+    finally:
+        link.close()
+        owner.close()
+        stranger.close()
+
+
+def test_the_lockstep_loop_applies_a_setup_signing_too():
+    """run_lockstep handled SETUP_SIGNING (and announced the new key) but never gave the key to the
+    links: only the real-time loop did."""
+    plant = make_plant()
+    endpoint = Endpoint("api", ("127.0.0.1", 0), None, 1, 1, signing=SigningSession(SigningKey(KEY), plant.epoch_us, lockstep=True))
+    link = Link([endpoint], None, plant.epoch_us, lockstep=True)
+    owner = Client(endpoint.local_address, secret=KEY)
+    try:
+        owner.send(mavlink.MAVLink_setup_signing_message(1, 1, list(NEW_KEY), 0))
+        end = time.monotonic() + 0.3
+        run_lockstep(plant, link, stop=lambda: time.monotonic() > end)
+        assert endpoint.signing is not None and endpoint.signing.key.secret == NEW_KEY
     finally:
         link.close()
         owner.close()
