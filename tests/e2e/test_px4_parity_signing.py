@@ -13,13 +13,12 @@ import time
 
 import pytest
 
-from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4
+from bench.px4sitl import running_px4
 from helpers import REPO
 from helpers.services import ServiceClient, mavlink
 from offboard.demo import free_udp_ports, stop_process
 
-pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
-              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 KEY = bytes(range(100, 132))
 
