@@ -68,6 +68,7 @@ DEFAULT_ORBIT_SPEED_M_S = 1.0  # DO_ORBIT param2 NaN or 0 (PX4's orbit default; 
 DEFAULT_ORBIT_RADIUS_M = 10.0  # DO_ORBIT param1 NaN or 0 (not measured)
 ORBIT_ACC_MAX_M_S2 = 2.0  # FlightTaskOrbit.hpp _acceleration_max: v^2 < a r, else v = sqrt(a r)
 ORBIT_RADIUS_MIN_M = 1.0  # FlightTaskOrbit.hpp _radius_min
+MIN_STRETCH = 0.2  # the slowest a leg's point moves for a lagging vehicle (``Navigator._stretch``)
 ORBIT_ON_CIRCLE_M = 1.0  # the approach ends within this of the circle (FlightTaskOrbit's _horizontal_acceptance_radius)
 
 
@@ -460,12 +461,15 @@ class Navigator:
     def _stretch(self, leg: _Leg) -> float:
         """How much of the time step the leg's point moves: PX4's PositionSmoothing slows its
         trajectory by 1 - e / MPC_XY_ERR_MAX while the vehicle is a horizontal distance e behind
-        it (so the vehicle is never left to catch up above the cruise speed)."""
+        it (so the vehicle is never left to catch up above the cruise speed). Never below
+        ``MIN_STRETCH``: twice in nine side-by-side runs with PX4 a survey leg's point stood still
+        for minutes with the vehicle 2 m from it (cause not found), which PX4's vehicle, always
+        closing in, never shows."""
         p, (vn, ve, _) = leg.point(), leg.velocity()
         en, ee = p[0] - self._pos[0], p[1] - self._pos[1]
         if en * vn + ee * ve <= 0.0:
             return 1.0
-        return 1.0 - min(math.hypot(en, ee) / max(self._p("MPC_XY_ERR_MAX"), 1e-3), 1.0)
+        return max(1.0 - math.hypot(en, ee) / max(self._p("MPC_XY_ERR_MAX"), 1e-3), MIN_STRETCH)
 
     def _item_complete(self, item: MissionItem, now_s: float) -> bool:
         r = self._run
