@@ -129,7 +129,9 @@ BUNDLED = {
     "px4-sitl-box.waypoints": {"through": (2, 4), "stops": (3, 5)},
     "px4-sitl-survey.plan": {"through": (3, 4, 5, 6, 7, 8), "stops": (9, 10)},
 }
-STOPPED_M_S = 0.75  # slowest speed within 2.5 s of an item's MISSION_ITEM_REACHED below this: it stopped
+#: the slowest speed within 2.5 s of an item's MISSION_ITEM_REACHED below this: it stopped. PX4's
+#: corners 0.85-1.56 m/s over four runs of each file, its stops 0.01-0.46; the plant's 2.2-2.5 and 0.0-0.04
+STOPPED_M_S = 0.65
 
 
 def fly_bundled(conn, sysid, name: str) -> dict:
@@ -149,6 +151,9 @@ def fly_bundled(conn, sysid, name: str) -> dict:
     assert (mission_current(conn, until=lambda seq_total: seq_total[0] == 0) or (None,))[0] == 0, sysid
     f = fly_mission(conn, sysid, timeout_s=90.0)
     command(conn, sysid, MAV.MAV_CMD_DO_SET_MODE, MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3)
+    cleared = [c.clear(0).ack for _ in range(3)]  # and nothing left behind for the module's next upload
+    emptied = mission_current(conn, until=lambda seq_total: seq_total[1] in (0, 65535))
+    assert emptied is not None and emptied[1] in (0, 65535), (sysid, cleared, emptied)
     start = f.track[0][0]
     speeds = [((a[0] + b[0]) / 2, math.hypot(b[1] - a[1], b[2] - a[2]) / ((b[0] - a[0]) / 1000))
               for a, b in zip(f.track, f.track[3:]) if b[0] > a[0]]  # fmt: skip
@@ -193,9 +198,9 @@ def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles):
     # it flies through waypoints as PX4 (before: 63.4-65.6 s, stopping at each but overshooting the
     # cruise speed by a third); 0.82-0.91 of the same run's PX4, 0.81-0.91 over PX4's spread: the
     # plant's legs are quicker (no drag: PX4's SIH peaks at 2.8-2.9 m/s at 3 set, the plant at
-    # 3.5), hence +-25 % as the short mission. The survey: PX4 161.6 and 161.9 s in the two runs flown from
+    # 3.5), hence +-25 % as the short mission. The survey: PX4 161.6-163.4 s in the three runs flown from
     # its first item (the others started at item 6, see fly_bundled), the plant 129.3-129.8 s,
-    # 0.80 of it: held within 30 % until more runs give PX4's spread.
+    # 0.79-0.80 of it: held within 30 % until more runs give PX4's spread.
     box, survey = (got[name] for name in BUNDLED)
     assert box["plant"]["disarmed s"] == pytest.approx(box["px4"]["disarmed s"], rel=0.25)
     assert survey["plant"]["disarmed s"] == pytest.approx(survey["px4"]["disarmed s"], rel=0.3)
@@ -321,10 +326,10 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         assert plant[key] == pytest.approx(px4[key], abs=1.5), key
     assert px4["landed from home m"] < 2.5 and plant["landed from home m"] < 2.5
     assert plant["modes"] == px4["modes"] == [(4, 3), (4, 5), (4, 3)]  # Hold, Return, Hold once disarmed
-    # RTL -> disarmed: PX4 25.3-29.1 s over five runs (+-7 % about 27 s); the plant 24.4-26.0 s
-    # over five since its legs wait for a lagging vehicle as PX4's trajectory does (before:
-    # 19.3-19.8 s, 0.7 of PX4), 0.84-1.03 over PX4's spread, hence +-20 %
-    assert plant["return s"] == pytest.approx(px4["return s"], rel=0.2)
+    # RTL -> disarmed: PX4 25.3-30.5 s over seven runs (+-9 % about 28 s); the plant 24.4-26.0 s
+    # over six since its legs wait for a lagging vehicle as PX4's trajectory does (before:
+    # 19.3-19.8 s, 0.7 of PX4), 0.80-1.03 over PX4's spread, hence +-25 % as the missions
+    assert plant["return s"] == pytest.approx(px4["return s"], rel=0.25)
 
 
 #: The vehicle PX4 flies (its SIH quadrotor, sitl_plant/vehicles/px4-sih.toml): Orbit's speed
