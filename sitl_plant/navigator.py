@@ -68,6 +68,7 @@ DEFAULT_ORBIT_SPEED_M_S = 1.0  # DO_ORBIT param2 NaN or 0 (PX4's orbit default; 
 DEFAULT_ORBIT_RADIUS_M = 10.0  # DO_ORBIT param1 NaN or 0 (not measured)
 ORBIT_ACC_MAX_M_S2 = 2.0  # FlightTaskOrbit.hpp _acceleration_max: v^2 < a r, else v = sqrt(a r)
 ORBIT_RADIUS_MIN_M = 1.0  # FlightTaskOrbit.hpp _radius_min
+MIN_STRETCH = 0.2  # the slowest a leg's point moves for a lagging vehicle (``Navigator._stretch``)
 ORBIT_ON_CIRCLE_M = 1.0  # the approach ends within this of the circle (FlightTaskOrbit's _horizontal_acceptance_radius)
 
 
@@ -81,6 +82,23 @@ def orbit_limits(radius_m: float, speed_m_s: float, radius_max_m: float, speed_m
     if v * v >= ORBIT_ACC_MAX_M_S2 * r:
         v = math.sqrt(ORBIT_ACC_MAX_M_S2 * r)
     return sign * r, v
+
+
+def corner_speed_m_s(start: tuple[float, ...], corner: tuple[float, ...], nxt: tuple[float, ...], accel_m_s2: float, radius_m: float) -> float:
+    """The speed PX4 passes a waypoint at on its way to the next (v1.16
+    ``math::trajectory::computeMaxSpeedInWaypoint``): sqrt(a d tan(alpha / 2)), ``alpha`` the
+    angle between the two legs seen from the corner (180 degrees: straight on, 0: back),
+    ``a`` MPC_XY_TRAJ_P * MPC_ACC_HOR, ``d`` the waypoint's acceptance radius. A 90-degree corner
+    with NAV_ACC_RAD 2 m: 1.7 m/s (PX4 v1.16 SIH flew 1.0-1.5 m/s through the bundled missions'
+    corners, docs/parity/mission.md)."""
+    un, ue = corner[0] - start[0], corner[1] - start[1]
+    wn, we = corner[0] - nxt[0], corner[1] - nxt[1]
+    lu, lw = math.hypot(un, ue), math.hypot(wn, we)
+    if lu < 1e-6 or lw < 1e-6:
+        return 0.0
+    alpha = math.acos(min(max((un * wn + ue * we) / (lu * lw), -1.0), 1.0))
+    alpha = min(alpha, math.pi - 1e-6)
+    return math.sqrt(max(accel_m_s2 * radius_m * math.tan(alpha / 2.0), 0.0))
 
 
 def geodetic_to_ned(lat_deg: float, lon_deg: float, origin_lat_deg: float, origin_lon_deg: float) -> tuple[float, float]:
@@ -149,6 +167,7 @@ class _Leg:
     s: float = 0.0
     v: float = 0.0
     a: float = 0.0
+    v_end: float = 0.0  # the speed to pass the end at (a waypoint flown through), 0: stop there
 
     @property
     def length(self) -> float:
@@ -171,13 +190,15 @@ class _Leg:
         remaining = self.length - self.s
         # PX4's trajectories are jerk-limited (MPC_JERK_AUTO): the acceleration ramps up, and
         # braking is planned at half MPC_ACC_HOR, which an S-curve averages over its stop
-        v_brake = math.sqrt(self.accel * max(remaining, 0.0))
+        v_brake = math.sqrt(self.v_end * self.v_end + self.accel * max(remaining, 0.0))
         self.a = min(self.a + self.jerk * dt, self.accel)
         v = min(self.v + self.a * dt, v_max, v_brake)
         if v >= v_max - 1e-9:
             self.a = 0.0
         self.v = max(0.0, v)
         self.s = min(self.s + self.v * dt, self.length)
+        if self.s >= self.length:
+            self.v = 0.0  # at the end: it waits there (a waypoint flown through has been left by now)
 
     def point(self) -> tuple[float, float, float]:
         d = self._direction()
@@ -229,6 +250,7 @@ class Navigator:
     _orbit_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
     _orbit_acc: tuple[float, float] = (0.0, 0.0)
     _from_ground: bool = False
+    _carry_m_s: float = 0.0  # the speed the last mission leg ended with: the next starts with it
     wants_rtl: bool = False
 
     def _p(self, name: str) -> float:
@@ -261,6 +283,7 @@ class Navigator:
         self._last_s = now_s
         self._yaw_sp = self._yaw
         self._run = _Run()
+        self._carry_m_s = 0.0
         self.wants_rtl = False
         if activity == "mission":
             if self.finished:  # PX4 restarts a finished mission from its first item
@@ -354,11 +377,13 @@ class Navigator:
                 self._begin(item, now_s)
                 r = self._run
             if r.leg is not None:
-                r.leg.step(dt)
+                r.leg.step(dt * self._stretch(r.leg))
                 dt = 0.0
             if not self._item_complete(item, now_s):
                 break
             done.append(item.seq)
+            # PX4's trajectory keeps its speed from one leg to the next (a waypoint flown through)
+            self._carry_m_s = r.leg.v if r.leg is not None else 0.0
             if item.command == NAV_RETURN_TO_LAUNCH:
                 self.wants_rtl = True
             if self.current_seq + 1 < len(self.items):
@@ -379,6 +404,7 @@ class Navigator:
     def _begin(self, item: MissionItem, now_s: float) -> None:
         r = _Run(started=True)
         self._run = r
+        carry, self._carry_m_s = self._carry_m_s, 0.0
         c = item.command
         if c == DO_CHANGE_SPEED:
             self.change_speed(item.params[1])
@@ -405,11 +431,45 @@ class Navigator:
             r.target = (n, e, d)
         r.yaw = math.radians(item.params[3]) if c == NAV_WAYPOINT and math.isfinite(item.params[3]) else None
         r.leg = self._leg(r.target)
+        r.leg.v = min(carry, r.leg.speed)
+        r.leg.v_end = self._fly_through_m_s(item, r.leg)
+
+    def _fly_through_m_s(self, item: MissionItem, leg: _Leg) -> float:
+        """The speed to pass ``item`` at (0: stop there), as PX4 v1.16 plans it (FlightTaskAuto's
+        PositionSmoothing, ``corner_speed_m_s``): a waypoint without a hold time, followed (after
+        DO items) by another waypoint or loiter more than its acceptance radius away, is flown
+        through at the corner speed, at most the leg's speed."""
+        hold = item.params[0] if math.isfinite(item.params[0]) else 0.0
+        if item.command != NAV_WAYPOINT or hold > 0 or not item.autocontinue:
+            return 0.0
+        nxt = next((it for it in self.items[self.current_seq + 1:] if it.command in _POSITION_COMMANDS), None)
+        if nxt is None or nxt.command not in (NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LOITER_UNLIM):
+            return 0.0
+        lat, lon = nxt.lat_lon_deg()
+        after = self.frame.to_ned(lat, lon, nxt.z if math.isfinite(nxt.z) else 0.0, nxt.relative_alt)
+        radius = item.params[1] if item.params[1] > 0 else self._p("NAV_ACC_RAD")
+        if math.hypot(after[0] - leg.end[0], after[1] - leg.end[1]) <= radius:
+            return 0.0
+        accel = self._p("MPC_XY_TRAJ_P") * self._p("MPC_ACC_HOR")
+        return min(corner_speed_m_s(leg.start, leg.end, after, accel, radius), leg.speed)
 
     def _leg(self, target: tuple[float, float, float], speed: float | None = None) -> _Leg:
         cruise = speed if speed is not None and speed > 0 else (self._cruise or self._p("MPC_XY_CRUISE"))
         return _Leg(self._pos, target, min(cruise, self._p("MPC_XY_VEL_MAX")), self._p("MPC_Z_V_AUTO_UP"),
                     self._p("MPC_Z_V_AUTO_DN"), self._p("MPC_ACC_HOR"), self._p("MPC_JERK_AUTO"))  # fmt: skip
+
+    def _stretch(self, leg: _Leg) -> float:
+        """How much of the time step the leg's point moves: PX4's PositionSmoothing slows its
+        trajectory by 1 - e / MPC_XY_ERR_MAX while the vehicle is a horizontal distance e behind
+        it (so the vehicle is never left to catch up above the cruise speed). Never below
+        ``MIN_STRETCH``: twice in nine side-by-side runs with PX4 a survey leg's point stood still
+        for minutes with the vehicle 2 m from it (cause not found), which PX4's vehicle, always
+        closing in, never shows."""
+        p, (vn, ve, _) = leg.point(), leg.velocity()
+        en, ee = p[0] - self._pos[0], p[1] - self._pos[1]
+        if en * vn + ee * ve <= 0.0:
+            return 1.0
+        return max(1.0 - math.hypot(en, ee) / max(self._p("MPC_XY_ERR_MAX"), 1e-3), MIN_STRETCH)
 
     def _item_complete(self, item: MissionItem, now_s: float) -> bool:
         r = self._run
@@ -477,7 +537,7 @@ class Navigator:
             r.target = (self._pos[0], self._pos[1], self.return_altitude_down_m())
             r.leg = self._leg(r.target)
         if r.leg is not None:
-            r.leg.step(dt)
+            r.leg.step(dt * self._stretch(r.leg))
         t = r.target
         assert t is not None
         if r.phase == "climb" and abs(self._pos[2] - t[2]) <= tol:
@@ -511,7 +571,7 @@ class Navigator:
             r.leg = self._leg(target, speed)
             r.yaw = yaw
         if r.leg is not None:
-            r.leg.step(dt)
+            r.leg.step(dt * self._stretch(r.leg))
 
     def _orbit_step(self, dt: float) -> None:
         r = self._run

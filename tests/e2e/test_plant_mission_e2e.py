@@ -33,7 +33,8 @@ def test_the_box_mission_uploads_downloads_and_flies_in_mission_mode():
     finally:
         stop_process(proc)
         conn.close()
-    # PX4 v1.16 flew the same file reporting 1, 2, 3, 4, 5, 6 (test_px4_parity_mission)
+    # PX4 v1.16 flew the same file reporting 1, 2, 3, 4, 5, 6: test_px4_parity_mission's
+    # test_the_bundled_missions_fly_on_both_as_px4_flies_them flies it on PX4 and the plant
     assert flight.reached == [1, 2, 3, 4, 5, 6]
     assert flight.current[-1] == 6 and flight.disarmed_at_ms is not None
     assert ((4, 4), True) in flight.modes and flight.modes[-1] == ((4, 4), False)  # lands, disarms, stays in Mission

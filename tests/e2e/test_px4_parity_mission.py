@@ -119,6 +119,92 @@ def test_the_mission_protocol_answers_as_px4(vehicles):
     assert px4["current after clear"] == (0, 65535)
 
 
+
+#: The bundled missions, with the items PX4 v1.16 flies through (no hold time, the next waypoint
+#: further than the acceptance radius: FlightTaskAuto plans the corner at sqrt(MPC_XY_TRAJ_P
+#: MPC_ACC_HOR NAV_ACC_RAD tan(alpha / 2)), 1.0-1.5 m/s at these 90-degree corners) and those it
+#: stops at (a hold time, a loiter), by seq.
+BUNDLED = {
+    "px4-sitl-box.waypoints": {"through": (2, 4), "stops": (3, 5)},
+    "px4-sitl-survey.plan": {"through": (3, 4, 5, 6, 7, 8), "stops": (9, 10)},
+}
+#: the slowest speed within 2.5 s of an item's MISSION_ITEM_REACHED below this: it stopped. PX4's
+#: corners 0.85-1.56 m/s over four runs of each file, its stops 0.01-0.46; the plant's 2.2-2.5 and 0.0-0.04
+STOPPED_M_S = 0.65
+
+
+def fly_bundled(conn, sysid, name: str) -> dict:
+    """Clear the mission, upload a bundled file, fly it in Mission mode from arming to the disarm
+    after the landing, then Hold. PX4 v1.16 keeps the current item of the mission flown before
+    across an upload (MissionBase: the new mission's current_seq is the old one, within the new
+    count; neither a Hold nor MISSION_SET_CURRENT 0 while landed reset it): without the clear it
+    flew the survey from item 6, where the box had ended."""
+    from helpers.mission_client import command
+
+    c = MissionClient(conn, sysid)
+    # an unanswered clear is sent again, as ground stations do (one went unanswered after a flight)
+    cleared = [c.clear(0).ack for _ in range(3)]
+    emptied = mission_current(conn, until=lambda seq_total: seq_total[1] in (0, 65535))
+    assert emptied is not None and emptied[1] in (0, 65535), (sysid, cleared, emptied)
+    assert c.upload(items_from_file(MISSIONS_DIR / name)).ack == 0
+    assert (mission_current(conn, until=lambda seq_total: seq_total[0] == 0) or (None,))[0] == 0, sysid
+    f = fly_mission(conn, sysid, timeout_s=90.0)
+    command(conn, sysid, MAV.MAV_CMD_DO_SET_MODE, MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3)
+    cleared = [c.clear(0).ack for _ in range(3)]  # and nothing left behind for the module's next upload
+    emptied = mission_current(conn, until=lambda seq_total: seq_total[1] in (0, 65535))
+    assert emptied is not None and emptied[1] in (0, 65535), (sysid, cleared, emptied)
+    start = f.track[0][0]
+    speeds = [((a[0] + b[0]) / 2, math.hypot(b[1] - a[1], b[2] - a[2]) / ((b[0] - a[0]) / 1000))
+              for a, b in zip(f.track, f.track[3:]) if b[0] > a[0]]  # fmt: skip
+    slowest = {seq: round(min((v for t, v in speeds if abs(t - at) < 2500), default=math.nan), 2) for seq, at in f.reached_at_ms.items()}
+    return {
+        "reached": f.reached,
+        "reached s": {seq: round((t - start) / 1000, 1) for seq, t in f.reached_at_ms.items()},
+        "slowest m/s": slowest,
+        "top m/s": round(max(v for _, v in speeds), 2),
+        "disarmed s": None if f.disarmed_at_ms is None else round((f.disarmed_at_ms - start) / 1000, 1),
+        "landed from home m": round(math.hypot(f.track[-1][1] - f.track[0][1], f.track[-1][2] - f.track[0][2]), 1),
+        "modes": [m for m, _ in f.modes],
+    }
+
+
+def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles):
+    """missions/px4-sitl-box.waypoints and px4-sitl-survey.plan, each uploaded to PX4 and the plant
+    by the same client and flown side by side: the same items reached in order, the same
+    waypoints flown through and stopped at, both land home and disarm, in PX4's time."""
+    got = {}
+    for name in BUNDLED:
+        got[name] = on_both(vehicles, lambda conn, sysid: fly_bundled(conn, sysid, name))  # noqa: B023
+        for who in ("px4", "plant"):
+            print(name, who, got[name][who])
+    for name, expect in BUNDLED.items():
+        px4, plant = got[name]["px4"], got[name]["plant"]
+        n = len(items_from_file(MISSIONS_DIR / name))
+        assert px4["reached"] == list(range(1, n)), name  # the take-off and the speed change in one step
+        assert plant["reached"] == px4["reached"], name
+        # PX4 came down 0.2-0.9 m from where it armed after the box, 0.3-5.0 m after the survey
+        # (its landing there starts from 50 m away); the plant at 0.0 m
+        assert px4["landed from home m"] < 6.0 and plant["landed from home m"] < 2.5, name
+        for obs in (px4, plant):
+            assert obs["disarmed s"] is not None, name
+            assert obs["modes"][-1] == (4, 4), name  # Mission until disarmed
+            for seq in expect["through"]:
+                assert obs["slowest m/s"][seq] > STOPPED_M_S, (name, seq, obs["slowest m/s"])
+            for seq in expect["stops"]:
+                assert obs["slowest m/s"][seq] < STOPPED_M_S, (name, seq, obs["slowest m/s"])
+    # arming -> disarmed after the landing (simulation time). The box: PX4 71.7-80.1 s over eight
+    # runs (+-5 % about 76 s: EKF, land detector, the corners' speeds), the plant 64.8-65.6 s since
+    # it flies through waypoints as PX4 (before: 63.4-65.6 s, stopping at each but overshooting the
+    # cruise speed by a third); 0.82-0.91 of the same run's PX4, 0.81-0.91 over PX4's spread: the
+    # plant's legs are quicker (no drag: PX4's SIH peaks at 2.8-2.9 m/s at 3 set, the plant at
+    # 3.5), hence +-25 % as the short mission. The survey: PX4 161.6-163.4 s in the three runs flown from
+    # its first item (the others started at item 6, see fly_bundled), the plant 129.3-129.8 s,
+    # 0.79-0.80 of it: held within 30 % until more runs give PX4's spread.
+    box, survey = (got[name] for name in BUNDLED)
+    assert box["plant"]["disarmed s"] == pytest.approx(box["px4"]["disarmed s"], rel=0.25)
+    assert survey["plant"]["disarmed s"] == pytest.approx(survey["px4"]["disarmed s"], rel=0.3)
+
+
 def short_mission(home: tuple[int, int]) -> list[Item]:
     lat, lon = home
     north = lat + round(12.0 / 111195.0 * 1e7)  # 12 m north of home
@@ -232,15 +318,17 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
 
     got = on_both(vehicles, fly)
     for name in got:
-        print(name, got[name])
+        print("return", name, got[name])
     px4, plant = got["px4"], got["plant"]
     assert px4["return height m"] == pytest.approx(10.0, abs=1.0)
     for key in ("reposition north m", "reposition height m", "return height m", "north when at the return height m"):
         assert plant[key] == pytest.approx(px4[key], abs=1.5), key
     assert px4["landed from home m"] < 2.5 and plant["landed from home m"] < 2.5
     assert plant["modes"] == px4["modes"] == [(4, 3), (4, 5), (4, 3)]  # Hold, Return, Hold once disarmed
-    # RTL -> disarmed: PX4 25-29 s, the plant 19-20 s (no land detector delay, straight legs)
-    assert 0.4 * px4["return s"] <= plant["return s"] <= px4["return s"]
+    # RTL -> disarmed: PX4 25.3-30.5 s over seven runs (+-9 % about 28 s); the plant 24.4-26.0 s
+    # over six since its legs wait for a lagging vehicle as PX4's trajectory does (before:
+    # 19.3-19.8 s, 0.7 of PX4), 0.80-1.03 over PX4's spread, hence +-25 % as the missions
+    assert plant["return s"] == pytest.approx(px4["return s"], rel=0.25)
 
 
 #: The vehicle PX4 flies (its SIH quadrotor, sitl_plant/vehicles/px4-sih.toml): Orbit's speed

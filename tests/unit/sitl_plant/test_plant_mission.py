@@ -16,7 +16,7 @@ from offboard.missions import MISSIONS_DIR
 from sitl_plant import codec
 from sitl_plant.autopilot import Autopilot, Command, IdleTask, Mode
 from sitl_plant.mission import RETRY_S, TIMEOUT_S, MissionManager, TransferState
-from sitl_plant.navigator import Frame, Navigator, geodetic_to_ned, orbit_limits
+from sitl_plant.navigator import Frame, Navigator, corner_speed_m_s, geodetic_to_ned, orbit_limits
 from sitl_plant.params import plant_params
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
@@ -227,6 +227,34 @@ def test_the_box_mission_reaches_its_items_in_order_holds_and_lands():
     speeds = [math.dist(a[1], b[1]) / (b[0] - a[0]) for a, b in zip(trace, trace[1:]) if a[2] in (2, 3)]
     assert max(speeds) <= 3.0 + 1e-6 and max(speeds) > 2.9
     assert trace[-1][1][2] == 0.0 and nav.finished
+
+
+@pytest.mark.parametrize(("nxt", "want"), [((20.0, 20.0), math.sqrt(1.5 * 2.0)), ((0.0, 0.0), 0.0), ((20.0, -20.0), math.sqrt(1.5 * 2.0))])
+def test_the_corner_speed_is_px4s_from_the_angle_between_the_legs(nxt, want):
+    # PX4 v1.16 computeMaxSpeedInWaypoint: sqrt(a d tan(alpha / 2)), a = MPC_XY_TRAJ_P MPC_ACC_HOR
+    assert corner_speed_m_s((0.0, 0.0), (20.0, 0.0), nxt, 1.5, 2.0) == pytest.approx(want, abs=1e-6)
+    assert corner_speed_m_s((0.0, 0.0), (20.0, 0.0), (40.0, 0.0), 1.5, 2.0) > 100.0  # straight on
+
+
+def test_the_survey_flies_through_its_waypoints_and_stops_where_it_holds():
+    """PX4 v1.16 passed the survey's 90-degree corners at 1.0-1.5 m/s and stopped at the loiter
+    (test_the_bundled_missions_fly_on_both_as_px4_flies_them); before, the plant stopped at
+    every waypoint."""
+    from sitl_plant.mission import parse_item
+
+    items = items_from_file(MISSIONS_DIR / "px4-sitl-survey.plan")
+    nav = Navigator(plant_params(VehicleParams()), frame=HOME)
+    nav.load([parse_item(wire(item_int(it, s)), True, 0)[0] for s, it in enumerate(items)])
+    nav.observe((0.0, 0.0, 0.0), 0.0, True)
+    nav.start("mission", 0.0)
+    trace = fly(nav, 200.0)
+    speeds = [((a[0] + b[0]) / 2, math.dist(a[1][:2], b[1][:2]) / (b[0] - a[0])) for a, b in zip(trace, trace[10:])]  # 0.5 s chords
+    reached_at = {b[3]: b[0] for a, b in zip(trace, trace[1:]) if b[3] != a[3] and b[3] >= 0}
+    speed_at = {seq: min(v for t, v in speeds if abs(t - at) < 1.5) for seq, at in reached_at.items()}  # the slowest near it
+    for seq in range(3, 9):  # 90-degree corners, NAV_ACC_RAD 2 m: sqrt(0.5 * 3 * 2) = 1.7 m/s
+        assert 1.0 < speed_at[seq] <= 4.0 + 1e-6, (seq, speed_at)
+    assert speed_at[10] < 0.1  # the loiter (3 s) after waypoint 9 at the same place
+    assert nav.finished and trace[-1][1][2] == 0.0
 
 
 @pytest.mark.parametrize("name", ["px4-sitl-box.waypoints", "px4-sitl-survey.plan"])
