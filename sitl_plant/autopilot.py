@@ -56,7 +56,7 @@ import numpy as np
 
 from offboard.model import px4_modes as M
 from offboard.model.state import VehicleState
-from sitl_plant.follow import FollowTarget
+from sitl_plant.follow import FollowSetpoint, FollowTarget
 from sitl_plant.navigator import Frame, NavSetpoint, Navigator, land_speed_m_s
 from sitl_plant.params import ParamTable
 
@@ -417,7 +417,7 @@ class Autopilot:
         self.counters: dict[str, int] = {"setpoints": 0, "ignored_setpoints": 0, "manual_inputs": 0}
         self.navigator = Navigator(params)
         self.follow = FollowTarget(params)
-        self._follow_sp = None  # the Follow Target flight task's latest setpoint (None: hold)
+        self._follow_sp: FollowSetpoint | None = None  # the Follow Target flight task's latest setpoint (None: hold)
         self.origin = (0.0, 0.0, home_alt_amsl_m)  # lat, lon (deg), alt AMSL (m) of the local frame's origin
 
     # -- status ----------------------------------------------------------------------------------

@@ -124,14 +124,15 @@ class TargetEstimator:
             self._vel_old = vel_ned_m_s
         a = math.sqrt(sum(x * x for x in self.acc))
         if a > ACCELERATION_SATURATION_M_S2:
-            self.acc = tuple(x * ACCELERATION_SATURATION_M_S2 / a for x in self.acc)  # type: ignore[assignment]
+            k = ACCELERATION_SATURATION_M_S2 / a
+            self.acc = (self.acc[0] * k, self.acc[1] * k, self.acc[2] * k)
 
     @staticmethod
     def _fusable(now_s: float, value: Vec3, old: Vec3 | None, fused_s: float | None, interval_s: float) -> bool:
         """PX4's ``measurement_can_be_fused``: finite, at least ``interval_s`` after the last
         fusion, and changed (or the last fusion more than twice the interval ago)."""
         since = math.inf if fused_s is None else now_s - fused_s
-        changed = not _finite(old) or math.dist(value, old) > 2.0 * 1.2e-7  # type: ignore[arg-type]
+        changed = old is None or not _finite(old) or math.dist(value, old) > 2.0 * 1.2e-7  # 2 FLT_EPSILON
         return _finite(value) and since > interval_s and (changed or since > 2.0 * interval_s)
 
     def predict(self, now_s: float, dt: float) -> None:
