@@ -169,10 +169,10 @@ def test_follow_target_is_entered_and_reported_as_px4(runs):
 
 
 def test_the_vehicle_keeps_px4s_place_behind_the_target(runs):
-    """Measured over 10-20 s after the first report, in eleven runs at speed 4 on a loaded 2-core
-    machine (load 4-11): PX4 8.14-8.39 m from the target, its mean bearing within 1.6 deg of
-    straight behind (at worst 3.5 deg), 7.71-8.14 m above where it armed, its heading within 1.7
-    deg of the target's course (at worst 3.6 deg); the plant 7.99-8.05 m, 0.0 deg, 8.00 m, 0.0 deg.
+    """Measured over 10-20 s after the first report, in fourteen runs at speed 4 on a loaded 2-core
+    machine (load 4-11): PX4 8.14-8.39 m from the target, its mean bearing within 2.2 deg of
+    straight behind (at worst 5.8 deg), 7.71-8.31 m above where it armed, its heading within 2.0
+    deg of the target's course (at worst 6.0 deg); the plant 7.99-8.05 m, 0.0 deg, 8.00 m, 0.0 deg.
     PX4 trails by a few tenths more: SIH's drag (SIH_KDV) against its position loop, which the
     plant's default vehicle hardly has."""
     px4, plant = runs
@@ -186,17 +186,17 @@ def test_the_vehicle_keeps_px4s_place_behind_the_target(runs):
     name = "steady: heading off the target's course (deg)"
     assert abs(g[name] - f[name]) < 5.0
     for obs in runs:
-        assert obs.figures["steady: worst bearing off behind (deg)"] < 8.0
-        assert obs.figures["steady: worst heading off the course (deg)"] < 8.0
+        assert obs.figures["steady: worst bearing off behind (deg)"] < 10.0
+        assert obs.figures["steady: worst heading off the course (deg)"] < 10.0
 
 
 def test_a_lost_target_is_dead_reckoned_then_the_vehicle_holds_behind_it_as_px4(runs):
     """The estimate goes on 3 s at 1.5 m/s, then stops, and the vehicle holds 8 m behind that:
-    3.5 m behind the last report. PX4 ended 3.20-3.90 m behind in eleven runs, the plant
+    3.5 m behind the last report. PX4 ended 3.20-3.90 m behind in fourteen runs, the plant
     3.59-5.02 m: the estimator's acceleration (2 K / dt^2 of each position innovation, and the
     reports' delivery jitters on a loaded machine) is dead-reckoned for those 3 s too, 0.5 a t^2,
     about a metre either way. Neither says anything nor changes mode (PX4 v1.16 keeps Follow
-    Target, 145 / 4); PX4's hold wanders at up to 0.23 m/s, the plant's settles."""
+    Target, 145 / 4); PX4's hold wanders at up to 0.3 m/s, the plant's settles."""
     px4, plant = runs
     f, g = px4.figures, plant.figures
     name = "lost: behind the last report (m)"
