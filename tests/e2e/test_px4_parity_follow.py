@@ -24,11 +24,9 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink import mavutil
 
-from bench.px4sitl import SKIP_REASON, px4_launcher
 from helpers.commander import AUTO_LOITER, Client, fly_side_by_side, mode_of
 
-pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow,
-              pytest.mark.skipif(px4_launcher() is None, reason=SKIP_REASON)]  # fmt: skip
+pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 mavlink = mavutil.mavlink
 SPEED = 4.0
