@@ -25,6 +25,11 @@ what to fly. What PX4 v1.16 SITL does was measured (docs/parity/commander.md) an
 - **Return** (AUTO_RTL), **Mission** (AUTO_MISSION) and **Orbit** (POSCTL sub mode 1, entered
   by MAV_CMD_DO_ORBIT) fly what the navigator (sitl_plant/navigator.py) says; so does Hold after
   MAV_CMD_DO_REPOSITION. Return climbs to the return height, comes home, descends and lands.
+- **Follow Target** (AUTO_FOLLOW_TARGET, 4/8): follow the target that FOLLOW_TARGET messages
+  report, at ``FLW_TGT_DST`` and ``FLW_TGT_FA`` from it and ``FLW_TGT_HT`` high, the nose on it
+  (PX4's FlightTaskAutoFollowTarget, sitl_plant/follow.py). As PX4 v1.16: accepted disarmed but
+  arming refused in it (system status UNINIT); armed it is accepted with or without a target
+  (without one it holds); base_mode 17, armed 145 (measured).
 - **Offboard**: fly the latest setpoint. Offboard loss (no setpoint for ``COM_OF_LOSS_T``, armed)
   is PX4's mode fallback (``failsafe.cpp``, ``checkModeFallback``): at once, the action of
   ``COM_OBL_RC_ACT`` (0 Position, 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate,
@@ -51,6 +56,7 @@ import numpy as np
 
 from offboard.model import px4_modes as M
 from offboard.model.state import VehicleState
+from sitl_plant.follow import FollowSetpoint, FollowTarget
 from sitl_plant.navigator import Frame, NavSetpoint, Navigator, land_speed_m_s
 from sitl_plant.params import ParamTable
 
@@ -113,6 +119,7 @@ class Mode(Enum):
     AUTO_MISSION = (M.MAIN_AUTO, M.SUB_AUTO_MISSION)
     AUTO_RTL = (M.MAIN_AUTO, M.SUB_AUTO_RTL)
     AUTO_LAND = (M.MAIN_AUTO, M.SUB_AUTO_LAND)
+    AUTO_FOLLOW_TARGET = (M.MAIN_AUTO, M.SUB_AUTO_FOLLOW_TARGET)
     ORBIT = (M.MAIN_POSCTL, M.SUB_POSCTL_ORBIT)  # entered by MAV_CMD_DO_ORBIT
     ACRO = (M.MAIN_ACRO, 0)
     OFFBOARD = (M.MAIN_OFFBOARD, 0)
@@ -166,7 +173,7 @@ G_M_S2 = 9.80665  # PX4's CONSTANTS_ONE_G
 
 def base_mode_flags(mode: Mode, armed: bool, offboard_signal: bool) -> int:
     """The heartbeat's ``base_mode`` as PX4 v1.16 sends it (measured): CUSTOM_MODE_ENABLED, plus
-    STABILIZE|GUIDED|AUTO in the auto modes (29, armed 157), MANUAL_INPUT|STABILIZE in Position,
+    STABILIZE|GUIDED|AUTO in the auto modes (29, armed 157) but Follow Target (STABILIZE: 17, 145), MANUAL_INPUT|STABILIZE in Position,
     Altitude, Stabilized and Manual (81 / 209), MANUAL_INPUT in Acro, and in Offboard STABILIZE
     once setpoints have come (1 before, 17 / 145 after: PX4 keeps the last offboard control mode,
     so a vehicle disarmed by the offboard-loss failsafe reports 17); SAFETY_ARMED when armed.
@@ -183,8 +190,8 @@ def base_mode_flags(mode: Mode, armed: bool, offboard_signal: bool) -> int:
         flags |= MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
     elif mode in _NEEDS_MANUAL_INPUT or mode is Mode.ORBIT:  # Orbit as Position (not measured)
         flags |= MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | MAV_MODE_FLAG_STABILIZE_ENABLED
-    elif mode is Mode.OFFBOARD and offboard_signal:
-        flags |= MAV_MODE_FLAG_STABILIZE_ENABLED
+    elif (mode is Mode.OFFBOARD and offboard_signal) or mode is Mode.AUTO_FOLLOW_TARGET:
+        flags |= MAV_MODE_FLAG_STABILIZE_ENABLED  # Follow Target: 17 / 145 (PX4 v1.16, measured)
     return flags
 
 
@@ -409,6 +416,8 @@ class Autopilot:
         self._now = 0.0
         self.counters: dict[str, int] = {"setpoints": 0, "ignored_setpoints": 0, "manual_inputs": 0}
         self.navigator = Navigator(params)
+        self.follow = FollowTarget(params)
+        self._follow_sp: FollowSetpoint | None = None  # the Follow Target flight task's latest setpoint (None: hold)
         self.origin = (0.0, 0.0, home_alt_amsl_m)  # lat, lon (deg), alt AMSL (m) of the local frame's origin
 
     # -- status ----------------------------------------------------------------------------------
@@ -488,6 +497,13 @@ class Autopilot:
             m.rc_lost_act_at_s = None
             self.failsafe = False
 
+    def on_follow_target(self, pos_ned_m: tuple[float, float, float], vel_ned_m_s: tuple[float, float, float], now_s: float) -> None:
+        """A FOLLOW_TARGET report (the server has turned its global position into local NED): the
+        target estimator of Follow Target takes it while that mode is on (PX4 builds the estimator
+        with the flight task)."""
+        if self.mode is Mode.AUTO_FOLLOW_TARGET:
+            self.follow.report(now_s, pos_ned_m, vel_ned_m_s)
+
     def observe(self, truth: VehicleState) -> None:
         """Take in the vehicle's state (the autopilot's estimate is the truth here)."""
         self._pos = truth.pos_ned_m
@@ -562,6 +578,9 @@ class Autopilot:
                 m.hold_pos = (m.hold_pos[0], m.hold_pos[1], target_down)
                 texts.append(StatusText(MAV_SEVERITY_INFO, "Takeoff complete, holding"))
         texts.extend(self._navigate(now_s))
+        if self.mode is Mode.AUTO_FOLLOW_TARGET:
+            here = (float(self._pos[0]), float(self._pos[1]), float(self._pos[2]))
+            self._follow_sp = self.follow.step(now_s, here)
         if self.armed and self.mode in _NEEDS_MANUAL_INPUT:
             self._integrate_sticks(now_s, dt)
         texts.extend(self._auto_disarm(now_s))
@@ -583,6 +602,9 @@ class Autopilot:
             return PositionTask((m.hold_pos[0], m.hold_pos[1], self._takeoff_down_m()), m.hold_yaw, max_climb_m_s=limit)
         if mode in _NEEDS_MANUAL_INPUT:
             return self._manual_task(now)
+        if mode is Mode.AUTO_FOLLOW_TARGET and self._follow_sp is not None and not self._landed:
+            f = self._follow_sp
+            return PositionTask(f.pos_ned_m, f.yaw_rad, vel_ned_m_s=f.vel_ned_m_s, acc_ff_ne_m_s2=f.acc_ff_ne_m_s2)
         nav = self._nav_setpoint()
         if nav is not None:
             if self._landed and (nav.landing or (not m.has_taken_off and nav.max_climb_m_s is None)):
@@ -595,7 +617,7 @@ class Autopilot:
             pos = nav.pos_ned_m if nav.hold_xy else (None, None, nav.pos_ned_m[2])
             return PositionTask(pos, nav.yaw_rad, descend_m_s=nav.descend_m_s, max_climb_m_s=climb, vel_ned_m_s=nav.vel_ned_m_s,
                                 acc_ff_ne_m_s2=nav.acc_ff_ne_m_s2)  # fmt: skip
-        if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER) or m.rtl_landing):
+        if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER, Mode.AUTO_FOLLOW_TARGET) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
             return PositionTask(m.hold_pos, m.hold_yaw, descend_m_s=self.land_speed_m_s())
@@ -768,6 +790,8 @@ class Autopilot:
         """Why arming would be refused now, or None (PX4's pre-arm checks, in miniature)."""
         if self.failures:
             return f"{', '.join(sorted(self.failures))} unhealthy (simulated failure)"
+        if self.mode is Mode.AUTO_FOLLOW_TARGET:
+            return "Resolve system health failures first"  # PX4 v1.16's words (measured): mode_req_prevent_arming
         if self.mode not in _ARMABLE:
             return f"not possible in {self.mode.label} mode"
         if not self.mode_can_run(self.mode, now_s):
@@ -969,6 +993,9 @@ class Autopilot:
         elif mode is Mode.AUTO_RTL:
             nav.frame = self.frame()
             nav.start("rtl", now_s)
+        self._follow_sp = None
+        if mode is Mode.AUTO_FOLLOW_TARGET:
+            self.follow.activate(self._yaw, self.home_ned_m[2], now_s)
 
     def _land_detector(self, now_s: float) -> list[StatusText]:
         """PX4's land detector in miniature: landed LNDMC_TRIG_TIME + LAND_DETECT_WINDDOWN_S after

@@ -275,6 +275,13 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
         ParamSpec("RTL_LAND_DELAY", 0.0, min=-1.0, max=300.0, unit="s", description="Return: wait at RTL_DESCEND_ALT before landing (< 0: for ever)"),
         ParamSpec("RTL_MIN_DIST", 10.0, min=0.5, max=100.0, unit="m", description="Return: within this distance of home the cone (RTL_CONE_ANG) lowers the return height"),
         ParamSpec("RTL_CONE_ANG", 45, kind=INT, min=0, max=90, unit="deg", description="Return: half angle of the cone over home that sets the return height near home (0: always RTL_RETURN_ALT)"),
+        # Follow Target (sitl_plant/follow.py): PX4 v1.16's names, defaults and ranges (follow_target_params.yaml)
+        ParamSpec("FLW_TGT_HT", 8.0, min=8.0, unit="m", description="Follow Target: height above home (FLW_TGT_ALT_M 0, 1) or above the target (2)"),
+        ParamSpec("FLW_TGT_DST", 8.0, min=1.0, unit="m", description="Follow Target: horizontal distance from the target"),
+        ParamSpec("FLW_TGT_FA", 180.0, min=-180.0, max=180.0, unit="deg", description="Follow Target: angle from the target's course, clockwise (180: behind)"),
+        ParamSpec("FLW_TGT_ALT_M", 0, INT, choices=(0, 1, 2), description="Follow Target: height above 0 home, 1 the ground (flat: home), 2 the target"),
+        ParamSpec("FLW_TGT_MAX_VEL", 5.0, min=0.0, max=20.0, unit="m/s", description="Follow Target: top tangential speed when the orbit angle changes"),
+        ParamSpec("FLW_TGT_RS", 0.1, min=0.0, max=1.0, description="Follow Target: responsiveness of the target estimator (lower follows changes faster, filters less noise)"),
     ]
 
 

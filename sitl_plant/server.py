@@ -610,6 +610,14 @@ class Plant:
         sticks = ManualInput(msg.x / 1000.0, msg.y / 1000.0, msg.z / 1000.0, msg.r / 1000.0)
         self.autopilot.on_manual_input(sticks, self.time_s)
 
+    def _on_follow_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
+        """FOLLOW_TARGET (#144): the target's latitude, longitude (degE7), altitude AMSL (m) and
+        velocity NED (m/s), as PX4's receiver takes them (every field, whatever est_capabilities
+        says), for Follow Target (sitl_plant/follow.py)."""
+        pos = self.autopilot.frame().to_ned(msg.lat * 1e-7, msg.lon * 1e-7, float(msg.alt), relative=False)
+        vel = (float(msg.vel[0]), float(msg.vel[1]), float(msg.vel[2]))
+        self.autopilot.on_follow_target(pos, vel, self.time_s)
+
     def _on_heartbeat(self, index: int, msg: mavlink.MAVLink_message) -> None:
         pass  # a client's presence; nothing to do (the link already learnt its address)
 
@@ -863,6 +871,7 @@ _HANDLERS: dict[str, Callable[[Plant, int, mavlink.MAVLink_message], None]] = {
     "STATUSTEXT": Plant._on_statustext,
     **{kind: Plant._on_mission for kind in _MISSION_MESSAGES},
     "MANUAL_CONTROL": Plant._on_manual_control,
+    "FOLLOW_TARGET": Plant._on_follow_target,
 }
 
 

@@ -386,35 +386,6 @@ def test_reposition_from_the_ground_takes_off_orbit_is_taken_disarmed_refused_ar
     assert plant.autopilot.mode is Mode.AUTO_LOITER and plant._truth.pos_ned_m[2] < -1.0
 
 
-def test_follow_target_which_the_plant_does_not_fly_is_refused_cleanly():
-    """DO_SET_MODE to PX4's AUTO_FOLLOW_TARGET (main 4, sub 8): the receiver's ACCEPTED, then
-    DENIED with "Unknown mode"; the mode stays, disarmed and armed, and the plant goes on (PX4
-    v1.16 SITL has the mode: disarmed it answered ACCEPTED twice and switched, docs/parity/commander.md)."""
-    from sitl_plant.server import API
-
-    plant = make_plant()
-    follow = wire(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 8, 0, 0, 0, 0))
-    for armed in (False, True):
-        if armed:
-            plant.handle(API, wire(mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
-            assert plant.autopilot.armed
-        plant.outbox[API].clear()
-        before = plant.autopilot.mode
-        plant.handle(API, follow)
-        acks = [(m.command, m.result) for m in plant.outbox[API] if m.get_type() == "COMMAND_ACK"]
-        assert acks == [(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_ACCEPTED), (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_DENIED)]
-        texts = [m.text for m in plant.outbox[API] if m.get_type() == "STATUSTEXT"]
-        assert texts == ["Unknown mode"]
-        assert plant.autopilot.mode is before is Mode.AUTO_LOITER
-    plant.handle(API, wire(mavlink.MAVLink_set_mode_message(1, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, (4 << 16) | (8 << 24))))
-    plant.outbox[API].clear()
-    plant.handle(API, wire(mavlink.MAVLink_follow_target_message(0, 1, 473977420, 85455940, 500.0, [0.0] * 3, [0.0] * 3, [1.0, 0.0, 0.0, 0.0], [0.0] * 3, [0.0] * 3, 0)))
-    assert plant.outbox[API] == []  # a FOLLOW_TARGET message: ignored
-    for _ in range(10):
-        plant.advance(plant.tick_steps)
-    assert plant.autopilot.mode is Mode.AUTO_LOITER and plant.autopilot.armed
-
-
 def _at(down_m: float = 0.0) -> VehicleState:
     z = np.zeros(3)
     return VehicleState(0.0, np.array([0.0, 0.0, down_m]), z, z, z, z, z, np.array([1.0, 0.0, 0.0, 0.0]), on_ground=down_m >= 0.0)
