@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from sitl_plant.dynamics import batch
+from sitl_plant.dynamics import batch, rigid_body
 from sitl_plant.dynamics.batch import _jit, _speeds_for, physics_scratch, physics_step
 from sitl_plant.dynamics.rigid_body import STATE_SIZE
 
@@ -171,6 +171,9 @@ def warm_up() -> None:
 def compiled_ready() -> bool:
     """Whether the plant's compiled kernels (rigid body, PX4 loop) can be loaded from numba's cache."""
     return batch.is_cached(batch._advance, advance_px4)
+
+
+batch.drop_stale_cache(_qmul, (batch.__file__, rigid_body.__file__))  # batch's physics is built into these kernels
 
 
 def compile_all() -> None:

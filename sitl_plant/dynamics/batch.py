@@ -859,6 +859,54 @@ def is_cached(*kernels: CompiledKernel) -> bool:
     return True
 
 
+def stale_cache_files(cache_dir: str | os.PathLike[str], module_stem: str, depends_on: tuple[str, ...]) -> list[str]:
+    """The files of numba's on-disk cache in ``cache_dir`` of the kernels of module
+    ``module_stem`` (``<stem>.<function>-<line>.py3xx.nbi`` / ``.nbc``) older than the newest of
+    the source files ``depends_on``.
+
+    numba keys a cached kernel to its own module's file only. A kernel that has another module's
+    compiled functions built into it (``px4_kernel``'s have the physics of this module; this
+    module's have ``rigid_body``'s equations) would after an edit of that other file keep serving
+    the old machine code: stale physics, with nothing said (one edit here left ``px4_kernel``
+    1e-14 off its own Python loop, which its test caught)."""
+    try:
+        newest = max(os.path.getmtime(f) for f in depends_on)
+        names = os.listdir(cache_dir)
+    except (OSError, ValueError):
+        return []
+    out = []
+    for name in names:
+        if name.startswith(module_stem + ".") and name.endswith((".nbi", ".nbc")):
+            path = os.path.join(cache_dir, name)
+            try:
+                if os.path.getmtime(path) < newest:
+                    out.append(path)
+            except OSError:  # another process removed it first
+                continue
+    return out
+
+
+def drop_stale_cache(kernel: CompiledKernel, depends_on: tuple[str, ...]) -> None:
+    """Remove the cached machine code of ``kernel``'s module that is older than any of
+    ``depends_on`` (``stale_cache_files``), so that numba compiles those kernels again at their
+    first call. Call it where the module's kernels are defined, before any is called."""
+    if not NUMBA:
+        return
+    try:
+        cache_dir = kernel._cache._cache_path
+    except AttributeError:
+        return
+    stem = os.path.splitext(os.path.basename(kernel.py_func.__code__.co_filename))[0]
+    for path in stale_cache_files(cache_dir, stem, depends_on):
+        try:
+            os.remove(path)
+        except OSError:  # another process (an xdist worker, a Dask worker) removed it first
+            pass
+
+
+drop_stale_cache(_advance_many_kernel, (rigid_body.__file__,))  # this module's kernels have rigid_body's equations built in
+
+
 def warm_up() -> None:
     """Load (or compile) the one-vehicle kernel now, not at the first physics step (numba loads
     its cached machine code lazily, which takes a good part of a second)."""

@@ -236,3 +236,28 @@ def test_advance_many_on_one_thread_equals_the_parallel_kernel(mode: int) -> Non
         assert np.array_equal(a, b)
     assert not np.array_equal(one[0][active], x0[active])  # they flew
     assert np.array_equal(one[0][~active], x0[~active])  # and only the active ones
+
+
+def test_a_kernel_cache_older_than_a_source_built_into_it_is_stale(tmp_path) -> None:
+    """numba keys a module's cached kernels to that module's file only: ``stale_cache_files`` finds
+    the module's cache files older than the newest source compiled into them (px4_kernel's hold
+    batch's physics), which ``drop_stale_cache`` removes at import so numba compiles them again."""
+    import os
+
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    dep = tmp_path / "batch.py"
+    dep.write_text("# the physics")
+    names = ["px4_kernel._qmul-29.py311.nbi", "px4_kernel._qmul-29.py311.1.nbc", "batch._rates-10.py311.nbi",
+             "px4_kernel.cpython-311.pyc"]  # fmt: skip
+    for name in names:
+        (cache / name).write_bytes(b"")
+    old = os.path.getmtime(dep) - 60.0
+    for name in names:
+        os.utime(cache / name, (old, old))
+    stale = sorted(os.path.basename(p) for p in batch.stale_cache_files(cache, "px4_kernel", (str(dep),)))
+    assert stale == sorted(names[:2])  # its own kernels' index and data; not another module's, not the .pyc
+    new = os.path.getmtime(dep) + 60.0
+    os.utime(cache / names[0], (new, new))
+    assert [os.path.basename(p) for p in batch.stale_cache_files(cache, "px4_kernel", (str(dep),))] == [names[1]]
+    assert batch.stale_cache_files(tmp_path / "absent", "px4_kernel", (str(dep),)) == []
