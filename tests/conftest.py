@@ -56,13 +56,13 @@ def parity_finding(request: pytest.FixtureRequest) -> Iterator[Recorder]:
     """``parity_finding(key, behaviour, px4=..., plant=...)``: one behaviour a px4 parity test
     compared, for docs/parity/measured.md (``make parity``; bench/parity.py). Only a list append
     during the test; with ``PARITY_FINDINGS=DIR`` set the test's findings go to a file in DIR as it
-    ends, with its outcome and the module's PX4 speed (its ``SPEED``)."""
+    ends, with its outcome and the module's PX4 speed (its ``PX4_SPEED``, else ``SPEED``)."""
     recorder = Recorder(request.node.name)
     yield recorder
     folder = os.environ.get(PARITY_ENV)
     if folder and recorder.findings:
         recorder.write(Path(folder), request.node.nodeid, outcome=request.node.stash.get(_OUTCOME, "unknown"),
-                       line=request.node.location[1] or 0, px4_speed=getattr(request.module, "SPEED", None))  # fmt: skip
+                       line=request.node.location[1] or 0, px4_speed=getattr(request.module, "PX4_SPEED", getattr(request.module, "SPEED", None)))  # fmt: skip
 
 
 @pytest.fixture
