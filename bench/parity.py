@@ -72,14 +72,15 @@ def area_of(key: str) -> str:
 
 
 def plain(value: Any) -> Any:
-    """``value`` as strict JSON can hold it: tuples as lists, numpy scalars as Python numbers,
-    NaN and infinities as the strings ``"nan"``, ``"inf"``, ``"-inf"``, anything else as its text."""
+    """``value`` as strict JSON can hold it: tuples as lists, numpy scalars as Python numbers, floats
+    to six significant digits, NaN and infinities as the strings ``"nan"``, ``"inf"``, ``"-inf"``,
+    anything else as its text."""
     if value is None or isinstance(value, (bool, str)):
         return value
     if isinstance(value, int):
         return int(value)
-    if isinstance(value, float):
-        return value if math.isfinite(value) else str(value)
+    if isinstance(value, float):  # six significant digits: a measurement, not float noise
+        return float(f"{value:.6g}") if math.isfinite(value) else str(value)
     if hasattr(value, "item") and callable(value.item) and getattr(value, "shape", None) == ():
         return plain(value.item())  # a numpy scalar
     if isinstance(value, (list, tuple)):
@@ -149,9 +150,10 @@ def merge(records: list[dict], *, commit: str = "unknown", dirty: bool = False) 
             order[key] = min(order.get(key, place), place)
             for side in ("px4", "plant"):
                 if side in f:
-                    if side in row and row[side] != f[side]:
-                        raise FindingsError(f"finding {key!r}: {side} is {row[side]!r} and {f[side]!r} (two behaviours, one key?)")
-                    row[side] = f[side]
+                    value = plain(f[side])
+                    if side in row and row[side] != value:
+                        raise FindingsError(f"finding {key!r}: {side} is {row[side]!r} and {value!r} (two behaviours, one key?)")
+                    row[side] = value
             if rec["test"] not in row["tests"]:
                 row["tests"].append(rec["test"])
             if rec["outcome"] != "passed" and rec["test"] not in row["failed"]:
@@ -207,8 +209,8 @@ def cell(value: Any, nested: bool = False) -> str:
 def _row(f: dict) -> str:
     px4 = cell(f["px4"]) if "px4" in f else "(not recorded)"
     plant = cell(f["plant"]) if "plant" in f else "(not recorded)"
-    if plant == px4 and "px4" in f:
-        plant = "the same"
+    if "px4" in f and "plant" in f and f["px4"] == f["plant"]:
+        plant = "the same"  # equal values: numbers that only round alike keep their figures
     failed = set(f.get("failed", ()))
     tests = ", ".join(f"`{t}`" + (" (failed)" if t in failed else "") for t in f["tests"])
     return f"| {cell(f['behaviour'])} | {px4} | {plant} | {tests} |"

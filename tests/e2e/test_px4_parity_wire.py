@@ -174,7 +174,7 @@ def param_text(seen: tuple[int, float] | None) -> str:
                 mavlink.MAV_PARAM_TYPE_UINT16, mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_UINT8):  # fmt: skip
         value = struct.unpack("<i", struct.pack("<f", value))[0]
     name = mavlink.enums["MAV_PARAM_TYPE"][kind].name.removeprefix("MAV_PARAM_TYPE_") if kind in mavlink.enums["MAV_PARAM_TYPE"] else kind
-    return f"{value:g} ({name})"
+    return f"{value} ({name})" if isinstance(value, int) else f"{value:g} ({name})"
 
 
 @pytest.mark.parametrize("link", [0, 1], ids=["api", "gcs"])
