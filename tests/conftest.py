@@ -8,12 +8,15 @@ test is about PX4: marked ``e2e`` here, whatever the file says). Helpers are ``t
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from bench.px4sitl import SKIP_REASON, px4_launcher
+from bench.parity import ENV as PARITY_ENV
+from bench.parity import Recorder
 from helpers import FakeClock
 
 E2E_DIR = Path(__file__).resolve().parent / "e2e"
@@ -45,6 +48,30 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     line per test)."""
     if item.get_closest_marker("px4") is not None and px4_launcher() is None:
         pytest.skip(SKIP_REASON)
+
+
+_OUTCOME = pytest.StashKey[str]()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo) -> Iterator[None]:
+    report = (yield).get_result()
+    if report.when == "call" or (report.when == "setup" and not report.passed):
+        item.stash[_OUTCOME] = report.outcome
+
+
+@pytest.fixture
+def parity_finding(request: pytest.FixtureRequest) -> Iterator[Recorder]:
+    """``parity_finding(key, behaviour, px4=..., plant=...)``: one behaviour a px4 parity test
+    compared, for docs/parity/measured.md (``make parity``; bench/parity.py). Only a list append
+    during the test; with ``PARITY_FINDINGS=DIR`` set the test's findings go to a file in DIR as it
+    ends, with its outcome and the module's PX4 speed (its ``PX4_SPEED``, else ``SPEED``)."""
+    recorder = Recorder(request.node.name)
+    yield recorder
+    folder = os.environ.get(PARITY_ENV)
+    if folder and recorder.findings:
+        recorder.write(Path(folder), request.node.nodeid, outcome=request.node.stash.get(_OUTCOME, "unknown"),
+                       line=request.node.location[1] or 0, px4_speed=getattr(request.module, "PX4_SPEED", getattr(request.module, "SPEED", None)))  # fmt: skip
 
 
 @pytest.fixture

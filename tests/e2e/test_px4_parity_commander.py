@@ -27,7 +27,9 @@ from helpers.commander import (
     POSCTL,
     Client,
     fly_side_by_side,
+    heartbeat_text,
     mode_of,
+    results_text,
 )
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
@@ -171,6 +173,11 @@ def fly_script(c: Client, obs: Observed) -> None:
     c.sticks = None
 
 
+def figures(runs, name: str) -> tuple[float, float]:
+    """(PX4's, the plant's) figure ``name``, for the parity findings (NaN where one has none)."""
+    return runs[0].figures.get(name, NAN), runs[1].figures.get(name, NAN)
+
+
 def _run(c: Client) -> Observed:
     obs = Observed()
     fly_script(c, obs)
@@ -186,7 +193,11 @@ def runs(tmp_path_factory):
     return result
 
 
-def test_mode_changes_while_disarmed_are_accepted_and_arming_refused(runs):
+def test_mode_changes_while_disarmed_are_accepted_and_arming_refused(runs, parity_finding):
+    px4, plant = runs
+    parity_finding("commander.arm_without_health", "arming in Offboard, disarmed, no setpoints: COMMAND_ACK and STATUSTEXT",
+                   *(f"{results_text(o.acks['arm in offboard without setpoints'])}; "
+                     + "; ".join(o.texts["arm in offboard without setpoints"][:1]) for o in runs))  # fmt: skip
     for obs in runs:
         for what in ("offboard disarmed", "position disarmed", "land disarmed", "hold disarmed"):
             assert obs.acks[what] == [0, 0], what
@@ -194,24 +205,35 @@ def test_mode_changes_while_disarmed_are_accepted_and_arming_refused(runs):
         assert any("Arming denied: Resolve system health failures firs" in text for text in obs.texts["arm in offboard without setpoints"])
 
 
-def test_every_set_mode_gets_two_acks_and_the_last_is_the_commanders(runs):
+def test_every_set_mode_gets_two_acks_and_the_last_is_the_commanders(runs, parity_finding):
     px4, plant = runs
+    for what in px4.acks:
+        parity_finding(f"commander.acks.{what}", f"{what}: the COMMAND_ACKs", results_text(px4.acks[what]),
+                       results_text(plant.acks.get(what, [])))  # fmt: skip
     assert plant.acks == px4.acks
     assert px4.acks["offboard armed without setpoints"] == [mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED]
     assert px4.acks["position armed without sticks"] == [mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED]
     assert px4.acks["position armed with sticks"] == [0, 0]
 
 
-def test_heartbeat_base_mode_and_system_status_in_every_mode(runs):
+def test_heartbeat_base_mode_and_system_status_in_every_mode(runs, parity_finding):
     px4, plant = runs
+    for what in px4.heartbeat:
+        parity_finding(f"commander.heartbeat.{what}", f"{what}: heartbeat mode, base_mode / system_status",
+                       heartbeat_text(px4.heartbeat[what]), heartbeat_text(plant.heartbeat.get(what)))  # fmt: skip
     assert px4.heartbeat["offboard disarmed, no setpoints"] == (1, OFFBOARD, 0)
     assert px4.heartbeat["offboard-loss failsafe"] == (209, POSCTL, 5)
     for what, seen in px4.heartbeat.items():
         assert plant.heartbeat[what] == seen, what
 
 
-def test_offboard_loss_goes_to_position_and_descends_at_land_speed(runs):
+def test_offboard_loss_goes_to_position_and_descends_at_land_speed(runs, parity_finding):
     px4, plant = runs
+    parity_finding("commander.offboard_loss.failsafe_delay", "offboard loss (COM_OBL_RC_ACT 0): \"Failsafe activated\" "
+                   "after the last setpoint, less COM_OF_LOSS_T (s)",
+                   *figures(runs, "offboard loss: failsafe after the last setpoint, less COM_OF_LOSS_T (s)"))  # fmt: skip
+    parity_finding("commander.offboard_loss.descent", "offboard loss (COM_OBL_RC_ACT 0): descent in Position without sticks (m/s)",
+                   *figures(runs, "offboard loss: descent rate without sticks (m/s)"))  # fmt: skip
     for obs in runs:
         assert obs.heartbeat["offboard-loss failsafe"][1] == POSCTL
     # both at COM_OF_LOSS_T (PX4: 0.0-0.3 s later on an idle machine; its MAVLink timing is the
@@ -223,8 +245,13 @@ def test_offboard_loss_goes_to_position_and_descends_at_land_speed(runs):
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.25)
 
 
-def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs):
+def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs, parity_finding):
     px4, plant = runs
+    parity_finding("commander.takeoff.lift_off", "takeoff: command to 0.5 m up (s)", *figures(runs, "takeoff: 0.5 m up after the command (s)"))
+    parity_finding("commander.takeoff.climb_rate", "takeoff: top climb rate (m/s)", *figures(runs, "takeoff: top climb rate (m/s)"))
+    parity_finding("commander.takeoff.to_hold", "takeoff: command to Hold (s; 1 Hz heartbeats)", *figures(runs, "takeoff: to Hold after the command (s)"))
+    parity_finding("commander.takeoff.climb_to_hold", "takeoff: 0.5 m up to Hold (s)", *figures(runs, "takeoff: 0.5 m up to Hold (s)"))
+    parity_finding("commander.takeoff.height", "takeoff: height (m; MIS_TAKEOFF_ALT 2.5)", *figures(runs, "takeoff: height (m)"))
     # PX4 leaves the ground 2.3-4.2 s after the command (the old plant: at once, 0.5 m up in 0.6 s)
     name = "takeoff: 0.5 m up after the command (s)"
     assert abs(plant.figures[name] - px4.figures[name]) < 1.5
@@ -238,8 +265,14 @@ def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs):
         assert obs.figures["takeoff: height (m)"] == pytest.approx(2.5, abs=0.3)
 
 
-def test_land_follows_px4s_speed_profile(runs):
+def test_land_follows_px4s_speed_profile(runs, parity_finding):
     px4, plant = runs
+    parity_finding("commander.land.from", "land: from (m)", *figures(runs, "land: from (m)"))
+    parity_finding("commander.land.descent_high", "land: descent rate above MPC_LAND_ALT1 (m/s)",
+                   *figures(runs, "land: descent rate above MPC_LAND_ALT1 (m/s)"))  # fmt: skip
+    for h in ("10", "5", "1"):
+        parity_finding(f"commander.land.below_{h}_m", f"land: command to below {h} m (s)", *figures(runs, f"land: below {h} m after the command (s)"))
+    parity_finding("commander.land.disarmed", "land: command to disarmed (s; the land detector)", *figures(runs, "land: disarmed after the command (s)"))
     assert plant.figures["land: from (m)"] == pytest.approx(px4.figures["land: from (m)"], abs=1.0)
     # down to 1 m (the speed profile): PX4 17.7-20.3 s (between 5 and 1 m its EKF-measured speed
     # was 0.49-0.70 m/s over the runs), the plant 17.3 s; the old plant (0.7 m/s throughout) 27 s
@@ -254,18 +287,24 @@ def test_land_follows_px4s_speed_profile(runs):
     assert plant.figures[name] == pytest.approx(px4.figures[name], rel=0.15)
 
 
-def test_position_mode_sticks(runs):
+def test_position_mode_sticks(runs, parity_finding):
     """The same stick scaling (MPC_Z_VEL_MAX_UP 3 m/s, MPC_VEL_MANUAL / MPC_ACC_HOR): PX4's SIH
     vehicle has a linear drag of 1 N s/m on 1 kg (SIH_KDV), 0.3 g at 3 m/s, which its velocity
     loops' integrators work off slowly; the plant's vehicle has little drag, so PX4 is up to
     ~20 % slower (measured 2.5-2.6 against 3.2 m/s climbing, 5.9 against 6.9 m/s forward)."""
     px4, plant = runs
+    parity_finding("commander.position.climb", "Position mode, full throttle stick: climb (m/s; the plant's default vehicle)",
+                   *figures(runs, "position: climb at full throttle (m/s)"))  # fmt: skip
+    parity_finding("commander.position.forward", "Position mode, full forward stick: speed after 4 s (m/s; the plant's default vehicle)",
+                   *figures(runs, "position: speed after 4 s of full forward stick (m/s)"))  # fmt: skip
     name = "position: climb at full throttle (m/s)"
     assert px4.figures[name] <= plant.figures[name] <= px4.figures[name] * 1.3
     name = "position: speed after 4 s of full forward stick (m/s)"
     assert px4.figures[name] * 0.9 <= plant.figures[name] <= px4.figures[name] * 1.3
 
 
-def test_after_landing_back_to_the_last_mode_that_allows_arming(runs):
+def test_after_landing_back_to_the_last_mode_that_allows_arming(runs, parity_finding):
+    parity_finding("commander.after_landing", "after landing and auto-disarm (Position, then Land): heartbeat",
+                   *(heartbeat_text(obs.heartbeat.get("after landing")) for obs in runs))  # fmt: skip
     for obs in runs:
         assert obs.heartbeat["after landing"][1] == POSCTL

@@ -21,7 +21,17 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink import mavutil
 
-from helpers.commander import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_RTL, OFFBOARD, Client, fly_side_by_side, mode_of
+from helpers.commander import (
+    ALTCTL,
+    AUTO_LAND,
+    AUTO_LOITER,
+    AUTO_RTL,
+    OFFBOARD,
+    Client,
+    fly_side_by_side,
+    heartbeat_text,
+    mode_of,
+)
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
@@ -31,6 +41,7 @@ NAN = math.nan
 HEIGHT_M = 10.0
 STABILIZED, TERMINATION = (7, 0), (10, 0)
 ACTIONS = (1, 2, 3, 4, 5, 7, 6)  # Terminate last: only a reboot ends it
+ACTION_NAMES = {1: "Altitude", 2: "Stabilized", 3: "Return", 4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
 
 
 @dataclass
@@ -116,8 +127,12 @@ def runs(tmp_path_factory):
     return result
 
 
-def test_every_offboard_loss_action_ends_in_px4s_mode_and_heartbeat(runs):
+def test_every_offboard_loss_action_ends_in_px4s_mode_and_heartbeat(runs, parity_finding):
     px4, plant = runs
+    for action in ACTIONS:
+        parity_finding(f"commander.obl_rc_act.{action}.heartbeat", f"offboard loss, COM_OBL_RC_ACT {action} "
+                       f"({ACTION_NAMES[action]}), no sticks: heartbeat after \"Failsafe activated\"",
+                       heartbeat_text(px4[action].heartbeat), heartbeat_text(plant[action].heartbeat))  # fmt: skip
     # measured: none of them falls back for the missing sticks
     expected = {1: (209, ALTCTL, 5), 2: (209, STABILIZED, 5), 3: (157, AUTO_RTL, 5), 4: (157, AUTO_LAND, 5),
                 5: (157, AUTO_LOITER, 5), 7: (17, OFFBOARD, 0), 6: (129, TERMINATION, 8)}  # fmt: skip
@@ -127,11 +142,14 @@ def test_every_offboard_loss_action_ends_in_px4s_mode_and_heartbeat(runs):
         assert "Failsafe activated" in plant[action].texts, action
 
 
-def test_the_actions_fly_as_px4s(runs):
+def test_the_actions_fly_as_px4s(runs, parity_finding):
     """Descend or hold, as PX4: Altitude at MPC_LAND_SPEED (PX4 0.70 m/s), Stabilized level at the
     hover thrust (PX4 sank 0.07-0.15 m/s, the plant 0.0), Land and Return (from above home) down
     (PX4 1.03-1.04 m/s between 1.5 and 5.5 s, the plant 0.92-0.93), Hold held."""
     px4, plant = runs
+    for action in (1, 2, 3, 4, 5):
+        parity_finding(f"commander.obl_rc_act.{action}.sink", f"offboard loss, COM_OBL_RC_ACT {action} ({ACTION_NAMES[action]}): "
+                       "descent 1.5-5.5 s after the failsafe (m/s)", px4[action].sink_m_s, plant[action].sink_m_s)  # fmt: skip
     for action in (1, 4):
         assert plant[action].sink_m_s == pytest.approx(px4[action].sink_m_s, rel=0.35), action
     for action in (2, 5):
@@ -139,8 +157,12 @@ def test_the_actions_fly_as_px4s(runs):
     assert px4[3].sink_m_s > 0.4 and plant[3].sink_m_s > 0.4
 
 
-def test_disarm_and_terminate_as_px4(runs):
+def test_disarm_and_terminate_as_px4(runs, parity_finding):
     px4, plant = runs
+    for action in (7, 6):
+        parity_finding(f"commander.obl_rc_act.{action}.end", f"offboard loss, COM_OBL_RC_ACT {action} ({ACTION_NAMES[action]}): "
+                       "8 s after the failsafe, heartbeat; height (m)",
+                       *(f"{heartbeat_text(o[action].final)}; {o[action].height_at_end_m:.1f} m" for o in runs))  # fmt: skip
     for obs in runs:
         assert "Disarmed by failsafe" in obs[7].texts
         assert obs[7].height_at_end_m < 1.0  # it fell

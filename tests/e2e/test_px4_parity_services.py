@@ -22,18 +22,23 @@ import pytest
 from bench.px4sitl import running_px4
 from offboard.demo import free_udp_ports, stop_process
 from helpers import REPO
+from helpers.commander import results_text
 from helpers.services import HALF_PI, POSITION_YAW_MASK, VELOCITY_YAW_MASK, ServiceClient, mavlink
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 M = mavlink
+PX4_SPEED = 4
 ACK, NAK = 128, 129
+#: MAVLink FTP's NAK codes by name, for the parity findings
+NAK_NAMES = {1: "Fail", 2: "FailErrno", 3: "InvalidDataSize", 4: "InvalidSession", 5: "NoSessionsAvailable", 6: "EOF",
+             7: "UnknownCommand", 8: "FileExists", 9: "FileProtected", 10: "FileNotFound"}  # fmt: skip
 RCS = "/etc/init.d-posix/rcS"  # a file of PX4's; the plant serves a copy at the same path
 
 
 @pytest.fixture(scope="module")
 def px4(tmp_path_factory):
-    with running_px4(tmp_path_factory.mktemp("px4"), speed=4) as px4:
+    with running_px4(tmp_path_factory.mktemp("px4"), speed=PX4_SPEED) as px4:
         client = ServiceClient(px4.api_listen_port)
         try:
             client.connect()
@@ -72,10 +77,21 @@ def kinds(replies):
     return [(r.opcode, r.nak_code) for r in replies]
 
 
+def ftp_text(value) -> object:
+    """An FTP session's answer (``kinds``' pairs, CRC bytes, file bytes) as the parity page shows it."""
+    if isinstance(value, list) and all(isinstance(k, tuple) and len(k) == 2 for k in value):
+        return ", ".join("ACK" if op == ACK else f"NAK {NAK_NAMES.get(code, code)}" for op, code in value) or "no reply"
+    if isinstance(value, bytes):
+        return f"{len(value)} bytes"
+    if isinstance(value, tuple):
+        return "; ".join(str(ftp_text(v)) for v in value)
+    return value
+
+
 # --- MAVLink FTP ----------------------------------------------------------------------------------
 
 
-def test_ftp_answers_as_px4(px4, plant):
+def test_ftp_answers_as_px4(px4, plant, parity_finding):
     # the plant serves a copy of PX4's own file at the same path: read it from PX4 first
     open_px4 = px4.ftp(4, RCS.encode())
     size = int.from_bytes(open_px4[0].data[:4], "little")
@@ -111,6 +127,8 @@ def test_ftp_answers_as_px4(px4, plant):
         return out
 
     on_px4, on_plant = both(px4, plant, session)
+    for key in on_px4:
+        parity_finding(f"services.ftp.{key}", f"MAVLink FTP: {key}", ftp_text(on_px4[key]), ftp_text(on_plant.get(key)))
     assert on_plant == on_px4
     assert on_px4["list missing"] == [(NAK, 10)] and on_px4["open again"] == [(NAK, 5)]  # FileNotFound, NoSessionsAvailable
     assert on_px4["burst bytes"] == content and on_px4["crc missing"] == [10]
@@ -119,7 +137,7 @@ def test_ftp_answers_as_px4(px4, plant):
 # --- log download ---------------------------------------------------------------------------------
 
 
-def test_log_list_and_data_as_px4(px4, plant):
+def test_log_list_and_data_as_px4(px4, plant, parity_finding):
     def ask(c):
         c.send(M.MAVLink_log_request_list_message(1, 1, 0, 0xFFFF))
         entries = c.receive({M.MAVLINK_MSG_ID_LOG_ENTRY}, 0.6)
@@ -135,6 +153,9 @@ def test_log_list_and_data_as_px4(px4, plant):
         return out
 
     on_px4, on_plant = both(px4, plant, ask)
+    for key in on_px4:
+        parity_finding(f"services.log.{key}", f"log download: {key} (id, offset, count)" if key not in ("entries", "sized and dated")
+                       else f"log download: {key}", on_px4[key] or "no answer", on_plant.get(key) or "no answer")  # fmt: skip
     assert on_plant == on_px4
     assert on_px4 == {"entries": [(0, 1, 1)], "sized and dated": True, "data": [(0, 0, 90), (0, 90, 90), (0, 180, 90)],
                       "part": [(0, 0, 90)], "tail": [(0, 0, 10)], "beyond": [], "no such log": []}  # fmt: skip
@@ -148,7 +169,7 @@ def _answer(text: str) -> str:
     return text.split("pxh> ", 1)[0] + "pxh> "
 
 
-def test_shell_answers_as_pxh(px4, plant):
+def test_shell_answers_as_pxh(px4, plant, parity_finding):
     def ask(c):
         ver = _answer(c.shell("ver all\n"))
         shown = _answer(c.shell("param show MPC_XY_VEL_MAX\n"))
@@ -161,17 +182,21 @@ def test_shell_answers_as_pxh(px4, plant):
         }
 
     on_px4, on_plant = both(px4, plant, ask)
+    for key in on_px4:
+        parity_finding(f"services.shell.{key}", f"shell (SERIAL_CONTROL): {key}", on_px4[key], on_plant.get(key))
     assert on_plant == on_px4
     assert on_px4["prompt"] == "\npxh> " and on_px4["ver lines"][0] == "ver all"
 
 
-def test_a_statustext_sent_in_is_taken_without_an_answer(px4, plant):
+def test_a_statustext_sent_in_is_taken_without_an_answer(px4, plant, parity_finding):
     def ask(c):
         c.send(M.MAVLink_statustext_message(M.MAV_SEVERITY_INFO, b"hello from the client"))
         got = c.receive({M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_COMMAND_ACK, M.MAVLINK_MSG_ID_HEARTBEAT}, 1.2)
         return {"replies": [m.get_type() for m in got if m.get_type() != "HEARTBEAT"], "alive": any(m.get_type() == "HEARTBEAT" for m in got)}
 
     on_px4, on_plant = both(px4, plant, ask)
+    parity_finding("services.statustext_in", "STATUSTEXT sent in: replies on the link; heartbeats go on",
+                   *(f"{', '.join(o['replies']) or 'none'}; {'yes' if o['alive'] else 'no'}" for o in (on_px4, on_plant)))  # fmt: skip
     assert on_plant == on_px4 == {"replies": [], "alive": True}
 
 
@@ -189,7 +214,7 @@ def _fly(c, seconds, frame, mask, **target):
     return np.array(vel)
 
 
-def test_body_frame_velocity_flies_along_the_heading(px4, plant):
+def test_body_frame_velocity_flies_along_the_heading(px4, plant, parity_finding):
     def ask(c):
         assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
         assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan) == M.MAV_RESULT_ACCEPTED
@@ -207,6 +232,12 @@ def test_body_frame_velocity_flies_along_the_heading(px4, plant):
 
     (off_px4, cal_px4, n_px4, e_px4), (off_plant, cal_plant, n_plant, e_plant) = both(px4, plant, ask)
     print(f"2 m/s forward at yaw 90 deg, mean NED velocity: PX4 ({n_px4:.2f}, {e_px4:.2f}), plant ({n_plant:.2f}, {e_plant:.2f}) m/s")
+    parity_finding("services.body_frame.offboard", "DO_SET_MODE Offboard with position setpoints streaming (last ACK)",
+                   results_text([off_px4]), results_text([off_plant]))  # fmt: skip
+    parity_finding("services.calibration.armed", "PREFLIGHT_CALIBRATION while armed", results_text([cal_px4]), results_text([cal_plant]))
+    parity_finding("services.body_frame.velocity", "SET_POSITION_TARGET_LOCAL_NED, MAV_FRAME_BODY_NED, 2 m/s forward at yaw 90 deg: "
+                   "mean (north, east) velocity over the second half of 2.5 s (m/s)",
+                   f"{n_px4:.2f}, {e_px4:.2f}", f"{n_plant:.2f}, {e_plant:.2f}")  # fmt: skip
     assert off_px4 == off_plant == M.MAV_RESULT_ACCEPTED
     assert cal_px4 == cal_plant == M.MAV_RESULT_TEMPORARILY_REJECTED  # armed: no calibration
     assert e_px4 > 1.2 and e_plant > 1.2  # forward at yaw 90 deg is east
@@ -214,7 +245,7 @@ def test_body_frame_velocity_flies_along_the_heading(px4, plant):
     assert e_plant == pytest.approx(e_px4, abs=0.8)  # measured 1.73-1.77 (PX4) and 2.15-2.18 (the plant overshoots)
 
 
-def test_preflight_calibration_as_px4(px4, plant):
+def test_preflight_calibration_as_px4(px4, plant, parity_finding):
     def ask(c):
         landed = c.wait({M.MAVLINK_MSG_ID_HEARTBEAT}, 20.0, lambda hb: not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
         assert landed is not None, "still armed 20 s after the landing command"  # both disarm after landing
@@ -222,4 +253,6 @@ def test_preflight_calibration_as_px4(px4, plant):
         return result, [t for t in texts if t.startswith("[cal]")]
 
     on_px4, on_plant = both(px4, plant, ask)
+    parity_finding("services.calibration.level", "PREFLIGHT_CALIBRATION level, disarmed: result; \"[cal]\" STATUSTEXTs",
+                   *(f"{results_text([o[0]])}; {len(o[1])}" for o in (on_px4, on_plant)))  # fmt: skip
     assert on_plant == on_px4 == (M.MAV_RESULT_ACCEPTED, [])  # PX4 v1.16 reports progress as events, not "[cal]" texts

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import select
 import socket
+import struct
 import subprocess
 import time
 
@@ -163,9 +164,29 @@ def plant():
             proc.wait()
 
 
+def param_text(seen: tuple[int, float] | None) -> str:
+    """A PARAM_VALUE's (type, value) as ``10040 (INT32)``: integers decoded from their bytes."""
+    if seen is None:
+        return "no answer"
+    kind, value = seen
+    if kind in (mavlink.MAV_PARAM_TYPE_INT32, mavlink.MAV_PARAM_TYPE_UINT32, mavlink.MAV_PARAM_TYPE_INT16,
+                mavlink.MAV_PARAM_TYPE_UINT16, mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_UINT8):  # fmt: skip
+        value = struct.unpack("<i", struct.pack("<f", value))[0]
+    name = mavlink.enums["MAV_PARAM_TYPE"][kind].name.removeprefix("MAV_PARAM_TYPE_") if kind in mavlink.enums["MAV_PARAM_TYPE"] else kind
+    return f"{value} ({name})" if isinstance(value, int) else f"{value:g} ({name})"
+
+
 @pytest.mark.parametrize("link", [0, 1], ids=["api", "gcs"])
-def test_the_plant_streams_what_px4_streams_at_px4s_rates(px4, plant, link):
+def test_the_plant_streams_what_px4_streams_at_px4s_rates(px4, plant, link, parity_finding):
     theirs, ours = px4["rates"][link], plant["rates"][link]
+    side = ("api", "gcs")[link]
+    parity_finding(f"wire.{side}.types", f"{side.upper()} link: message types (common.xml client)", len(theirs), len(ours))
+    parity_finding(f"wire.{side}.alone", f"{side.upper()} link: types only one of the two sent (the plant deliberately "
+                   "not PX4's events protocol: CURRENT_EVENT_SEQUENCE 411, EVENT 410)",
+                   sorted(set(theirs) - set(ours)) or "none", sorted(set(ours) - set(theirs)) or "none")  # fmt: skip
+    for name in sorted(theirs, key=lambda k: (-theirs[k], k)):
+        if theirs[name] >= 2.0 and name not in NOT_IN_PLANT:
+            parity_finding(f"wire.{side}.rate.{name}", f"{side.upper()} link: {name} (Hz)", theirs[name], ours.get(name, 0.0))
     print(f"\nlink {link}: PX4 {len(theirs)} types, plant {len(ours)}")
     for name in sorted(set(theirs) | set(ours)):
         print(f"  {name:28s} PX4 {theirs.get(name, 0):7.2f} Hz  plant {ours.get(name, 0):7.2f} Hz")
@@ -178,8 +199,13 @@ def test_the_plant_streams_what_px4_streams_at_px4s_rates(px4, plant, link):
             assert 0.75 <= ours[name] / theirs[name] <= 1.9, f"{name}: PX4 {theirs[name]:.2f} Hz, plant {ours[name]:.2f} Hz"
 
 
-def test_autopilot_version_is_px4s(px4, plant):
+def test_autopilot_version_is_px4s(px4, plant, parity_finding):
     theirs, ours = px4["version"], plant["version"]
+    for field in ("capabilities", "flight_sw_version", "middleware_sw_version", "board_version"):
+        parity_finding(f"wire.version.{field}", f"AUTOPILOT_VERSION {field}",
+                       *(f"0x{getattr(v, field):X}" if v is not None else "none" for v in (theirs, ours)))  # fmt: skip
+    parity_finding("wire.version.flight_custom_version", "AUTOPILOT_VERSION flight_custom_version",
+                   *(list(v.flight_custom_version) if v is not None else "none" for v in (theirs, ours)))  # fmt: skip
     assert theirs is not None and ours is not None
     for field in ("capabilities", "flight_sw_version", "middleware_sw_version", "board_version", "vendor_id", "product_id"):
         assert getattr(ours, field) == getattr(theirs, field), field
@@ -187,7 +213,11 @@ def test_autopilot_version_is_px4s(px4, plant):
     assert ours.uid != 0 and theirs.uid != 0 and list(ours.uid2) == list(theirs.uid2)
 
 
-def test_parameters_clients_read_have_px4s_types_and_values(px4, plant):
+def test_parameters_clients_read_have_px4s_types_and_values(px4, plant, parity_finding):
+    for name in PARAMS:
+        parity_finding(f"wire.param.{name}", f"parameter {name}" + (" (the plant keeps its own: not speed-scaled, "
+                       "or its vehicle's)" if name in ("MPC_THR_HOVER", "COM_OF_LOSS_T") else ""),
+                       param_text(px4["params"][name]), param_text(plant["params"][name]))  # fmt: skip
     # MPC_THR_HOVER is the vehicle's own (the plant's follows its vehicle file); PX4's SITL start-up
     # (rcS) multiplies COM_OF_LOSS_T by the speed factor, the plant keeps it (docs/parity/wire.md)
     own = {"MPC_THR_HOVER", "COM_OF_LOSS_T"}
@@ -200,8 +230,10 @@ def test_parameters_clients_read_have_px4s_types_and_values(px4, plant):
 
 
 @pytest.mark.parametrize("vehicle", ["px4", "plant"])
-def test_the_offboard_link_counts_no_loss_on_px4s_dialect(px4, plant, vehicle):
+def test_the_offboard_link_counts_no_loss_on_px4s_dialect(px4, plant, vehicle, parity_finding):
     s = {"px4": px4, "plant": plant}[vehicle]["loss"]
+    parity_finding("wire.offboard_link_loss", "the offboard's link on the API link for 2 s: received / lost / "
+                   "dialect (UNKNOWN_*) frames", **{vehicle: f"{s.received} / {s.lost} / {s.unknown}"})  # fmt: skip
     print(f"\n{vehicle} API link: received {s.received}, lost {s.lost}, unknown (dialect) {s.unknown}")
     assert s.unknown > 0  # its dialect frames did arrive
     assert s.received > 500 and s.lost <= s.received // 100  # loopback: nothing is lost

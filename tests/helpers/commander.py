@@ -35,6 +35,28 @@ AUTO_LOITER, AUTO_TAKEOFF, AUTO_LAND, AUTO_RTL = (4, 3), (4, 2), (4, 6), (4, 5)
 POSCTL, ALTCTL, OFFBOARD, MANUAL = (3, 0), (2, 0), (6, 0), (1, 0)
 
 
+#: PX4's custom modes (main, sub) by the name QGroundControl shows, for the parity findings.
+MODE_NAMES = {AUTO_LOITER: "Hold", AUTO_TAKEOFF: "Takeoff", AUTO_LAND: "Land", AUTO_RTL: "Return", (4, 4): "Mission",
+              (4, 8): "Follow Target", POSCTL: "Position", ALTCTL: "Altitude", OFFBOARD: "Offboard", MANUAL: "Manual",
+              (7, 0): "Stabilized", (10, 0): "Termination", (3, 1): "Orbit"}  # fmt: skip
+
+
+def mode_name(mode: tuple[int, int]) -> str:
+    """``mode`` (main, sub) by name, or as ``main/sub``."""
+    return MODE_NAMES.get((mode[0], mode[1]), f"{mode[0]}/{mode[1]}")
+
+
+def heartbeat_text(hb: tuple[int, tuple[int, int], int] | None) -> str:
+    """(base_mode, mode, system_status) as the parity pages write it: ``Position 209 / 5``."""
+    return "none" if hb is None else f"{mode_name(hb[1])} {hb[0]} / {hb[2]}"
+
+
+def results_text(results: list[int]) -> str:
+    """COMMAND_ACK results by name: ``ACCEPTED, TEMPORARILY_REJECTED`` (``none`` for no ACK)."""
+    names = mavlink.enums["MAV_RESULT"]
+    return ", ".join(names[r].name.removeprefix("MAV_RESULT_") if r in names else str(r) for r in results) or "none"
+
+
 def mode_of(custom_mode: int) -> tuple[int, int]:
     main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
     return (main, sub if main == 4 else 0)

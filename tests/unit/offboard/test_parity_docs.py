@@ -20,11 +20,19 @@ def test_functions() -> set[str]:
 test_functions.__test__ = False  # a helper, not a test
 
 
-def rows(path) -> list[list[str]]:
-    out = []
-    for line in path.read_text().splitlines():
-        if line.startswith("|") and not set(line) <= set("|-: "):
-            out.append([cell.strip() for cell in line.strip("|").split("|")])
+def tables(path) -> list[tuple[list[str], list[list[str]]]]:
+    """Each table of a page: (its header, its rows), cells split at unescaped ``|``."""
+    out: list[tuple[list[str], list[list[str]]]] = []
+    lines = path.read_text().splitlines()
+    for i, line in enumerate(lines):
+        if not line.startswith("|") or set(line) <= set("|-: "):
+            continue
+        cells = [cell.strip() for cell in re.split(r"(?<!\\)\|", line.strip()[1:-1])]
+        if i + 1 < len(lines) and lines[i + 1].startswith("|") and set(lines[i + 1]) <= set("|-: "):
+            out.append((cells, []))  # a header: the separator line follows
+        else:
+            assert out, f"{path.name}: a row before any table header: {line[:60]}"
+            out[-1][1].append(cells)
     return out
 
 
@@ -33,9 +41,13 @@ def test_every_parity_row_names_tests_that_exist():
     assert len(files) >= 2
     known = test_functions()
     for path in files:
-        table = rows(path)
-        header, body = table[0], table[1:]
-        assert header[-1] == "checked by" and "PX4" in header[1], f"{path.name}: header {header}"
+        found = tables(path)
+        assert found, f"{path.name}: no table"
+        body = []
+        for header, rows in found:
+            assert header[-1] == "checked by" and "PX4" in header[1], f"{path.name}: header {header}"
+            assert all(len(row) == len(header) for row in rows), f"{path.name}: a row's cells do not match its header"
+            body += rows
         assert body, f"{path.name}: no rows"
         for row in body:
             named = re.findall(r"`(test_\w+)(?:\[[^\]`]*\])?`", row[-1])  # a parametrised one: test_name[id]
