@@ -92,6 +92,15 @@ def _one_thread_per_worker() -> None:
         numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))  # set at import
 
 
+def local_cluster(workers: int | None):  # noqa: ANN201  (distributed's LocalCluster, imported late)
+    """A Dask cluster of ``workers`` processes (default: one per core) of one thread each, on
+    loopback, its dashboard on a free port."""
+    from distributed import LocalCluster
+
+    return LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", host="127.0.0.1")  # fmt: skip
+
+
 def _warm_up(spec: SweepSpec, engine: SweepEngine) -> None:
     """On a worker: one flight of 0.1 s, so that its imports and compiled kernels
     are loaded (a second or more) before its first task."""
@@ -234,7 +243,7 @@ def run_sweep(
     progress : callable, optional
         Called with (flights done, flights in all, seconds since the start) after each task.
     """
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
@@ -246,8 +255,7 @@ def run_sweep(
         size = max(1, min(size, -(-total // ((TASKS_PER_WORKER + 1) * (workers or os.cpu_count() or 1)))))
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", host="127.0.0.1")  # fmt: skip
+        cluster = local_cluster(workers)
     out = ParquetRows(run_dir / "flights.parquet", columns(spec))
     tasks = 0
     try:

@@ -27,7 +27,7 @@ from offboard.controller.params import ControllerParams
 from offboard.metrics import SETTLE_S
 from offboard.inprocess import Drive
 from offboard.model.vehicle import VehicleModel, VehicleParams
-from offboard.sweep.runner import run_sweep
+from offboard.sweep.runner import local_cluster, run_sweep
 from offboard.sweep.spec import Distribution, DistributionKind, SweepSpec
 
 #: What a sweep may not vary for a search: what the search itself chooses.
@@ -101,15 +101,13 @@ def search(
     say: Callable[[str], None] = lambda text: None,
 ) -> list[Trial]:
     """Fly ``flights`` of ``spec`` for every design (module docstring); the trials in order."""
-    from distributed import LocalCluster
 
     check_sweep(spec)
     flights = max(1, min(flights, spec.flights))
     column = error_column(spec)
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", host="127.0.0.1")  # fmt: skip
+        cluster = local_cluster(workers)
         scheduler = cluster.scheduler_address
     trials: list[Trial] = []
     try:

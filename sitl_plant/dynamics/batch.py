@@ -816,23 +816,12 @@ def advance_many(
         torque (``HeldActuation``, as ``VehicleSim``'s idle actuation before the first command).
     """
     index, sign = _EULER_FORMS[euler_rate_form]
-    serial = NUMBA and _numba.get_num_threads() == 1
     if mode in (0, 2) and NUMBA:
-        kernel = _advance_blocks_serial if serial else _advance_blocks_kernel
-        kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2, believed_inertia_kg_m2, index,
-               sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
+        _advance_blocks_kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2,
+                               believed_inertia_kg_m2, index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
         return
-    kernel = _advance_many_serial if serial else _advance_many_kernel
-    kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2, believed_inertia_kg_m2,
-           index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
-
-
-#: The two kernels compiled without ``parallel``, for a caller held to one thread (a Dask worker
-#: of one thread, ``numba.set_num_threads(1)``): the same loops in order, with no parallel region
-#: to enter at each call, and no idle thread of numba's pool spinning on another core between calls,
-#: which took up to a third of the second core from the other process of a pair.
-_advance_many_serial = _numba.njit(cache=True, fastmath=True)(_advance_many_kernel.py_func) if NUMBA else _advance_many_kernel
-_advance_blocks_serial = _numba.njit(cache=True)(_advance_blocks_kernel.py_func) if NUMBA else _advance_blocks_kernel
+    _advance_many_kernel(x, active, int(n_steps), float(dt_s), int(mode), thrust_n, tau_tilde_rad_s2, believed_inertia_kg_m2,
+                         index, sign, params, winds, bool(ground), xdot, cmd, resting)  # fmt: skip
 
 
 class CompiledKernel(Protocol):

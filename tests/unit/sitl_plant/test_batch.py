@@ -192,52 +192,6 @@ def test_plant_steps_compiled_only_from_a_warm_cache(tmp_path) -> None:
     assert type(make_sim(make_model("paper", VehicleParams()), 1e-3, None)).__name__ == "VehicleSim"
 
 
-@pytest.mark.parametrize("mode", [0, 1, 2], ids=["held", "tau-tilde", "tau-tilde-algebraic"])
-def test_advance_many_on_one_thread_equals_the_parallel_kernel(mode: int) -> None:
-    """A caller held to one numba thread (a one-thread Dask worker) runs ``advance_many``'s serial
-    twins; they must fly every vehicle exactly as the parallel kernels do (a sweep's rows are the
-    same on any worker), and each vehicle as it flies alone."""
-    if not batch.NUMBA:
-        pytest.skip("numba not installed: advance_many has one (interpreted) path")
-    import numba
-
-    from offboard.model.euler_lagrange import EulerRateForm
-
-    n, steps = 37, 25  # across the blocks' size
-    rng = np.random.default_rng(7)
-    x0 = np.zeros((n, 17))
-    x0[:, 0:3] = rng.normal(size=(n, 3))
-    x0[:, 2] -= 3.0  # in the air (NED)
-    x0[:, 3:6] = rng.normal(scale=0.5, size=(n, 3))
-    q = rng.normal(scale=0.1, size=(n, 4))
-    q[:, 0] += 1.0
-    x0[:, 6:10] = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x0[:, 13:17] = 600.0
-    active = rng.random(n) < 0.9
-    thrust = rng.uniform(3.0, 8.0, n)
-    tau = rng.normal(scale=(2.0 if mode else 0.02), size=(n, 3))
-    believed = np.tile([0.0142, 0.0142, 0.0284], (n, 1)) * rng.uniform(0.8, 1.2, (n, 3))
-    p = np.tile(batch.param_vector(DRAGGY), (n, 1))
-    winds = rng.normal(scale=2.0, size=(n, steps, 3))
-
-    def flown(threads: int) -> tuple[np.ndarray, ...]:
-        x, xdot, cmd, resting = x0.copy(), np.zeros((n, 17)), np.zeros((n, 4)), np.zeros(n, bool)
-        before = numba.get_num_threads()
-        numba.set_num_threads(threads)
-        try:
-            batch.advance_many(x, active, steps, 1e-3, thrust, tau, believed, EulerRateForm.CASTILLO, p, winds, True, xdot,
-                               cmd, resting, mode)  # fmt: skip
-        finally:
-            numba.set_num_threads(before)
-        return x, xdot, cmd, resting
-
-    one, pool = flown(1), flown(numba.config.NUMBA_NUM_THREADS)
-    for a, b in zip(one, pool):
-        assert np.array_equal(a, b)
-    assert not np.array_equal(one[0][active], x0[active])  # they flew
-    assert np.array_equal(one[0][~active], x0[~active])  # and only the active ones
-
-
 def test_a_kernel_cache_older_than_a_source_built_into_it_is_stale(tmp_path) -> None:
     """numba keys a module's cached kernels to that module's file only: ``stale_cache_files`` finds
     the module's cache files older than the newest source compiled into them (px4_kernel's hold
