@@ -24,12 +24,12 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink import mavutil
 
-from helpers.commander import AUTO_LOITER, Client, fly_side_by_side, mode_of
+from helpers.commander import AUTO_LOITER, Client, fly_side_by_side, heartbeat_text, mode_of, results_text
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 mavlink = mavutil.mavlink
-SPEED = 4.0
+SPEED = 4.0  # PX4's --speed (the page of findings says it)
 NAN = math.nan
 FOLLOW = (4, 8)  # AUTO_FOLLOW_TARGET
 EARTH_RADIUS_M = 6_371_000.0
@@ -157,8 +157,15 @@ def runs(tmp_path_factory):
     return result
 
 
-def test_follow_target_is_entered_and_reported_as_px4(runs):
+def test_follow_target_is_entered_and_reported_as_px4(runs, parity_finding):
     px4, plant = runs
+    for what in ("follow disarmed", "follow armed"):
+        parity_finding(f"commander.follow.acks.{what}", f"Follow Target, {what.removeprefix('follow ')}: the COMMAND_ACKs",
+                       results_text(px4.acks[what]), results_text(plant.acks[what]))  # fmt: skip
+    for what in px4.heartbeat:
+        parity_finding(f"commander.follow.heartbeat.{what}", f"Follow Target, {what.removeprefix('follow ')}: heartbeat "
+                       "mode, base_mode / system_status", heartbeat_text(px4.heartbeat[what]),
+                       heartbeat_text(plant.heartbeat.get(what)))  # fmt: skip
     assert px4.acks["follow disarmed"] == [0, 0] and px4.acks["follow armed"] == [0, 0]
     assert px4.heartbeat["follow disarmed"] == (17, FOLLOW, 0)  # UNINIT: the mode prevents arming
     assert px4.heartbeat["follow armed, target streaming"] == (145, FOLLOW, 4)
@@ -166,7 +173,7 @@ def test_follow_target_is_entered_and_reported_as_px4(runs):
     assert plant.heartbeat == px4.heartbeat  # after the target is lost too: the mode stays, no failsafe
 
 
-def test_the_vehicle_keeps_px4s_place_behind_the_target(runs):
+def test_the_vehicle_keeps_px4s_place_behind_the_target(runs, parity_finding):
     """Measured over 10-20 s after the first report, in fourteen runs at speed 4 on a loaded 2-core
     machine (load 4-11): PX4 8.14-8.39 m from the target, its mean bearing within 2.2 deg of
     straight behind (at worst 5.8 deg), 7.71-8.31 m above where it armed, its heading within 2.0
@@ -175,6 +182,8 @@ def test_the_vehicle_keeps_px4s_place_behind_the_target(runs):
     plant's default vehicle hardly has."""
     px4, plant = runs
     f, g = px4.figures, plant.figures
+    for name in (n for n in f if n.startswith("steady: ")):
+        parity_finding(f"commander.follow.{name}", f"Follow Target, a target walking at 1.5 m/s, {name}", f[name], g.get(name))
     name = "steady: distance from the target (m)"
     assert g[name] == pytest.approx(f[name], abs=0.6)
     name = "steady: bearing from the target, off behind (deg)"
@@ -188,7 +197,7 @@ def test_the_vehicle_keeps_px4s_place_behind_the_target(runs):
         assert obs.figures["steady: worst heading off the course (deg)"] < 10.0
 
 
-def test_a_lost_target_is_dead_reckoned_then_the_vehicle_holds_behind_it_as_px4(runs):
+def test_a_lost_target_is_dead_reckoned_then_the_vehicle_holds_behind_it_as_px4(runs, parity_finding):
     """The estimate goes on 3 s at 1.5 m/s, then stops, and the vehicle holds 8 m behind that:
     3.5 m behind the last report. PX4 ended 3.20-3.90 m behind in fourteen runs, the plant
     3.59-5.02 m: the estimator's acceleration (2 K / dt^2 of each position innovation, and the
@@ -197,6 +206,8 @@ def test_a_lost_target_is_dead_reckoned_then_the_vehicle_holds_behind_it_as_px4(
     Target, 145 / 4); PX4's hold wanders at up to 0.3 m/s, the plant's settles."""
     px4, plant = runs
     f, g = px4.figures, plant.figures
+    for name in (n for n in f if n.startswith("lost: ")):
+        parity_finding(f"commander.follow.{name}", f"Follow Target, the reports stopped: {name}", f[name], g.get(name))
     name = "lost: behind the last report (m)"
     assert g[name] == pytest.approx(f[name], abs=2.0)
     assert abs(g["lost: east of the last report (m)"] - f["lost: east of the last report (m)"]) < 1.0

@@ -170,7 +170,12 @@ def fly_bundled(conn, sysid, name: str) -> dict:
     }
 
 
-def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles):
+def _slowest(obs: dict) -> str:
+    """The slowest speed at each item reached, as ``seq: m/s`` (waypoints flown through or stopped at)."""
+    return ", ".join(f"{seq}: {v:.2f}" for seq, v in sorted(obs["slowest m/s"].items()))
+
+
+def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles, parity_finding):
     """missions/px4-sitl-box.waypoints and px4-sitl-survey.plan, each uploaded to PX4 and the plant
     by the same client and flown side by side: the same items reached in order, the same
     waypoints flown through and stopped at, both land home and disarm, in PX4's time."""
@@ -179,6 +184,16 @@ def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles):
         got[name] = on_both(vehicles, lambda conn, sysid: fly_bundled(conn, sysid, name))  # noqa: B023
         for who in ("px4", "plant"):
             print(name, who, got[name][who])
+    for name in BUNDLED:
+        px4, plant = got[name]["px4"], got[name]["plant"]
+        parity_finding(f"mission.bundled.{name}.reached", f"{name} in Mission mode: MISSION_ITEM_REACHED in order",
+                       px4["reached"], plant["reached"])  # fmt: skip
+        parity_finding(f"mission.bundled.{name}.disarmed s", f"{name} in Mission mode: arming to the disarm after the "
+                       "landing (s)", px4["disarmed s"], plant["disarmed s"])  # fmt: skip
+        parity_finding(f"mission.bundled.{name}.landed from home m", f"{name} in Mission mode: landed from home (m)",
+                       px4["landed from home m"], plant["landed from home m"])  # fmt: skip
+        parity_finding(f"mission.bundled.{name}.slowest", f"{name} in Mission mode: slowest speed at each item (m/s)",
+                       _slowest(px4), _slowest(plant))  # fmt: skip
     for name, expect in BUNDLED.items():
         px4, plant = got[name]["px4"], got[name]["plant"]
         n = len(items_from_file(MISSIONS_DIR / name))

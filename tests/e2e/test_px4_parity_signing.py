@@ -18,6 +18,7 @@ from helpers import REPO
 from helpers.services import ServiceClient, mavlink
 from offboard.demo import free_udp_ports, stop_process
 
+PX4_SPEED = 4  # the page of findings says at which speed PX4 ran
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
 KEY = bytes(range(100, 132))
@@ -57,7 +58,13 @@ def setup_signing_outcome(client: ServiceClient) -> dict:
     return {"frames_signed": signed > 0, "frames_unsigned": unsigned > 0, "unsigned_command": result}
 
 
-def test_an_unsigned_setup_signing_is_ignored_as_px4_does(tmp_path):
+def _finding(key: str, value: object) -> str:
+    if key == "unsigned_command":
+        return mavlink.enums["MAV_RESULT"][value].name.removeprefix("MAV_RESULT_") if isinstance(value, int) else str(value)
+    return "yes" if value else "no"
+
+
+def test_an_unsigned_setup_signing_is_ignored_as_px4_does(tmp_path, parity_finding):
     (port,) = free_udp_ports(1)
     ours_client = ServiceClient(port)
     proc = subprocess.Popen(  # started first: it is ready by the time PX4 is
@@ -79,6 +86,9 @@ def test_an_unsigned_setup_signing_is_ignored_as_px4_does(tmp_path):
         stop_process(proc, signal.SIGTERM)
         ours_client.close()
     err = proc.stderr.read()
+    for key, what in (("frames_signed", "its frames signed afterwards"), ("unsigned_command", "an unsigned command answered")):
+        parity_finding(f"services.setup_signing.{key}", f"an unsigned SETUP_SIGNING with a key: {what}",
+                       _finding(key, theirs[key]), _finding(key, ours[key]))  # fmt: skip
     expected = {"frames_signed": False, "frames_unsigned": True, "unsigned_command": mavlink.MAV_RESULT_ACCEPTED}
     assert theirs == expected, theirs  # PX4 v1.16: no signing, SETUP_SIGNING ignored
     assert ours == theirs
