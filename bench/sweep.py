@@ -151,7 +151,7 @@ def measure(quick: bool = False, flights: int | None = None, say=lambda text: No
                           "flying_speedup": two["flying_flights_per_s"] / one["flying_flights_per_s"]}  # fmt: skip
     count = 8 * out["sweep"]["flights_per_task"]  # a few tasks' worth: long enough to time, short beside the sweep
     say(f"sweep: the machine's ceiling, {count} flights in one process alone, then in each of two at once")
-    out["ceiling"] = ceiling(count, duration)
+    out["ceiling"] = ceiling(count, duration, repeats=1 if quick else 2)
     return out
 
 
