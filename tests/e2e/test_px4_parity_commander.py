@@ -14,12 +14,12 @@ Figures measured while this was written are in docs/parity/commander.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import pytest
 from pymavlink import mavutil
 
 from helpers.commander import (
+    Observed,
     AUTO_LAND,
     AUTO_LOITER,
     AUTO_RTL,
@@ -27,8 +27,10 @@ from helpers.commander import (
     POSCTL,
     Client,
     fly_side_by_side,
+    heartbeat_state,
     heartbeat_text,
-    mode_of,
+    print_figures,
+    settle_heartbeat,
     results_text,
 )
 
@@ -40,32 +42,12 @@ NAN = math.nan
 CENTRE = (0, 0, 500, 0)  # MANUAL_CONTROL x, y, z, r: sticks centred (z 500 = throttle centre)
 
 
-@dataclass
-class Observed:
-    """What one vehicle answered to the script."""
-
-    acks: dict[str, list[int]] = field(default_factory=dict)
-    heartbeat: dict[str, tuple[int, tuple[int, int], int]] = field(default_factory=dict)
-    texts: dict[str, list[str]] = field(default_factory=dict)
-    figures: dict[str, float] = field(default_factory=dict)
-
-
 def _rate(samples: list, what: str) -> float:
     """Mean down speed (m/s) over ``samples`` (first to last)."""
     assert len(samples) >= 2, f"too few samples for {what}"
     return (samples[-1].pos_ned_m[2] - samples[0].pos_ned_m[2]) / (samples[-1].t_s - samples[0].t_s)
 
 
-def _hb(c: Client) -> tuple[int, tuple[int, int], int]:
-    h = c.heartbeat
-    return (int(h.base_mode), mode_of(h.custom_mode), int(h.system_status))
-
-
-def _settle_heartbeat(c: Client) -> None:
-    """The first heartbeat (1 Hz of vehicle time) sent at least 0.3 s of vehicle time from now:
-    it tells the status after what was just asked."""
-    t0 = c.t_s
-    c.pump(6.0, lambda: bool(c.heartbeats) and c.heartbeats[-1][0] >= t0 + 0.3)
 
 
 def _climb_offboard_to(c: Client, height_m: float, ground_down_m: float) -> None:
@@ -82,28 +64,28 @@ def fly_script(c: Client, obs: Observed) -> None:
     c.pump(1.0)
     # -- disarmed: every mode is accepted; arming is what is refused ----------------------------
     obs.acks["offboard disarmed"] = c.set_mode(OFFBOARD)
-    _settle_heartbeat(c)
-    obs.heartbeat["offboard disarmed, no setpoints"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["offboard disarmed, no setpoints"] = heartbeat_state(c)
     t = c.t_s
     obs.acks["arm in offboard without setpoints"] = c.arm()
     c.pump(0.5)
     obs.texts["arm in offboard without setpoints"] = c.texts_since(t)
     obs.acks["position disarmed"] = c.set_mode(POSCTL)
-    _settle_heartbeat(c)
-    obs.heartbeat["position disarmed, no sticks"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["position disarmed, no sticks"] = heartbeat_state(c)
     obs.acks["land disarmed"] = c.set_mode(AUTO_LAND)
-    _settle_heartbeat(c)
-    obs.heartbeat["land disarmed"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["land disarmed"] = heartbeat_state(c)
     obs.acks["hold disarmed"] = c.set_mode(AUTO_LOITER)
-    _settle_heartbeat(c)
-    obs.heartbeat["hold disarmed"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["hold disarmed"] = heartbeat_state(c)
     # -- takeoff --------------------------------------------------------------------------------
     ground = c.down_m
     obs.acks["arm in hold"] = c.arm()
     c.command(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
     t_cmd = c.t_s
-    _settle_heartbeat(c)
-    obs.heartbeat["takeoff"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["takeoff"] = heartbeat_state(c)
     c.wait(lambda: c.mode == AUTO_LOITER, 20.0, SPEED)
     obs.figures["takeoff: to Hold after the command (s)"] = c.t_s - t_cmd
     c.wait_sim(3.0)
@@ -114,24 +96,24 @@ def fly_script(c: Client, obs: Observed) -> None:
     obs.figures["takeoff: 0.5 m up to Hold (s)"] = obs.figures["takeoff: to Hold after the command (s)"] - (lift - t_cmd)
     obs.figures["takeoff: top climb rate (m/s)"] = -min(s.vel_ned_m_s[2] for s in climb)
     obs.figures["takeoff: height (m)"] = ground - c.down_m
-    obs.heartbeat["hold armed in the air"] = _hb(c)
+    obs.heartbeat["hold armed in the air"] = heartbeat_state(c)
     # -- armed: modes that cannot run are refused (after the receiver's ACCEPTED) ---------------
     obs.acks["offboard armed without setpoints"] = c.set_mode(OFFBOARD)
     obs.acks["position armed without sticks"] = c.set_mode(POSCTL)
     obs.acks["return"] = c.set_mode(AUTO_RTL)
-    _settle_heartbeat(c)
-    obs.heartbeat["return"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["return"] = heartbeat_state(c)
     c.set_mode(AUTO_LOITER)
     # -- offboard to 20 m, then the setpoints stop -------------------------------------------------
     _climb_offboard_to(c, 20.0, ground)
-    obs.heartbeat["offboard armed"] = _hb(c)
+    obs.heartbeat["offboard armed"] = heartbeat_state(c)
     c.setpoint = None
     t_stop = c.t_s
     c.wait(lambda: any("Failsafe activated" in text for t, text in c.texts if t >= t_stop), 15.0, SPEED)
     t_fs = c.t_s
     obs.figures["offboard loss: failsafe after the last setpoint, less COM_OF_LOSS_T (s)"] = t_fs - t_stop - c.of_loss_t
-    _settle_heartbeat(c)
-    obs.heartbeat["offboard-loss failsafe"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["offboard-loss failsafe"] = heartbeat_state(c)
     c.wait_sim(6.0)
     descent = [s for s in c.samples if s.t_s >= t_fs + 2.0]
     obs.figures["offboard loss: descent rate without sticks (m/s)"] = _rate(descent, "the failsafe descent")
@@ -159,8 +141,8 @@ def fly_script(c: Client, obs: Observed) -> None:
     t_land = c.t_s
     obs.figures["land: from (m)"] = ground - c.down_m
     c.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
-    _settle_heartbeat(c)
-    obs.heartbeat["land"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["land"] = heartbeat_state(c)
     c.wait(lambda: not c.armed, 60.0, SPEED)
     obs.figures["land: disarmed after the command (s)"] = c.t_s - t_land
     for h in (10.0, 5.0, 1.0):
@@ -168,8 +150,8 @@ def fly_script(c: Client, obs: Observed) -> None:
         obs.figures[f"land: below {h:g} m after the command (s)"] = below - t_land
     high = [s for s in c.samples if t_land + 1.5 <= s.t_s and s.pos_ned_m[2] < ground - 11.0]
     obs.figures["land: descent rate above MPC_LAND_ALT1 (m/s)"] = _rate(high, "the descent above 11 m")
-    _settle_heartbeat(c)
-    obs.heartbeat["after landing"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["after landing"] = heartbeat_state(c)
     c.sticks = None
 
 
@@ -188,8 +170,7 @@ def _run(c: Client) -> Observed:
 def runs(tmp_path_factory):
     """(PX4, plant): the script flown on both, side by side."""
     result = fly_side_by_side(tmp_path_factory.mktemp("px4"), SPEED, _run)
-    for name in result[0].figures:
-        print(f"{name:<75} PX4 {result[0].figures[name]:7.2f}   plant {result[1].figures.get(name, math.nan):7.2f}")
+    print_figures(result, 75)
     return result
 
 

@@ -19,12 +19,11 @@ Figures measured while this was written are in docs/parity/commander.md (Follow 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import pytest
 from pymavlink import mavutil
 
-from helpers.commander import AUTO_LOITER, Client, fly_side_by_side, heartbeat_text, mode_of, results_text
+from helpers.commander import (AUTO_LOITER, Observed, Client, fly_side_by_side, heartbeat_state, heartbeat_text, print_figures, results_text, settle_heartbeat)  # fmt: skip
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
 
@@ -41,25 +40,6 @@ STEADY_FROM_S = 10.0  # both have climbed to the follow height and settled behin
 LOST_S = 9.0  # after the stream stops: 3 s of dead reckoning, then the vehicle settles (PX4 in 6-9 s)
 
 
-@dataclass
-class Observed:
-    """What one vehicle answered to the script."""
-
-    acks: dict[str, list[int]] = field(default_factory=dict)
-    heartbeat: dict[str, tuple[int, tuple[int, int], int]] = field(default_factory=dict)
-    texts: dict[str, list[str]] = field(default_factory=dict)
-    figures: dict[str, float] = field(default_factory=dict)
-
-
-def _hb(c: Client) -> tuple[int, tuple[int, int], int]:
-    h = c.heartbeat
-    return (int(h.base_mode), mode_of(h.custom_mode), int(h.system_status))
-
-
-def _settle_heartbeat(c: Client) -> None:
-    """The first heartbeat sent at least 0.3 s of vehicle time from now."""
-    t0 = c.t_s
-    c.pump(6.0, lambda: bool(c.heartbeats) and c.heartbeats[-1][0] >= t0 + 0.3)
 
 
 def _wrap_deg(a: float) -> float:
@@ -81,8 +61,8 @@ def follow_script(c: Client) -> Observed:
         c.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, interval_us, settle_s=0.0)
     c.pump(0.5)
     obs.acks["follow disarmed"] = c.set_mode(FOLLOW)
-    _settle_heartbeat(c)
-    obs.heartbeat["follow disarmed"] = _hb(c)
+    settle_heartbeat(c)
+    obs.heartbeat["follow disarmed"] = heartbeat_state(c)
     c.set_mode(AUTO_LOITER)
     c.pump(0.3)
     ground = c.down_m
@@ -120,7 +100,7 @@ def follow_script(c: Client) -> Observed:
             dn, de = s.pos_ned_m[0] - tn, s.pos_ned_m[1] - te
             # bearing and heading as deviations from behind the target going south (0 deg)
             steady.append((math.hypot(dn, de), math.degrees(math.atan2(de, dn)), ground - s.pos_ned_m[2], math.degrees(c.attitude_yaw) - 180.0))
-    obs.heartbeat["follow armed, target streaming"] = _hb(c)
+    obs.heartbeat["follow armed, target streaming"] = heartbeat_state(c)
     obs.figures["longest gap between reports (s)"] = report_gap
     assert len(steady) > 20 and report_gap < 1.5, (
         f"the client fell behind its vehicle ({len(steady)} samples, reports up to {report_gap:.1f} s of vehicle time apart): "
@@ -143,7 +123,7 @@ def follow_script(c: Client) -> Observed:
     obs.figures["lost: east of the last report (m)"] = e - last_e
     obs.figures["lost: mean speed over the last 2 s (m/s)"] = math.hypot(*((end[-1].pos_ned_m[i] - end[0].pos_ned_m[i]) / max(end[-1].t_s - end[0].t_s, 1e-3) for i in (0, 1)))
     obs.texts["lost"] = c.texts_since(t_stop)
-    obs.heartbeat["lost"] = _hb(c)
+    obs.heartbeat["lost"] = heartbeat_state(c)
     return obs
 
 
@@ -151,8 +131,7 @@ def follow_script(c: Client) -> Observed:
 def runs(tmp_path_factory):
     """(PX4, plant): the script flown on both, side by side."""
     result = fly_side_by_side(tmp_path_factory.mktemp("px4"), SPEED, follow_script)
-    for name in result[0].figures:
-        print(f"{name:<55} PX4 {result[0].figures[name]:7.2f}   plant {result[1].figures.get(name, math.nan):7.2f}")
+    print_figures(result)
     print("PX4", result[0].heartbeat, result[0].texts, "\nplant", result[1].heartbeat, result[1].texts)
     return result
 

@@ -29,8 +29,9 @@ from helpers.commander import (
     OFFBOARD,
     Client,
     fly_side_by_side,
+    heartbeat_state,
     heartbeat_text,
-    mode_of,
+    settle_heartbeat,
 )
 
 pytestmark = [pytest.mark.px4, pytest.mark.e2e, pytest.mark.slow]  # skipped without a PX4: tests/conftest.py
@@ -55,14 +56,6 @@ class Loss:
     height_at_end_m: float = NAN
 
 
-def _hb(c: Client) -> tuple[int, tuple[int, int], int]:
-    h = c.heartbeat
-    return (int(h.base_mode), mode_of(h.custom_mode), int(h.system_status))
-
-
-def _settle_heartbeat(c: Client) -> None:
-    t0 = c.t_s
-    c.pump(6.0, lambda: bool(c.heartbeats) and c.heartbeats[-1][0] >= t0 + 0.3)
 
 
 def _airborne_in_offboard(c: Client, ground_down_m: float) -> None:
@@ -103,13 +96,13 @@ def fly_script(c: Client) -> dict[int, Loss]:
         assert c.wait(lambda: any("Failsafe activated" in x for x in c.texts_since(t_stop)), 15.0, SPEED), \
             f"no failsafe (COM_OBL_RC_ACT {action}, client on {c.port}, mode {c.mode}, texts {c.texts_since(t_stop)})"
         t_fs = c.t_s
-        _settle_heartbeat(c)
-        loss.heartbeat = _hb(c)
+        settle_heartbeat(c)
+        loss.heartbeat = heartbeat_state(c)
         c.wait_sim(max(0.0, t_fs + 8.0 - c.t_s))
         window = [s for s in c.samples if t_fs + 1.5 <= s.t_s <= t_fs + 5.5]
         loss.sink_m_s = (window[-1].pos_ned_m[2] - window[0].pos_ned_m[2]) / (window[-1].t_s - window[0].t_s)
         loss.height_at_end_m = ground - c.down_m
-        loss.final = _hb(c)
+        loss.final = heartbeat_state(c)
         loss.texts = [x.strip() for x in c.texts_since(t_stop)]
         if not c.armed:
             c.wait_sim(2.0)

@@ -10,6 +10,8 @@ waits it keeps sending what it was told to: a GCS heartbeat every wall second, p
 
 from __future__ import annotations
 
+import math
+
 import fcntl
 import os
 import struct
@@ -261,6 +263,35 @@ class PlantProcess:
 
     def stop(self) -> None:
         stop_process(self.proc)
+
+
+@dataclass
+class Observed:
+    """What one vehicle answered to a side-by-side script: acks, heartbeats and texts by step, figures by name."""
+
+    acks: dict[str, list[int]] = field(default_factory=dict)
+    heartbeat: dict[str, tuple[int, tuple[int, int], int]] = field(default_factory=dict)
+    texts: dict[str, list[str]] = field(default_factory=dict)
+    figures: dict[str, float] = field(default_factory=dict)
+
+
+def heartbeat_state(c: Client) -> tuple[int, tuple[int, int], int]:
+    """The last HEARTBEAT as (base_mode, (main, sub) mode, system_status)."""
+    h = c.heartbeat
+    return (int(h.base_mode), mode_of(h.custom_mode), int(h.system_status))
+
+
+def settle_heartbeat(c: Client) -> None:
+    """Pump until the first heartbeat (1 Hz of vehicle time) sent at least 0.3 s of vehicle time
+    from now: it tells the status after what was just asked."""
+    t0 = c.t_s
+    c.pump(6.0, lambda: bool(c.heartbeats) and c.heartbeats[-1][0] >= t0 + 0.3)
+
+
+def print_figures(result: tuple, width: int = 55) -> None:  # noqa: ANN001
+    """Each figure of a side-by-side run's (PX4, plant) observations, PX4's beside the plant's (-s)."""
+    for name in result[0].figures:
+        print(f"{name:<{width}} PX4 {result[0].figures[name]:7.2f}   plant {result[1].figures.get(name, math.nan):7.2f}")
 
 
 def free_port() -> int:
