@@ -199,9 +199,11 @@ def test_the_bundled_missions_fly_on_both_as_px4_flies_them(vehicles, parity_fin
         n = len(items_from_file(MISSIONS_DIR / name))
         assert px4["reached"] == list(range(1, n)), name  # the take-off and the speed change in one step
         assert plant["reached"] == px4["reached"], name
-        # PX4 came down 0.2-0.9 m from where it armed after the box, 0.3-5.0 m after the survey
-        # (its landing there starts from 50 m away); the plant at 0.0 m
-        assert px4["landed from home m"] < 6.0 and plant["landed from home m"] < 2.5, name
+        # PX4 came down 0.2-0.9 m from where it armed after the box, 0.3-8.6 m after the survey
+        # (its landing there starts from 50 m away: 8.6 m in one make test run, 0.3-5.0 m in the
+        # eleven before); the plant at 0.0 m. PX4's bound tells landing at the land item from
+        # landing anywhere on the last leg (50 m); the plant is held to its own 0.0 m
+        assert px4["landed from home m"] < 15.0 and plant["landed from home m"] < 2.5, name
         for obs in (px4, plant):
             assert obs["disarmed s"] is not None, name
             assert obs["modes"][-1] == (4, 4), name  # Mission until disarmed
