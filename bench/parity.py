@@ -182,7 +182,13 @@ def merge(records: list[dict], *, commit: str = "unknown", dirty: bool = False) 
 
 def read_folder(folder: Path) -> list[dict]:
     """Every test's record in ``folder`` (the ``*.json`` files ``Recorder.write`` left)."""
-    return [json.loads(p.read_text(encoding="utf-8")) for p in sorted(folder.glob("*.json"))]
+    out = []
+    for p in sorted(folder.glob("*.json")):
+        try:
+            out.append(json.loads(p.read_text(encoding="utf-8")))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise FindingsError(f"{p}: not a findings record ({e})") from None
+    return out
 
 
 # --- the page ----------------------------------------------------------------------------------------
@@ -273,7 +279,10 @@ def page_data(text: str) -> dict:
     found = JSON_BLOCK.search(text)
     if found is None:
         raise FindingsError("no ```json block at the end of the page")
-    return json.loads(found.group(1), parse_constant=_no_constant)
+    try:
+        return json.loads(found.group(1), parse_constant=_no_constant)
+    except json.JSONDecodeError as e:
+        raise FindingsError(f"the page's JSON block: {e}") from None
 
 
 def _no_constant(name: str) -> None:

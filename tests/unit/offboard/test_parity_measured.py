@@ -168,3 +168,18 @@ def test_the_cli_writes_the_page_and_says_when_there_is_nothing(tmp_path, capsys
     (tmp_path / "page.md").write_text(page.replace("| 1 | the same |", "| 2 | the same |"), encoding="utf-8")  # a hand edit
     assert main([str(tmp_path / "page.md"), "--output", str(tmp_path / "again.md")]) == 0  # rendered from its JSON
     assert (tmp_path / "again.md").read_text(encoding="utf-8") == page
+
+
+def test_a_damaged_record_or_page_is_one_line_naming_it(tmp_path, capsys):
+    folder = tmp_path / "f"
+    folder.mkdir()
+    (folder / "x.json").write_text("{bad", encoding="utf-8")
+    assert main([str(folder), "--output", str(tmp_path / "page.md")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "x.json: not a findings record" in err
+    page = tmp_path / "page.md"
+    page.write_text("# a page\n\n```json\n{bad\n```\n", encoding="utf-8")
+    assert main([str(page), "--output", str(tmp_path / "again.md")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the page's JSON block" in err
+    assert not (tmp_path / "again.md").exists()
