@@ -29,6 +29,7 @@ from helpers.commander import (
     fly_side_by_side,
     heartbeat_state,
     heartbeat_text,
+    mode_of,
     print_figures,
     settle_heartbeat,
     results_text,
@@ -88,12 +89,16 @@ def fly_script(c: Client, obs: Observed) -> None:
     obs.heartbeat["takeoff"] = heartbeat_state(c)
     c.wait(lambda: c.mode == AUTO_LOITER, 20.0, SPEED)
     obs.figures["takeoff: to Hold after the command (s)"] = c.t_s - t_cmd
+    # the switch to Hold happened after the last heartbeat still in Takeoff (1 Hz heartbeats)
+    before = max(t for t, _, custom, _ in c.heartbeats if t_cmd <= t <= c.t_s and mode_of(custom) != AUTO_LOITER)
+    obs.figures["takeoff: last heartbeat before Hold after the command (s)"] = before - t_cmd
     c.wait_sim(3.0)
     climb = [s for s in c.samples if s.t_s >= t_cmd]
     # by height, not vertical speed: PX4's EKF velocity wanders by 0.2 m/s on the ground
     lift = next(s.t_s for s in climb if s.pos_ned_m[2] < ground - 0.5)
     obs.figures["takeoff: 0.5 m up after the command (s)"] = lift - t_cmd
     obs.figures["takeoff: 0.5 m up to Hold (s)"] = obs.figures["takeoff: to Hold after the command (s)"] - (lift - t_cmd)
+    obs.figures["takeoff: 0.5 m up to the last heartbeat before Hold (s)"] = before - lift
     obs.figures["takeoff: top climb rate (m/s)"] = -min(s.vel_ned_m_s[2] for s in climb)
     obs.figures["takeoff: height (m)"] = ground - c.down_m
     obs.heartbeat["hold armed in the air"] = heartbeat_state(c)
@@ -239,9 +244,14 @@ def test_takeoff_waits_for_spool_up_and_ramp_then_climbs_slowly(runs, parity_fin
     assert plant.figures["takeoff: top climb rate (m/s)"] == pytest.approx(px4.figures["takeoff: top climb rate (m/s)"], rel=0.3)
     # Hold within NAV_MC_ALT_RAD of the height. Command to Hold is lift-off (checked above; PX4's
     # spreads by 1.5 s on a loaded machine) plus the climb, so the climb is compared on its own:
-    # PX4 1.9-2.2 s from 0.5 m up to Hold, the plant 1.7 s; Hold is seen on 1 Hz heartbeats (+-1 s)
-    name = "takeoff: 0.5 m up to Hold (s)"
-    assert abs(plant.figures[name] - px4.figures[name]) < 1.5
+    # PX4 1.9-2.2 s from 0.5 m up to Hold, the plant 1.7 s. Each vehicle's switch is seen only on its
+    # 1 Hz heartbeats, so it is known to lie between the last heartbeat before Hold and the first in
+    # it; the two vehicles' intervals must come within 1 s of each other. (Comparing only the first
+    # heartbeats in Hold, the two heartbeat phases alone shift the difference by up to 1 s: one CI
+    # run saw PX4's 3.24 s against the plant's 1.64 s.)
+    px4_span = (px4.figures["takeoff: 0.5 m up to the last heartbeat before Hold (s)"], px4.figures["takeoff: 0.5 m up to Hold (s)"])
+    plant_span = (plant.figures["takeoff: 0.5 m up to the last heartbeat before Hold (s)"], plant.figures["takeoff: 0.5 m up to Hold (s)"])
+    assert max(0.0, px4_span[0] - plant_span[1], plant_span[0] - px4_span[1]) < 1.0, (px4_span, plant_span)
     for obs in runs:
         assert obs.figures["takeoff: height (m)"] == pytest.approx(2.5, abs=0.3)
 
