@@ -292,7 +292,13 @@ def _step_many_kernel(x, cmd, wind, p, dt, n_steps):  # noqa: ANN001, ANN202
 
 
 def _batch_inputs(x: np.ndarray, values: np.ndarray, width: int) -> np.ndarray:
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(values, dtype=float), (x.shape[0], width)))
+    """``values`` ((width,) or (N, width)) as a fresh writable C-contiguous (N, width) float64
+    array: always the same array type, so numba compiles each kernel once (a read-only view, as
+    ``ascontiguousarray(broadcast_to(...))`` returns for an input already (N, width), is another
+    type and cost a second compilation of up to half a minute)."""
+    out = np.empty((x.shape[0], width))
+    out[:] = values
+    return out
 
 
 def derivative_many(
