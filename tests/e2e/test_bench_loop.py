@@ -38,43 +38,13 @@ def test_breakdown_attributes_samples_to_the_innermost_part(tmp_path):
     assert sum(rows.values()) == 8000.0
 
 
-def test_flights_give_finite_figures_and_markdown(tmp_path):
-    floor = loop.floor(cycles=30, warmup=5)
-    long = loop.long_flight(tmp_path, 3.0)
-    rt = loop.real_time(tmp_path, 50.0, 1.0)
-    assert long["status"] == "complete" and long["cycles_per_s"] > 0
-    assert long["hwm_kb"]["plant"] > 0 and long["hwm_kb"]["offboard"] > 0
-    assert rt["samples"] > 0 and rt["latency_count"] > 0
-    for key in ("jitter_p50_ms", "jitter_max_ms", "latency_p50_ms", "latency_max_ms"):
-        assert math.isfinite(rt[key]) and rt[key] >= 0, key
-    assert rt["latency_p50_ms"] > 0
-    assert loop.plant_periods(tmp_path / "long" / "plant.tlog") >= long["samples"]
-    result = {
-        "numba": True,
-        "lockstep": {
-            "cycles_per_s": long["cycles_per_s"], "floor_cycles_per_s": floor["cycles_per_s"],
-            "ratio": long["cycles_per_s"] / floor["cycles_per_s"], "commands": ["python -m sitl_plant.cli", "python -m offboard.cli fly"],
-        },  # fmt: skip
-        "profile": {"error": "not profiled in the smoke test"},
-        "real_time": [rt],
-        "memory": {"paper_helix_hwm_kb": long["hwm_kb"], "long": long},
-    }
-    text = loop.markdown(result)
-    for heading in ("### MAVLink lockstep loop", "### Real-time loop", "### Memory"):
-        assert text.count(heading) == 1
-    for line in text.splitlines():
-        if line.startswith("|"):
-            assert line.endswith("|") and "nan" not in line.lower(), line
-    for pid in long["pids"] + rt["pids"]:  # every process the harness started is gone
-        assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
-
-
 def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     """Issue 16: a ping-pong of the messages a real lockstep flight carried, cycle by cycle."""
     run = loop.fly(tmp_path / "flight", loop.hover(tmp_path, 3.0), lockstep=True, rss_interval_s=None)
     tlog = tmp_path / "flight" / "plant.tlog"
     cycles = loop.recorded_cycles(tlog)
     assert len(cycles) == loop.RECORDED_CYCLES
+    assert loop.plant_periods(tlog) >= run["summary"]["loop"]["samples"]
     stamps = [c["t_ms"] for c in cycles]
     assert stamps == list(range(stamps[0], stamps[0] + 50 * len(stamps), 50))  # consecutive lockstep periods
     mix = loop.mix_floor(tlog, cycles=30, warmup=5)

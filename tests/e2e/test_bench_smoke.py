@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 
 import pytest
 from helpers import REPO
+
+from bench import loop
 
 
 pytestmark = [pytest.mark.slow, pytest.mark.e2e]
@@ -107,3 +110,28 @@ def test_faults_quick_flies_the_lossy_link_and_fails_safe_in_time(quick_run):
     assert kill["trials"] == 1 and kill["within_bound"] == 1, kill
     assert kill["max_s"] <= kill["bound_s"] == pytest.approx(1.05)
     assert results["faults"]["shortfalls"] == []  # the report says all was met (and would flag what was not)
+
+
+def test_loop_part_gives_finite_figures_and_markdown_and_leaves_no_process(quick_run):
+    """The lockstep, real-time and long flights of ``bench/loop.py``: finite figures, well-formed
+    tables, and every process the harness started gone."""
+    _, results = quick_run
+    r = results["loop"]
+    long = r["memory"]["long"]
+    assert long["status"] == "complete" and long["cycles_per_s"] > 0
+    assert long["hwm_kb"]["plant"] > 0 and long["hwm_kb"]["offboard"] > 0
+    assert [rt["rate_hz"] for rt in r["real_time"]] == [50.0, 250.0]
+    for rt in r["real_time"]:
+        assert rt["samples"] > 0 and rt["latency_count"] > 0
+        for key in ("jitter_p50_ms", "jitter_max_ms", "latency_p50_ms", "latency_max_ms"):
+            assert math.isfinite(rt[key]) and rt[key] >= 0, key
+        assert rt["latency_p50_ms"] > 0
+    assert _finite_positive(r["lockstep"]["cycles_per_s"]) and _finite_positive(r["lockstep"]["mix_floor_cycles_per_s"])
+    text = loop.markdown(r)
+    for heading in ("### MAVLink lockstep loop", "### Real-time loop", "### Memory"):
+        assert text.count(heading) == 1
+    for line in text.splitlines():
+        if line.startswith("|"):
+            assert line.endswith("|") and "nan" not in line.lower(), line
+    for pid in long["pids"] + [pid for rt in r["real_time"] for pid in rt["pids"]]:
+        assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
