@@ -40,6 +40,31 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.e2e)
         if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or path.stem.startswith("test_px4"):
             item.add_marker(pytest.mark.realtime)
+    items[:] = long_modules_first(items)
+
+
+def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
+    """The items, a module's together, in the order ``make test``'s two workers should take the
+    modules (``--dist loadfile`` hands them out in collection order): the long ones first, so that
+    the short ones fill the gaps at the end instead of one worker finishing a long module alone
+    while the other idles; and the PX4 modules alternating with the other long ones, so that two
+    PX4 SITLs seldom share the two cores (their timings are compared with the plant's). Long: a
+    PX4 module, an e2e one (processes), or one marked ``slow``. Within each kind, the collection order."""
+    modules: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        modules.setdefault(str(item.fspath), []).append(item)
+
+    def kind(group: list[pytest.Item]) -> int:
+        if any(i.get_closest_marker("px4") is not None for i in group):
+            return 0
+        return 1 if any(i.get_closest_marker(mark) for i in group for mark in ("slow", "realtime", "e2e")) else 2
+
+    by_kind: dict[int, list[list[pytest.Item]]] = {0: [], 1: [], 2: []}
+    for group in modules.values():
+        by_kind[kind(group)].append(group)
+    px4, long, short = by_kind[0], by_kind[1], by_kind[2]
+    alternating = [g for pair in zip(px4, long) for g in pair] + px4[len(long):] + long[len(px4):]
+    return [item for group in alternating + short for item in group]
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
