@@ -10,10 +10,10 @@ waits it keeps sending what it was told to: a GCS heartbeat every wall second, p
 
 from __future__ import annotations
 
-import math
-
 import fcntl
+import math
 import os
+import socket
 import struct
 import subprocess
 import sys
@@ -99,6 +99,10 @@ class Client:
 
     def connect(self, timeout_s: float = 60.0) -> None:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=245, source_component=190)
+        # room for a few seconds of a vehicle at --speed 4 (~1 500 datagrams/s): the two clients of a
+        # side-by-side run share one interpreter, and a starved one overflowed the 208 kB default
+        # (a make test run lost PX4's "Failsafe activated" so); the kernel caps it at rmem_max
+        self.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         deadline = time.monotonic() + timeout_s
         while self.heartbeat is None:
             assert time.monotonic() < deadline, "no autopilot heartbeat"
