@@ -204,13 +204,20 @@ def test_a_statustext_sent_in_is_taken_without_an_answer(px4, plant, parity_find
 
 
 def _fly(c, seconds, frame, mask, **target):
-    """Stream one setpoint for ``seconds`` (20 Hz wall); the velocities NED (m/s) seen meanwhile."""
+    """Stream one setpoint (20 Hz wall) for ``seconds`` at the vehicles' ``PX4_SPEED``, counted on
+    the vehicle's own clock (a starved PX4 runs slower than its --speed: counted in wall time, one
+    loaded run flew it a fraction of the window and saw it still accelerating); the velocities NED
+    (m/s) seen meanwhile."""
     vel = []
-    end = time.monotonic() + seconds
+    start_ms = None
+    end = time.monotonic() + 10.0 * seconds  # the cap, for a vehicle that stopped
     while time.monotonic() < end:
         c.position_target(frame, mask, **target)
         for m in c.receive({M.MAVLINK_MSG_ID_LOCAL_POSITION_NED}, 0.05):
             vel.append((m.vx, m.vy, m.vz))
+            start_ms = m.time_boot_ms if start_ms is None else start_ms
+            if m.time_boot_ms - start_ms >= 1000.0 * seconds * PX4_SPEED:
+                return np.array(vel)
     return np.array(vel)
 
 
@@ -249,7 +256,8 @@ def test_preflight_calibration_as_px4(px4, plant, parity_finding):
     def ask(c):
         landed = c.wait({M.MAVLINK_MSG_ID_HEARTBEAT}, 20.0, lambda hb: not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
         assert landed is not None, "still armed 20 s after the landing command"  # both disarm after landing
-        result, texts = c.command_with_texts(M.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 0, 2, 0, 0, listen_s=2.0)  # level
+        # level; 5 s of wall time, as a starved PX4 at --speed 4 answered later than 2 s once
+        result, texts = c.command_with_texts(M.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 0, 2, 0, 0, listen_s=5.0)
         return result, [t for t in texts if t.startswith("[cal]")]
 
     on_px4, on_plant = both(px4, plant, ask)
