@@ -81,6 +81,7 @@ class Listener:
         self.pump(seconds, count)
         rates = []
         for i in (0, 1):
+            assert span[i], f"{('API', 'GCS')[i]} link: no ATTITUDE in {seconds:g} s (heard from it: {self.addr[i] is not None})"
             sim_s = (max(span[i]) - min(span[i])) / 1000.0
             assert sim_s > 3.0, f"link {i}: too little telemetry"
             rates.append({k: n / sim_s for k, n in counts[i].items()})
