@@ -5,8 +5,8 @@ in OFFBOARD and armed?
 telemetry stays stale past the reconnect timeout, or comes back with the vehicle out of OFFBOARD
 and it does not return within ``RETURN_BEATS`` heartbeats (its failsafe took over meanwhile);
 FAILSAFE or MODE_CHANGED when the vehicle leaves OFFBOARD; MODE_CHANGED when it disarms during the
-mission. Telemetry older than the telemetry timeout
-(wall clock) is an outage: no setpoint goes out until it is back (``in_outage``, ``stale``).
+mission. Telemetry older than the telemetry timeout (wall clock) is an outage: no setpoint goes out
+until it is back (``in_outage``, ``stale``).
 """
 
 from __future__ import annotations
@@ -126,6 +126,7 @@ class Supervisor:
             LINK_LOST (back from an outage out of OFFBOARD), FAILSAFE or MODE_CHANGED; the last
             two with ``stop_setpoints``: the vehicle is no longer ours to command.
         """
+        returning = False  # after an outage: its offboard-loss failsafe may clear yet, the setpoints being back
         if self._verify_beats:
             if status.offboard:
                 self._verify_beats = 0
@@ -134,8 +135,8 @@ class Supervisor:
                 if not self._verify_beats:
                     raise FlightEnd(FlightStatus.LINK_LOST, f"telemetry came back with the vehicle in {status.mode_name}: "
                                                             "its failsafe took over during the outage")
-                return  # its offboard-loss failsafe may clear yet, now that the setpoints are back
-        if self.expect_offboard:
+                returning = True
+        if self.expect_offboard and not returning:
             if status.offboard:
                 self._offboard_seen = True
                 self._non_offboard_beats = 0

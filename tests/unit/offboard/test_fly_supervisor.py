@@ -54,3 +54,12 @@ def test_after_its_return_a_later_failsafe_still_ends_the_flight() -> None:
     with pytest.raises(FlightEnd) as end:
         sup.on_heartbeat(FAILSAFE_POSITION, ["Failsafe activated"])
     assert end.value.status is FlightStatus.FAILSAFE
+
+
+def test_a_vehicle_disarmed_during_the_outage_ends_the_flight_at_once() -> None:
+    """The two heartbeats of grace are for the mode only: a disarm (COM_OBL_RC_ACT 7) still ends it."""
+    sup, _ = after_an_outage()
+    disarmed = VehicleStatus(False, px4_modes.MAIN_POSCTL, 0, mavlink.MAV_STATE_STANDBY, True)
+    with pytest.raises(FlightEnd) as end:
+        sup.on_heartbeat(disarmed, ["Disarmed by failsafe"])
+    assert end.value.status is FlightStatus.MODE_CHANGED and "disarmed" in str(end.value)
