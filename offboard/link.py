@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import io
 import select
+import socket
 import time
 from collections import deque
 from collections.abc import Callable
@@ -94,6 +95,22 @@ class _Source:
     missing: set[int] = field(default_factory=set)  # sequence numbers skipped, in the last half
 
 
+#: The UDP receive buffer asked for (the kernel caps it at ``net.core.rmem_max``). The vehicle
+#: streams PX4's default set (hundreds of datagrams a second) until we switch the unread ones
+#: off; an offboard starved of the processor for a few hundred milliseconds overflows Linux's
+#: 208 kB default and the kernel drops what comes next, a parameter's answer as readily as a
+#: stream's (a loaded test run lost every answer to one PARAM_REQUEST_READ over 18 tries).
+RECEIVE_BUFFER_BYTES = 4 << 20
+
+
+def _widen_receive_buffer(sock: socket.socket) -> None:
+    try:
+        if sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) < RECEIVE_BUFFER_BYTES:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+    except OSError:  # a platform that refuses: its default it is
+        pass
+
+
 class MavLink:
     """One MAVLink connection with a tlog, duplicate suppression and loss counting.
 
@@ -139,6 +156,8 @@ class MavLink:
         except Exception as exc:  # noqa: BLE001 - serial and other transports raise their own kinds
             raise LinkError(f"--connect {connect}: cannot open the link: {exc}") from None
         self._datagrams = isinstance(self.conn, mavutil.mavudp)
+        if self._datagrams:
+            _widen_receive_buffer(self.conn.port)
         self._packer = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True

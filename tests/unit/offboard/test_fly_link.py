@@ -109,3 +109,24 @@ def test_an_unwritable_log_is_a_user_error(tmp_path):
     (port,) = free_udp_ports(1)
     with pytest.raises(LinkError, match="cannot write the log"):
         MavLink(f"udpin:127.0.0.1:{port}", tlog_path=tmp_path / "missing-dir" / "x.tlog")
+
+
+def test_a_burst_larger_than_linuxs_default_buffer_is_received_whole(pair):
+    """The vehicle streams hundreds of datagrams a second until the unread streams are off: an
+    offboard that did not read for a while must find them all, not Linux's 208 kB default's worth
+    (the kernel caps the buffer at net.core.rmem_max; this burst fits any cap above 1 MB)."""
+    link, peer, addr, _ = pair
+    asked = link.conn.port.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    try:
+        rmem_max = int(open("/proc/sys/net/core/rmem_max").read())
+    except OSError:
+        rmem_max = 0
+    if rmem_max and rmem_max < (1 << 20):
+        pytest.skip(f"net.core.rmem_max is {rmem_max} here: no buffer above the default to ask for")
+    burst = 4000  # ~0.9 MB of ATTITUDE datagrams, each ~1 kB of kernel buffer: 4x the default
+    for seq in range(burst):
+        peer.sendto(vehicle_packet(seq % 256, seq), addr)
+    got = 0
+    while link.recv(0.2) is not None:
+        got += 1
+    assert got == burst, f"{burst - got} of {burst} datagrams dropped with a {asked} B receive buffer"
