@@ -93,6 +93,7 @@ class _Source:
     last_seq: int
     recent: dict[int, bytes]
     missing: set[int] = field(default_factory=set)  # sequence numbers skipped, in the last half
+    heartbeat: bytes = b""  # its latest HEARTBEAT
 
 
 #: The UDP receive buffer asked for (the kernel caps it at ``net.core.rmem_max``). The vehicle
@@ -362,7 +363,13 @@ class MavLink:
         src = self._sources.get((sysid, compid))
         if src is None:
             return False
-        return ((src.last_seq - seq) & 0xFF) < DUPLICATE_WINDOW and src.recent.get(seq) == bytes(msg.get_msgbuf())
+        packet = bytes(msg.get_msgbuf())
+        # its latest HEARTBEAT again, however far behind its number: a waiting lockstep plant's
+        # keepalive (sitl_plant's KEEPALIVE_IDS); a new one always has a new sequence number. Any
+        # other old frame again is a replay (signing counts it), or a duplicate within the window
+        if packet == src.heartbeat:
+            return True
+        return ((src.last_seq - seq) & 0xFF) < DUPLICATE_WINDOW and src.recent.get(seq) == packet
 
     def _track(self, msg: mavlink.MAVLink_message, header: tuple[int, int, int] | None = None) -> None:
         """Follow the sequence numbers of an accepted packet's source: a forward jump counts the
@@ -373,9 +380,13 @@ class MavLink:
         packet = bytes(msg.get_msgbuf())
         src = self._sources.get(key)
         if src is None:
-            self._sources[key] = _Source(seq, {seq: packet})
+            src = self._sources[key] = _Source(seq, {seq: packet})
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                src.heartbeat = packet
             return
         src.recent[seq] = packet
+        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            src.heartbeat = packet
         behind = (src.last_seq - seq) & 0xFF
         if 0 < behind < 128:  # late (reordered), or from a second sequence: the baseline stays
             if seq in src.missing:

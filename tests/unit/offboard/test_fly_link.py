@@ -62,6 +62,26 @@ def test_repeated_packets_are_duplicates_not_news(pair):
     assert link.stats.received == 1 and link.stats.duplicates == 2 and link.stats.lost == 0
 
 
+def test_a_keepalive_heartbeat_far_behind_the_latest_number_is_still_a_duplicate(pair):
+    """A lockstep plant that waits resends its latest HEARTBEAT byte for byte, however many packets
+    (parameters, telemetry) it sent since: 70 in one run, past the 64-packet window of the
+    sequence check, and the copies were logged as news (two lockstep runs' logs then differed by
+    how long the design took)."""
+    link, peer, addr, _ = pair
+    heartbeat = vehicle_packet(0, kind="heartbeat")
+    peer.sendto(heartbeat, addr)
+    for seq in range(1, 101):
+        peer.sendto(vehicle_packet(seq, seq), addr)
+    for _ in range(3):
+        peer.sendto(heartbeat, addr)
+    peer.sendto(vehicle_packet(101, kind="heartbeat"), addr)  # the next one: news
+    got = []
+    while (msg := link.recv(0.3)) is not None:
+        got.append((msg.get_type(), msg.get_seq()))
+    assert got.count(("HEARTBEAT", 0)) == 1 and got[-1] == ("HEARTBEAT", 101) and len(got) == 102, got
+    assert link.stats.duplicates == 3 and link.stats.lost == 0
+
+
 def test_loss_is_counted_from_sequence_gaps(pair):
     link, peer, addr, _ = pair
     for seq in (0, 1, 4, 5):
