@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from offboard.replay.reader import Damage, TlogReader
@@ -115,8 +116,10 @@ def format_log_report(report: LogReport, all_rates: bool = False) -> str:
     lines.append(f"{'source':<10} {'message':<30} {'count':>7} {'rate Hz':>8} {'max gap s':>10} {'at t s':>8}")
     shown = report.rates if all_rates else [r for r in report.rates if r.count > 1]
     for r in shown:
-        lines.append(f"{r.system:>3}/{r.component:<6} {r.message:<30} {r.count:>7} {r.rate_hz:>8.2f} "
-                     f"{r.max_gap_s:>10.3f} {r.max_gap_at_s:>8.2f}")
+        # a burst (all at one instant, as the parameter requests) has no rate and no gap: "-"
+        rate = f"{r.rate_hz:>8.2f}" if math.isfinite(r.rate_hz) else f"{'-':>8}"
+        at = f"{r.max_gap_at_s:>8.2f}" if math.isfinite(r.max_gap_at_s) else f"{'-':>8}"
+        lines.append(f"{r.system:>3}/{r.component:<6} {r.message:<30} {r.count:>7} {rate} {r.max_gap_s:>10.3f} {at}")
     if report.events:
         lines.append("")
         lines.append("events (t s, system):")

@@ -397,3 +397,21 @@ def test_the_rerun_takes_the_attitude_the_command_answered_not_a_newer_one():
     i_att, i_pos, att_table, _ = _telemetry_rows(scan, 1, np.array(stamps), np.array(commands))
     assert att_table[i_att, 0].tolist() == stamps  # every sample's own ATTITUDE, 300 included
     assert 9.0 not in att_table[i_att, 1]
+
+
+def test_a_burst_of_one_message_has_no_rate_and_says_so_with_a_dash():
+    """Messages all sent at one instant (the offboard's parameter requests go out at once) have no
+    span: the table prints "-" for their rate and gap, never nan, and the JSON has null."""
+    import math
+
+    from offboard.jsonout import dumps
+    from offboard.replay.report import LogReport, MessageRate, format_log_report
+
+    burst = MessageRate(245, 191, "PARAM_REQUEST_READ", 24, math.nan, 0.0, math.nan)
+    steady = MessageRate(1, 1, "ATTITUDE", 100, 50.0, 0.04, 1.5)
+    report = LogReport("x.tlog", 1, 124, 0, 0.0, 2.0, [], [], [burst, steady], [], 1)
+    text = format_log_report(report)
+    row = next(line for line in text.splitlines() if "PARAM_REQUEST_READ" in line)
+    assert row.split()[2:] == ["24", "-", "0.000", "-"] and "nan" not in text.lower()
+    assert "50.00" in next(line for line in text.splitlines() if "ATTITUDE" in line)
+    assert "NaN" not in dumps(report.to_dict())
