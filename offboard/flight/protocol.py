@@ -107,7 +107,7 @@ class VehicleClient:
         self._statustext_count = 0
         self._early: dict[tuple[tuple[int, int], str], mavlink.MAVLink_message] = {}
         self._pending: _Pending | None = None
-        self._param_wanted: str | None = None
+        self._params_wanted: frozenset[str] = frozenset()
         self._timesync_ts1: int | None = None
         self._timesync_reply: tuple[int, int] | None = None
         self._next_heartbeat: float = 0.0
@@ -160,7 +160,7 @@ class VehicleClient:
                     p.first_ack_s = self.clock()
         elif kind == "PARAM_VALUE":
             name, value = codec.param_value(msg)
-            if name == self._param_wanted:
+            if name in self._params_wanted:
                 self.vehicle_params[name] = value
         elif kind == "TIMESYNC":
             # our request, answered; tc1 = 0 is the vehicle's own request (PX4 sends them at 10 Hz),
@@ -255,9 +255,9 @@ class VehicleClient:
                 exc.args = (f"{exc.args[0]}; the vehicle says: {reason}",)
             raise exc
 
-    def command_burst(self, commands: list[tuple[int, tuple[float, ...]]]) -> bool:
-        """Send COMMAND_LONGs of one command id at once; whether every one was ACCEPTED within the
-        command timeout (False: the caller sends them one by one, with ``command``'s retries)."""
+    def command_burst(self, commands: list[tuple[int, tuple[float, ...]]]) -> list[int]:
+        """Send COMMAND_LONGs of one command id at once; the results of the ACKs that came within the
+        command timeout, in arrival order (an ACK names the command, not which of them it answers)."""
         assert self.target is not None
         command = commands[0][0]
         assert all(c == command for c, _ in commands)
@@ -269,17 +269,19 @@ class VehicleClient:
             self._wait(lambda: len(pending.results) >= len(commands), self.config.command_timeout_s)
         finally:
             self._pending = None
-        return len(pending.results) == len(commands) and all(r == mavlink.MAV_RESULT_ACCEPTED for r in pending.results)
+        return list(pending.results)
 
     # -- parameters, time, home ----------------------------------------------------------------------
 
     def param_family(self) -> str:
         """Probe which simulator's physical parameters the vehicle publishes: ``SIM`` (sitl-plant),
-        ``SIH`` (PX4's SIH) or ``none`` (a real airframe); the probe's value is kept."""
-        for family, probe in (("SIM", "SIM_THR_MAX"), ("SIH", "SIH_MASS")):
-            value = self.read_param(probe)
-            if value is not None:
-                self.vehicle_params[probe] = value
+        ``SIH`` (PX4's SIH) or ``none`` (a real airframe); the probe's value is kept. Both probes
+        are asked at once, and the first answer ends the probe."""
+        probes = {"SIM_THR_MAX": "SIM", "SIH_MASS": "SIH"}
+        values = self.read_params(list(probes), enough=bool)
+        for probe, family in probes.items():
+            if probe in values:
+                self.vehicle_params[probe] = values[probe]
                 return family
         return "none"
 
@@ -288,18 +290,38 @@ class VehicleClient:
         return int(getattr(getattr(self.link, "stats", None), "lost", 0)) > 0
 
     def read_param(self, name: str, attempts: int | None = None) -> float | None:
-        """PARAM_REQUEST_READ ``name`` until its PARAM_VALUE comes (``param_timeout_s`` an attempt;
-        ``attempts`` or ``param_attempts`` of them); its value, or None. Not kept."""
+        """PARAM_REQUEST_READ ``name`` until its PARAM_VALUE comes (``read_params``); its value, or None."""
+        return self.read_params([name], attempts).get(name)
+
+    def read_params(self, names: list[str], attempts: int | None = None,
+                    enough: Callable[[dict[str, float]], bool] | None = None) -> dict[str, float]:  # fmt: skip
+        """PARAM_REQUEST_READ each of ``names`` at once, then again for those not answered within
+        ``param_timeout_s``, ``attempts`` (or ``param_attempts``) rounds in all; the values that
+        came, by name (not kept). A PARAM_VALUE names its parameter, so the requests need not wait
+        for each other: over a lossy link each round costs one timeout, not one per parameter (as
+        QGroundControl and MAVSDK keep several in flight). ``enough(values)``: stop as soon as it
+        holds."""
         assert self.target is not None
-        self._param_wanted = name
+        values: dict[str, float] = {}
+        wanted = list(dict.fromkeys(names))
+        self._params_wanted = frozenset(wanted)
         try:
             for _ in range(attempts or self.config.param_attempts):
-                self.link.send(codec.param_request_read(self.target[0], self.target[1], name))
-                if self._wait(lambda: name in self.vehicle_params, self.config.param_timeout_s):
-                    return self.vehicle_params.pop(name)
+                missing = [n for n in wanted if n not in values]
+                for name in missing:
+                    self.link.send(codec.param_request_read(self.target[0], self.target[1], name))
+
+                def answered() -> bool:
+                    for n in missing:
+                        if n in self.vehicle_params:
+                            values[n] = self.vehicle_params.pop(n)
+                    return len(values) == len(wanted) or (enough is not None and enough(values))
+
+                if self._wait(answered, self.config.param_timeout_s) or answered():
+                    break
         finally:
-            self._param_wanted = None
-        return None
+            self._params_wanted = frozenset()
+        return values
 
     def sync_time(self) -> None:
         """TIMESYNC with the vehicle (up to three requests): ``timesync`` gets the offset and the

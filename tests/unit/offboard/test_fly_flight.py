@@ -538,6 +538,70 @@ def test_stream_commands_lost_on_the_way_are_sent_again_until_acknowledged():
     assert not [e for e in events if "refused" in e]
 
 
+def test_parameters_are_asked_for_at_once_and_only_the_unanswered_again():
+    """Every parameter's PARAM_REQUEST_READ goes out before the first answer is waited for; a lost
+    one is asked again in the next round, the answered ones not (a lossy link then costs a round,
+    not a timeout per parameter: 7 s of a 20 %-loss start-up before)."""
+    link = PlantLink(make_plant(), FakeClock())
+    asked: dict[str, int] = {}
+
+    def first_lost(msg) -> bool:
+        if msg.get_type() != "PARAM_REQUEST_READ":
+            return False
+        asked[msg.param_id] = asked.get(msg.param_id, 0) + 1
+        return asked[msg.param_id] == 1 and msg.param_id != "SIM_THR_MAX"  # the family probe gets through
+
+    link.drop = first_lost
+    flight, clock = make_flight(link)
+    result = flight.run()
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    requests = [m.param_id for m in link.sent_of("PARAM_REQUEST_READ")]
+    read = [n for n in dict.fromkeys(requests) if n not in ("SIM_THR_MAX", "SIH_MASS")]
+    assert len(read) >= 5 and all(asked[n] == 2 for n in read), asked  # each once more, no more
+    assert requests[-2 * len(read):] == read + read  # all of them, then all of them again
+    assert {n: result.vehicle_params[n] for n in read} == {n: link.plant.params[n] for n in read}
+
+
+@pytest.mark.parametrize("lost_tries", [3, 99])
+def test_over_a_lossy_link_the_stream_burst_is_sent_again_whole(lost_tries):
+    """A lossy link (the vehicle's sequence numbers show loss) that loses some of the burst: the
+    burst goes out again whole (an ACK does not say which command it answers) until it comes back
+    whole, at most ``command_attempts`` times, where one by one took 0.5 s a stream; a stream
+    never reached keeps its rate, and one note says so."""
+    from types import SimpleNamespace
+
+    from offboard import codec
+
+    link = PlantLink(make_plant(), FakeClock())
+    link.stats = SimpleNamespace(lost=3)
+    tries = {"n": 0}
+
+    def lossy(msg) -> bool:
+        if msg.get_type() == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and int(msg.param1) == mavlink.MAVLINK_MSG_ID_ODOMETRY:
+            tries["n"] += 1
+            return tries["n"] <= lost_tries
+        return False
+
+    link.drop = lossy
+    events: list[str] = []
+    flight, _ = make_flight(link)
+    flight._event = events.append
+    result = flight.run()
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    wanted = len(codec.UNREAD_STREAMS) + len(codec.SAMPLED_STREAMS)
+    sent = [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL]
+    rounds = min(lost_tries + 1, FlightConfig().command_attempts)
+    assert len(sent) == rounds * wanted and tries["n"] == rounds  # whole bursts only
+    schedule = link.plant.streams[API].interval_us
+    assert all(schedule[mid] == -1 for mid in codec.UNREAD_STREAMS if mid != mavlink.MAVLINK_MSG_ID_ODOMETRY)
+    notes = [e for e in events if "SET_MESSAGE_INTERVAL" in e]
+    if lost_tries < rounds:
+        assert schedule[mavlink.MAVLINK_MSG_ID_ODOMETRY] == -1 and not notes, notes
+    else:
+        assert schedule[mavlink.MAVLINK_MSG_ID_ODOMETRY] != -1
+        assert len(notes) == 1 and f"each was sent {rounds} times" in notes[0], notes
+
+
 def test_a_vehicle_without_a_stream_is_one_note_naming_it():
     link = PlantLink(make_plant(), FakeClock())
     # a vehicle that refuses one of them (PX4 without that stream): the rest still go off
