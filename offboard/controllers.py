@@ -20,6 +20,7 @@ from offboard.controller.command import Controller
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.paper import PaperController
 from offboard.controller.params import ControllerParams
+from offboard.controller.prediction import LatencyPredictor
 
 #: PX4's MPC_TILTMAX_AIR default, for a baseline whose belief has no tilt limit.
 DEFAULT_BASELINE_TILT_RAD = math.radians(45.0)
@@ -37,9 +38,12 @@ CONTROLLER_KINDS = tuple(k.value for k in ControllerKind)
 
 
 def make_controller(
-    kind: ControllerKind | str, params: ControllerParams, *, vehicle_model: VehicleModel | str = VehicleModel.RIGID_BODY
-) -> Controller:
-    """The ``kind`` controller believing ``params`` (mass, inertia, gravity, limits, To).
+    kind: ControllerKind | str, params: ControllerParams, *, vehicle_model: VehicleModel | str = VehicleModel.RIGID_BODY,
+    predictor: LatencyPredictor | None = None,
+) -> Controller:  # fmt: skip
+    """The ``kind`` controller believing ``params`` (mass, inertia, gravity, limits, To);
+    ``predictor``: the paper's law handed the state predicted over the latency (the baselines
+    take none).
 
     Raises
     ------
@@ -55,7 +59,9 @@ def make_controller(
         raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
     vehicle_model = VehicleModel(vehicle_model)
     if kind is ControllerKind.PAPER:
-        return PaperController(params, vehicle_model=vehicle_model)
+        return PaperController(params, vehicle_model=vehicle_model, predictor=predictor)
+    if predictor is not None:
+        raise ValueError(f"the {kind} controller takes no latency prediction (the paper's law does)")
     if vehicle_model is not VehicleModel.RIGID_BODY:
         raise ValueError(f"the {kind} controller flies a rigid body, not the paper's model")
     limits = params.limits

@@ -95,6 +95,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "TIMESYNC round trip plus one telemetry period)")
     ctl.add_argument("--no-integral", action="store_true",
                      help="design the gains without the law's velocity integral (docs/controller-design.md)")
+    ctl.add_argument("--no-predict", action="store_true",
+                     help="hand the designed law the measured state, the gains designed for the latency (default, "
+                          "with the attitude output and a latency: the state predicted over the latency by the "
+                          "inner loop's model, the gains designed for that; docs/controller-design.md)")
     ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
     ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
@@ -239,6 +243,7 @@ def run(args: argparse.Namespace) -> int:
         sample_time_s=args.sample_time,
         velocity_integral=not args.no_integral,
         body_rates=args.output == "rates",
+        predict=not args.no_predict,
     )
     config = FlightConfig(
         output=args.output,

@@ -112,6 +112,10 @@ class InnerLoopModel:
         attitude``). Otherwise the law closes the attitude loop itself, eq. 32-33 on the angles
         with these (k_pos, k_vel) = (kx7, kx8) = (kx9, kx10), and hands the autopilot the body
         rates x8ref, x10ref, which only its rate loop flies (``--output rates``; ``rate_axis_plant``).
+    predict : bool
+        The law is handed the state predicted ``latency_s`` ahead (``latency_predictor``: the
+        measured state carried over the latency by this model, with the setpoints in flight)
+        instead of the measured one; an attitude output only.
     """
 
     roll: TiltLoop
@@ -121,6 +125,7 @@ class InnerLoopModel:
     source: str = ""
     drag_per_s: float = 0.0
     angle_gains: AxisGains | None = None
+    predict: bool = False
 
     def __post_init__(self) -> None:
         for name in ("thrust_time_constant_s", "latency_s", "drag_per_s"):
@@ -274,6 +279,9 @@ class DiscretePlant:
     gamma: np.ndarray
     c: np.ndarray
     drag_per_s: float = 0.0
+    #: how far ahead of the sample the law's references are taken (s): the latency, when the law
+    #: is handed the state predicted over it (``predicted_plant``), so that it meets them in time
+    lookahead_s: float = 0.0
 
 
 def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, tilt_state: int | None = None,
@@ -312,6 +320,54 @@ def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: fl
     if tilt_state is not None:
         c[2, tilt_state] = 1.0
     return DiscretePlant(big_phi, big_gamma, c, drag_per_s)
+
+
+# --- the state predicted over the latency -----------------------------------------------------------
+
+#: The states of each axis's model the offboard measures (ATTITUDE, LOCAL_POSITION_NED): position,
+#: velocity, tilt and body rate of a horizontal axis (``tilt_axis_plant``), position and velocity of
+#: the vertical one (``vertical_plant``). The rate loop's integral, the motors' torque and the
+#: thrust's lag are not measured: the prediction takes them at hover (zero).
+HORIZONTAL_MEASURED = (0, 1, 2, 3)
+VERTICAL_MEASURED = (0, 1)
+
+
+def latency_predictor(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float,
+                      measured: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(Mx, Mu): the axis's state ``latency_s`` after the measurement, when the setpoint computed
+    from it starts to act, from the measured states and the setpoints still in flight::
+
+        x^(n To + L) = Mx x(n) + Mu (u(n-1), u(n-2), ..., u(n-m-1))
+
+    with ``L = m To + delta`` as ``discretise``: over [n To, n To + delta) u(n-m-1) acts, then
+    u(n-m), ..., u(n-1) a sample each. Mx is e^{AL} with the columns of the unmeasured states
+    zeroed (they are taken at hover). A Smith predictor in finite form: it carries no model state
+    of its own, so a model error costs accuracy over one latency, never a drift.
+    """
+    to, latency = sample_time_s, latency_s
+    n = a.shape[0]
+    m = int(latency // to)
+    delta = latency - m * to
+    mx = _zoh(a, b, latency)[0].copy()
+    mx[:, [j for j in range(n) if j not in measured]] = 0.0
+    mu = np.zeros((n, m + 1))
+    _, gamma_delta = _zoh(a, b, delta)
+    mu[:, m] = (_zoh(a, b, latency - delta)[0] @ gamma_delta)[:, 0]
+    _, gamma_to = _zoh(a, b, to)
+    for j in range(1, m + 1):  # u(n-m-1+j) over [delta + (j-1) To, delta + j To)
+        mu[:, m - j] = (_zoh(a, b, latency - delta - j * to)[0] @ gamma_to)[:, 0]
+    return mx, mu
+
+
+def predicted_plant(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, measured: tuple[int, ...], *,
+                    tilt_state: int | None = None, drag_per_s: float = 0.0) -> DiscretePlant:  # fmt: skip
+    """``discretise``'s plant with the law fed the predicted state (``latency_predictor``): its
+    output is (p, v, tilt) of ``Mx x + Mu (delay line)``, the delay line being the plant's own."""
+    plant = discretise(a, b, sample_time_s, latency_s, tilt_state=tilt_state, drag_per_s=drag_per_s)
+    n = a.shape[0]
+    mx, mu = latency_predictor(a, b, sample_time_s, latency_s, measured)
+    ahead = np.concatenate([mx, mu], axis=1)  # (n, size): the predicted physical state
+    return replace(plant, c=plant.c[:, :n] @ ahead, lookahead_s=latency_s)
 
 
 # --- the law on one axis, closed loop --------------------------------------------------------------
@@ -628,7 +684,8 @@ def loop_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) 
 def reference_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float, w: np.ndarray) -> np.ndarray:
     """T(e^{jw To}): position over reference at angular frequencies ``w`` (rad/s).
 
-    The reference enters eq. 32 as ``w = (r(n+1) - k_pos r(n)) / To`` and the integral as r(n).
+    The reference enters eq. 32 as ``w = (r(n+1) - k_pos r(n)) / To`` and the integral as r(n);
+    with ``plant.lookahead_s`` both are taken that much ahead of the sample.
     """
     to = sample_time_s
     m, br = closed_loop(plant, gains, to)
@@ -638,7 +695,7 @@ def reference_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: fl
     u = np.stack([(z - k_pos) / to, np.ones_like(z)], axis=-1)  # (w, r) per unit of r
     rhs = (br[None] @ u[:, :, None])  # (len(z), size, 1)
     x = np.linalg.solve(z[:, None, None] * np.eye(size)[None] - m[None], rhs)[..., 0]
-    return x[:, 0]
+    return x[:, 0] * np.exp(1j * np.asarray(w, dtype=float) * plant.lookahead_s)  # references taken that far ahead
 
 
 def tracking_lead_s2(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -> float:
@@ -736,6 +793,12 @@ def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePl
     command; through the autopilot's attitude loop, or with ``model.angle_gains`` through the
     law's own angle stage and the autopilot's rate loop (``rate_output_plant``)."""
     drag = model.drag_per_s
+    if model.predict and model.angle_gains is None:  # the law fed the state predicted over the latency
+        north, east = (predicted_plant(*tilt_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, HORIZONTAL_MEASURED,
+                                       tilt_state=TILT_STATE, drag_per_s=drag) for loop in (model.pitch, model.roll))  # fmt: skip
+        up = predicted_plant(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s, VERTICAL_MEASURED,
+                             drag_per_s=drag)  # fmt: skip
+        return north, east, up
     if model.angle_gains is None:
         north = discretise(*tilt_axis_plant(model.pitch, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)
         east = discretise(*tilt_axis_plant(model.roll, drag_per_s=drag), sample_time_s, model.latency_s, tilt_state=2, drag_per_s=drag)

@@ -25,6 +25,7 @@ from offboard.controller.command import Command, StateEstimate
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.controller.law import ControlOutput, RosalesController
 from offboard.controller.params import ControllerParams
+from offboard.controller.prediction import LatencyPredictor
 from offboard.controller.velocity import ConsistentVelocity
 from offboard.frames import floats3, paper_state, setpoint_attitude, tracking_reference
 from offboard.model.euler_lagrange import EulerRateForm, body_rates_from_euler_rates, body_torque_from_generalized, euler_rates_from_body_rates
@@ -93,11 +94,16 @@ class PaperController:
         ``rigid-body`` (default) or ``paper`` (module docstring).
     name : str
         How records and tables call it.
+    predictor : LatencyPredictor or None
+        Hand the law the state carried over the link's latency instead of the measured one
+        (``offboard.controller.prediction``; the gains must then be designed for it,
+        ``InnerLoopModel.predict``). None: the measured state, as the paper.
     """
 
     def __init__(
-        self, params: ControllerParams, *, vehicle_model: VehicleModel = VehicleModel.RIGID_BODY, name: str = "paper"
-    ) -> None:
+        self, params: ControllerParams, *, vehicle_model: VehicleModel = VehicleModel.RIGID_BODY, name: str = "paper",
+        predictor: LatencyPredictor | None = None,
+    ) -> None:  # fmt: skip
         if vehicle_model not in VEHICLE_MODELS:
             raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
         self.name = name
@@ -107,11 +113,14 @@ class PaperController:
         self.law = RosalesController(params)
         self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s)
                          if params.velocity_from_position_s > 0 else None)  # fmt: skip
+        self.predictor = predictor
 
     def reset(self) -> None:
         self.law.reset()
         if self.velocity is not None:
             self.velocity.reset()
+        if self.predictor is not None:
+            self.predictor.reset()
 
     def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
         p = self.params
@@ -119,7 +128,11 @@ class PaperController:
         if self.velocity is not None:
             stamp = getattr(state, "position_time_boot_ms", None)  # a MAVLink estimate's own stamp
             vel = self.velocity.update(state.pos_ned_m, state.vel_ned_m_s, None if stamp is None else stamp / 1000.0)
+        if self.predictor is not None:  # the law is handed the state the setpoint will meet
+            state, vel = self.predictor.predict(state, vel), None
         x = paper_state_of(state, p.euler_rate_form, vel)
         lead = p.reference_lead_s2
         out = self.law.step(x, tracking_reference(ref_n, lead), tracking_reference(ref_n1, lead))
+        if self.predictor is not None:
+            self.predictor.record(out.law.thrust_n, out.law.roll_setpoint_rad, out.law.pitch_setpoint_rad)
         return paper_command(out, state.euler_rad, p, self.vehicle_model)

@@ -74,10 +74,13 @@ def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
 
 
 def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, latency_s: float = 0.0,
-                       spec: MarginSpec | None = None, velocity_integral: bool = True, body_rates: bool = False) -> Design:  # fmt: skip
+                       spec: MarginSpec | None = None, velocity_integral: bool = True, body_rates: bool = False,
+                       predict: bool = False) -> Design:  # fmt: skip
     """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``),
     with the velocity integral unless ``velocity_integral`` is False; with ``body_rates``, for a
-    body-rate output (the law's angle gains designed too).
+    body-rate output (the law's angle gains designed too); with ``predict`` (an attitude output
+    and a latency > 0), for the law handed the state predicted over the latency
+    (``offboard.controller.prediction``).
 
     Raises
     ------
@@ -87,6 +90,8 @@ def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, lat
         No gains meet the margins.
     """
     model: InnerLoopModel = inner_loop_from_params(params, latency_s)
+    if predict and latency_s > 0.0 and not body_rates:
+        model = replace(model, predict=True)
     return design_gains(model, sample_time_s, spec, velocity_integral=velocity_integral, body_rates=body_rates)
 
 

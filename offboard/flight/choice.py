@@ -60,6 +60,10 @@ class ControllerChoice:
     body_rates : bool
         With ``tuned``: design for a body-rate output (``--output rates``: the law closes the
         attitude loop, its kx7..kx10 designed too).
+    predict : bool
+        With ``tuned``, an attitude output and a latency > 0: hand the law the state predicted
+        over the latency and design the gains for that (``offboard.controller.prediction``;
+        ``--no-predict``: the measured state, the gains designed for the latency).
     kind : ControllerKind
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
@@ -77,6 +81,12 @@ class ControllerChoice:
     sample_time_s: float | None = None
     velocity_integral: bool = True
     body_rates: bool = False
+    predict: bool = True
+
+    @property
+    def predicts(self) -> bool:
+        """Whether the flight hands the law the predicted state (``predict``'s conditions)."""
+        return self.predict and self.tuned and not self.body_rates and (self.latency_s or 0.0) > 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in CONTROLLER_KINDS:
@@ -199,13 +209,15 @@ def resolve_controller(
     if choice.tuned:
         try:
             design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
-                                        velocity_integral=choice.velocity_integral, body_rates=choice.body_rates)
+                                        velocity_integral=choice.velocity_integral, body_rates=choice.body_rates,
+                                        predict=choice.predicts)  # fmt: skip
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None
         params = tuned_params(params, design, vehicle)
+        predicted = ", the law handed the state predicted over it" if design.model.predict else ""
         notes.append(f"gains designed for the vehicle's inner loop ({design.model.source}, latency "
-                     f"{(choice.latency_s or 0.0) * 1000:.0f} ms; docs/controller-design.md):")
+                     f"{(choice.latency_s or 0.0) * 1000:.0f} ms{predicted}; docs/controller-design.md):")
         notes.extend(f"  {line}" for line in design_summary(design))
     tilt_text = "none" if tilt is None else f"{math.degrees(tilt):.0f} deg"
     notes.append(

@@ -42,9 +42,11 @@ import numpy as np
 
 from offboard import codec
 from offboard.clockrate import STALLED_RATE
-from offboard.codec import MeasuredState, Scaling
+from offboard.codec import MeasuredState, Scaling, SetpointOutput
 from offboard.controller import ControllerParams
 from offboard.controller.command import Controller
+from offboard.controller.design import inner_loop_from_params
+from offboard.controller.prediction import LatencyPredictor
 from offboard.controller.tuning import vehicle_values
 from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
@@ -192,6 +194,9 @@ class Flight:
         self.rows = RecordBuilder(FLIGHT_COLUMNS)
         self.sampler.mission_samples = int(round(trajectory.duration_s / self.to))
         self.references = ReferencePairs(trajectory, self.to)
+        #: with a latency prediction the law sees the state L ahead, and the references L ahead with it
+        self.lookahead_s = 0.0
+        self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self.notes: list[str] = []
         self.armed_by_us = False
@@ -322,7 +327,12 @@ class Flight:
         if "COM_OF_LOSS_T" in p and cfg.telemetry_timeout_s >= p["COM_OF_LOSS_T"]:
             self._say(f"note: the telemetry timeout {cfg.telemetry_timeout_s:g} s is not below the vehicle's "
                       f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
-        self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model)
+        predictor = None
+        if choice.predicts and cfg.output == SetpointOutput.ATTITUDE:
+            model = inner_loop_from_params(vehicle_values(client.vehicle_params), choice.latency_s or 0.0)
+            predictor = LatencyPredictor(model, self.params.sample_time_s, self.params.mass_kg, self.params.gravity_m_s2)
+            self.lookahead_s = predictor.latency_s
+        self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model, predictor=predictor)
         self.sampler.mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:
             client.sync_time()
@@ -457,6 +467,7 @@ class Flight:
         if shifted is not self.trajectory:
             self.trajectory = shifted
             self.references = ReferencePairs(shifted, self.to)
+            self.references_ahead = ReferencePairs(shifted, self.to)
             self._say(f"mission home at NED ({offset[0]:.2f}, {offset[1]:.2f}, {offset[2]:.2f}) m of the vehicle's frame")
 
     def _check_clock_rate(self) -> None:
@@ -605,7 +616,10 @@ class Flight:
         n, t = sampler.mission_sample(now)
         recording = not sampler.mission_done and n <= sampler.mission_samples
         ref_n, ref_n1 = self.references.pair(t)
-        command = self.controller.step(measured, ref_n, ref_n1)
+        if self.lookahead_s > 0.0:  # the predicted state meets the references of its own time
+            command = self.controller.step(measured, *self.references_ahead.pair(t + self.lookahead_s))
+        else:
+            command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
         if recording:
             if why:

@@ -1,0 +1,122 @@
+"""The measured state carried over the latency: what the law is handed instead of the measurement.
+
+Through a link, the setpoint a sample computes acts ``L`` after the measurement it came from (the
+telemetry's age, the link both ways, the processing: ``offboard fly`` measures it at start-up).
+A law fed the measurement answers a state that is already ``L`` old, and its gains must be slow
+enough for that (docs/controller-design.md: the design for 114 ms settles in 8.7 s where the one
+for no latency settles in 3.7 s). Fed the state ``L`` ahead, it sees the loop it was designed
+for, and the design keeps its bandwidth (4.1 s at 114 ms).
+
+``LatencyPredictor`` computes that state with the design's own linear model of the inner loop
+(``design.latency_predictor``), per axis:
+
+- forward (the pitch loop) and right (the roll loop), in the heading frame: position, velocity,
+  tilt (``-pitch`` forward, ``roll`` right: ``v_dot = g tilt``) and its rate (``-q``, ``p``);
+  the rate loop's integral and the motors' torque, not measured, are taken at hover;
+- up (the thrust's lag): position and velocity; the lagged acceleration taken at hover;
+- the setpoints still in flight: the last ``m + 1`` samples' (``L = m To + delta``), as the model's
+  input, ``g tilt_sp`` per horizontal axis and ``u cos(roll_sp) cos(pitch_sp) / m - g`` up.
+
+It keeps no model state between samples beyond those setpoints (a Smith predictor in finite
+form): a model error costs accuracy over one latency, never a drift. The heading is taken as
+constant over the latency (the yaw reference's rate is bounded by MPC_YAWRAUTO_MAX, 45 deg/s:
+7 deg over 150 ms). Pure numpy; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from offboard.controller.command import StateEstimate
+from offboard.controller.design import (
+    GRAVITY_M_S2,
+    HORIZONTAL_MEASURED,
+    VERTICAL_MEASURED,
+    InnerLoopModel,
+    latency_predictor,
+    tilt_axis_plant,
+    vertical_plant,
+)
+from offboard.model.rotations import quat_from_euler
+
+
+@dataclass(frozen=True)
+class PredictedState:
+    """A ``StateEstimate`` carried ``latency_s`` ahead (NED/FRD), with the measurement's stamps."""
+
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    euler_rad: np.ndarray
+    body_rate_frd_rad_s: np.ndarray
+    quat_wxyz: np.ndarray
+    position_time_boot_ms: float | None = None
+
+
+class LatencyPredictor:
+    """The state ``model.latency_s`` after the measurement (module docstring).
+
+    Parameters
+    ----------
+    model : InnerLoopModel
+        The vehicle's inner loop and the latency (``design.inner_loop_from_params``).
+    sample_time_s : float
+        The law's To.
+    mass_kg, gravity_m_s2 : float
+        What the law believes: the vertical input is the thrust's acceleration less gravity.
+    """
+
+    def __init__(self, model: InnerLoopModel, sample_time_s: float, mass_kg: float, gravity_m_s2: float = GRAVITY_M_S2) -> None:
+        if not (model.latency_s > 0.0 and math.isfinite(model.latency_s)):
+            raise ValueError(f"a prediction needs a latency > 0, got {model.latency_s}")
+        if not (mass_kg > 0.0 and sample_time_s > 0.0):
+            raise ValueError(f"mass_kg and sample_time_s must be > 0, got {mass_kg}, {sample_time_s}")
+        self.latency_s = model.latency_s
+        self.mass_kg = mass_kg
+        self.gravity_m_s2 = gravity_m_s2
+        drag = model.drag_per_s
+        self._forward = latency_predictor(*tilt_axis_plant(model.pitch, gravity_m_s2, drag), sample_time_s, model.latency_s,
+                                          HORIZONTAL_MEASURED)  # fmt: skip
+        self._right = latency_predictor(*tilt_axis_plant(model.roll, gravity_m_s2, drag), sample_time_s, model.latency_s,
+                                        HORIZONTAL_MEASURED)  # fmt: skip
+        self._up = latency_predictor(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s,
+                                     VERTICAL_MEASURED)  # fmt: skip
+        self.in_flight = self._forward[1].shape[1]  # m + 1 setpoints
+        self._inputs: deque[tuple[float, float, float]] = deque(maxlen=self.in_flight)
+        self.reset()
+
+    def reset(self) -> None:
+        """No setpoint in flight: the vehicle holds hover's (zero inputs)."""
+        self._inputs.clear()
+        self._inputs.extend([(0.0, 0.0, 0.0)] * self.in_flight)
+
+    def record(self, thrust_n: float, roll_setpoint_rad: float, pitch_setpoint_rad: float) -> None:
+        """The setpoint this sample sent (roll and pitch about the heading), as the model's inputs."""
+        g = self.gravity_m_s2
+        up = thrust_n * math.cos(roll_setpoint_rad) * math.cos(pitch_setpoint_rad) / self.mass_kg - g
+        self._inputs.appendleft((-g * pitch_setpoint_rad, g * roll_setpoint_rad, up))  # slot 0: u(n-1) next sample
+
+    def predict(self, state: StateEstimate, vel_ned_m_s: np.ndarray | None = None) -> PredictedState:
+        """``state`` carried over the latency (``vel_ned_m_s``: a velocity in place of its own)."""
+        pos = np.asarray(state.pos_ned_m, dtype=float)
+        vel = np.asarray(state.vel_ned_m_s if vel_ned_m_s is None else vel_ned_m_s, dtype=float)
+        roll, pitch, yaw = (float(v) for v in state.euler_rad)
+        p_rate, q_rate, r_rate = (float(v) for v in state.body_rate_frd_rad_s)
+        c, s = math.cos(yaw), math.sin(yaw)
+        # heading frame: forward (c, s), right (-s, c)
+        fwd = np.array([c * pos[0] + s * pos[1], c * vel[0] + s * vel[1], -pitch, -q_rate, 0.0, 0.0])
+        right = np.array([-s * pos[0] + c * pos[1], -s * vel[0] + c * vel[1], roll, p_rate, 0.0, 0.0])
+        up = np.array([-pos[2], -vel[2], 0.0])
+        inputs = np.array(self._inputs)  # (m + 1, 3): u(n-1) ... u(n-m-1)
+        f = self._forward[0] @ fwd + self._forward[1] @ inputs[:, 0]
+        r = self._right[0] @ right + self._right[1] @ inputs[:, 1]
+        u = self._up[0] @ up + self._up[1] @ inputs[:, 2]
+        pos_ned = np.array([c * f[0] - s * r[0], s * f[0] + c * r[0], -u[0]])
+        vel_ned = np.array([c * f[1] - s * r[1], s * f[1] + c * r[1], -u[1]])
+        euler = np.array([r[2], -f[2], yaw])
+        rates = np.array([r[3], -f[3], r_rate])
+        return PredictedState(pos_ned, vel_ned, euler, rates, np.asarray(quat_from_euler(*euler), dtype=float),
+                              getattr(state, "position_time_boot_ms", None))  # fmt: skip

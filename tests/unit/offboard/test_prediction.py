@@ -1,0 +1,127 @@
+"""The state predicted over the latency (offboard.controller.prediction, design.latency_predictor)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from offboard.controller import design as D
+from offboard.controller.prediction import LatencyPredictor
+from offboard.model.rotations import quat_from_euler
+from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from sitl_plant.params import plant_params
+
+TO = 0.05
+
+
+def _plant_model(latency_s: float) -> D.InnerLoopModel:
+    table = plant_params(load_vehicle(PAPER_VEHICLE_FILE))
+    return D.inner_loop_from_params({name: table[name] for name in table}, latency_s)
+
+
+def _simulate(a, b, x0, inputs, latency_s, t_end_s, dt=1e-4):
+    """The continuous model from x0 at t = 0 to t_end, the input u(j) acting over [j To + L, (j+1) To + L)
+    (and u(j) for j < 0 given by ``inputs``' negative keys)."""
+    phi, gamma = D._zoh(a, b, dt)
+    x = np.array(x0, dtype=float)
+    for k in range(int(round(t_end_s / dt))):
+        t = (k + 0.5) * dt
+        j = math.floor((t - latency_s) / TO)
+        x = phi @ x + gamma[:, 0] * inputs.get(j, 0.0)
+    return x
+
+
+@pytest.mark.parametrize("latency_s", [0.03, 0.05, 0.114, 0.17])
+def test_with_every_state_measured_the_prediction_is_the_model_latency_ahead(latency_s):
+    """Mx x + Mu u is the state the continuous model reaches L after the measurement, with the
+    setpoints in flight acting when the latency says (the design's timing, ``discretise``)."""
+    model = _plant_model(latency_s)
+    a, b = D.tilt_axis_plant(model.pitch, drag_per_s=0.1)
+    mx, mu = D.latency_predictor(a, b, TO, latency_s, tuple(range(a.shape[0])))
+    rng = np.random.default_rng(3)
+    x0 = rng.normal(size=a.shape[0]) * np.array([1.0, 0.5, 0.05, 0.3, 0.01, 0.02])
+    m = mu.shape[1] - 1
+    past = {-1 - k: float(rng.normal()) for k in range(m + 1)}  # u(n-1) ... u(n-m-1), with n = 0
+    predicted = mx @ x0 + mu @ np.array([past[-1 - k] for k in range(m + 1)])
+    truth = _simulate(a, b, x0, past, latency_s, latency_s)
+    assert np.allclose(predicted, truth, rtol=1e-6, atol=1e-9), (predicted, truth)
+
+
+def test_the_design_with_prediction_keeps_the_bandwidth_of_no_latency_and_the_margins():
+    """At the 114 ms a 50 +- 20 ms link measures, the measured-state design settles in 8.6 s; the
+    design for the predicted state (p, v, tilt, rate measured; the torque and the rate integral
+    taken at hover) comes within 10 % of the design for no latency, with the same margins."""
+    spec = D.MarginSpec()
+    none = D.design_gains(_plant_model(0.0), TO, spec, velocity_integral=True)
+    late = D.design_gains(_plant_model(0.114), TO, spec, velocity_integral=True)
+    ahead = D.design_gains(replace(_plant_model(0.114), predict=True), TO, spec, velocity_integral=True)
+    assert late.north.settling_time_s > 2.0 * none.north.settling_time_s
+    assert ahead.north.settling_time_s < 1.1 * none.north.settling_time_s
+    for axis in (ahead.north, ahead.east, ahead.up):
+        assert axis.meets(spec), axis
+
+
+def test_a_predicted_plant_with_every_state_known_is_the_plant_without_latency():
+    """The closed loop on the predicted state (every state measured) has the poles of the loop
+    without latency, and as many at the origin as the delay line is long: Smith's result."""
+    model = _plant_model(0.114)
+    a, b = D.tilt_axis_plant(model.pitch)
+    gains = D.AxisGains(0.9, 0.9, 0.5, velocity_integral_per_s2=1.0)
+    plant = D.predicted_plant(a, b, TO, 0.114, tuple(range(6)), tilt_state=D.TILT_STATE)
+    undelayed = D.discretise(a, b, TO, 0.0, tilt_state=D.TILT_STATE)
+    p_pred = np.sort(np.abs(np.linalg.eigvals(D.closed_loop_matrix(plant, gains, TO))))
+    p_none = np.sort(np.abs(np.linalg.eigvals(D.closed_loop_matrix(undelayed, gains, TO))))
+    extra = len(p_pred) - len(p_none)
+    # the two more delay slots: at the origin (a double eigenvalue, computed to about sqrt(eps))
+    assert extra == 2 and np.all(p_pred[:extra] < 1e-4)
+    assert np.allclose(p_pred[extra:], p_none, atol=1e-4)  # (the loop has a pole at the origin of its own)
+
+
+def _state(pos, vel, euler, rates):
+    class State:
+        pos_ned_m = np.asarray(pos, dtype=float)
+        vel_ned_m_s = np.asarray(vel, dtype=float)
+        euler_rad = np.asarray(euler, dtype=float)
+        body_rate_frd_rad_s = np.asarray(rates, dtype=float)
+        quat_wxyz = quat_from_euler(*euler)
+
+    return State()
+
+
+def test_a_level_vehicle_coasting_is_carried_along_its_velocity_whatever_its_heading():
+    """Level, no body rates, hover's thrust in flight: the position moves by v L (no drag in the
+    model), the velocity and the attitude stay; the same at any heading (the heading frame)."""
+    model = _plant_model(0.12)
+    for yaw in (0.0, 0.7, -2.5):
+        p = LatencyPredictor(model, TO, mass_kg=0.5, gravity_m_s2=9.81)
+        for _ in range(4):
+            p.record(0.5 * 9.81, 0.0, 0.0)
+        ahead = p.predict(_state([1.0, -2.0, -5.0], [0.8, -0.3, -0.2], [0.0, 0.0, yaw], [0.0, 0.0, 0.1]))
+        assert np.allclose(ahead.pos_ned_m, [1.0 + 0.8 * 0.12, -2.0 - 0.3 * 0.12, -5.0 - 0.2 * 0.12], atol=1e-9)
+        assert np.allclose(ahead.vel_ned_m_s, [0.8, -0.3, -0.2], atol=1e-9)
+        assert np.allclose(ahead.euler_rad, [0.0, 0.0, yaw], atol=1e-12)
+        assert ahead.body_rate_frd_rad_s[2] == 0.1
+
+
+def test_a_tilt_held_by_its_setpoint_accelerates_the_vehicle_that_way():
+    """Pitched 5 deg nose down facing east, the setpoint holding it: it accelerates east at
+    g tan(5 deg) ~ 0.86 m/s^2 over the latency; rolled right it goes south when facing east."""
+    model = _plant_model(0.1)
+    tilt = math.radians(5.0)
+    for roll, pitch, towards in ((0.0, -tilt, np.array([0.0, 1.0])), (tilt, 0.0, np.array([-1.0, 0.0]))):
+        p = LatencyPredictor(model, TO, mass_kg=0.5)
+        for _ in range(4):
+            p.record(0.5 * 9.81, roll, pitch)
+        ahead = p.predict(_state([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], [roll, pitch, math.pi / 2], [0.0, 0.0, 0.0]))
+        gained = ahead.vel_ned_m_s[:2] @ towards
+        assert gained == pytest.approx(9.81 * tilt * 0.1, rel=0.02)
+        assert abs(ahead.vel_ned_m_s[:2] @ np.array([-towards[1], towards[0]])) < 1e-9
+        assert np.allclose(ahead.euler_rad, [roll, pitch, math.pi / 2], atol=1e-4)  # held: the tilt stays
+
+
+def test_a_prediction_needs_a_latency():
+    with pytest.raises(ValueError, match="latency > 0"):
+        LatencyPredictor(_plant_model(0.0), TO, mass_kg=0.5)
