@@ -9,8 +9,9 @@ at the same rate through the same attitude loop.
 - ``sitl-plant`` in lockstep: every bundled mission, every controller;
 - ``sitl-plant`` in real time (``make demo``'s setting): the paper helix, both controllers, with
   and without 50 +- 20 ms of delay each way (``bench/linkdelay.py``); with the delay, the design
-  allowing for the latency it measured (TIMESYNC) and for a wrong 10 ms (``--design-latency``);
-  the baselines with the delay;
+  for the latency it measured (TIMESYNC), the law handed the state predicted over it (the
+  default) or the measured state (``--no-predict``), and the design and prediction for a wrong
+  10 ms (``--design-latency``); the baselines with the delay;
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
   mission with the designed gains, the helix with Table I's, the helix and the square with the
   baselines, and the helix and the square with PX4 at ``--speed 4`` (``offboard fly --clock
@@ -86,13 +87,13 @@ def _fly(mission: Path, run_dir: Path, connect_port: int, extra: tuple[str, ...]
 
 
 def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep: bool, delay: bool = False,
-              design_latency: float | None = None) -> dict:  # fmt: skip
+              design_latency: float | None = None, fly_args: tuple[str, ...] = ()) -> dict:  # fmt: skip
     """One flight against ``sitl-plant`` (two real processes on free loopback ports)."""
     from bench.linkdelay import DelayedLink
     from offboard.demo import free_udp_ports, stop_process
 
     plant_port, offboard_port = free_udp_ports(2)
-    extra: list[str] = [] if controller is None else ["--controller", controller]
+    extra: list[str] = ([] if controller is None else ["--controller", controller]) + list(fly_args)
     if lockstep:
         extra.append("--lockstep")
     if design_latency is not None:
@@ -161,17 +162,19 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
                    fly_plant(MISSIONS / name, work / f"f{k}", controller=controller, lockstep=True))  # fmt: skip
     if not quick:
         helix = MISSIONS / "paper-helix.toml"
-        for controller, delay, latency, condition in (
-            ("paper", False, None, "real time"),
-            (None, False, None, "real time"),
-            ("paper", True, None, "real time, 50 +- 20 ms delay"),
-            (None, True, None, "real time, 50 +- 20 ms delay (latency measured)"),
-            (None, True, 0.01, "real time, 50 +- 20 ms delay, designed for 10 ms"),
-            *((b, True, None, "real time, 50 +- 20 ms delay") for b in BASELINES),
+        for controller, delay, latency, args, condition in (
+            ("paper", False, None, (), "real time"),
+            (None, False, None, (), "real time"),
+            ("paper", True, None, (), "real time, 50 +- 20 ms delay"),
+            (None, True, None, (), "real time, 50 +- 20 ms delay (latency measured, state predicted)"),
+            (None, True, None, ("--no-predict",), "real time, 50 +- 20 ms delay (latency measured, measured state: --no-predict)"),
+            (None, True, 0.01, (), "real time, 50 +- 20 ms delay, designed and predicted for 10 ms"),
+            *((b, True, None, (), "real time, 50 +- 20 ms delay") for b in BASELINES),
         ):
             k += 1
             record("sitl-plant", helix.name, controller, condition,
-                   fly_plant(helix, work / f"f{k}", controller=controller, lockstep=False, delay=delay, design_latency=latency))  # fmt: skip
+                   fly_plant(helix, work / f"f{k}", controller=controller, lockstep=False, delay=delay, design_latency=latency,
+                             fly_args=args))  # fmt: skip
         if px4 is None:
             px4 = px4_launcher() is not None
         if px4:
@@ -206,8 +209,8 @@ def _delay_lines(flights: list[dict]) -> list[str]:
         base = undelayed.get(f["controller"])
         if f["vehicle"] != "sitl-plant" or "delay" not in f["condition"] or not base or f.get("hold_rms_m") is None:
             continue
-        out.append(f"- {f['controller']}, {f['condition']}: hold RMS {f['hold_rms_m']:.3f} m, "
-                   f"{f['hold_rms_m'] / base:.1f}x the undelayed {base:.3f} m")  # fmt: skip
+        out.append(f"- {f['controller']}, {f['condition']}: hold RMS {f['hold_rms_m']:.4f} m, "
+                   f"{f['hold_rms_m'] / base:.2f}x the undelayed {base:.4f} m")  # fmt: skip
     if out:
         out = ["", "The helix's hold at 12 m with 50 +- 20 ms of delay each way, against the same controller without "
                "(target for the designed law: at most 2x):", "", *out]  # fmt: skip

@@ -1,0 +1,61 @@
+"""Issue 11's delay target, flown: over 50 +- 20 ms each way the designed law, handed the state
+predicted over the latency (offboard.controller.prediction), holds as it does without delay."""
+
+from __future__ import annotations
+
+import math
+import re
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from helpers.flights import fly, series, write_mission
+
+# a climb to 2 m, then a 1.5 m step north-east and a 0.5 m step up held for 8 s: the helix's
+# hold at 12 m in small (a step from where the vehicle flies to a point held)
+STEP_AND_HOLD = """[[mission.segment]]
+type = "hold"
+name = "climb"
+position = [0, 0, 2]
+yaw = 0
+until_s = 4
+
+[[mission.segment]]
+type = "hold"
+name = "step"
+position = [1.2, 0.9, 2.5]
+yaw = 0
+until_s = 12
+"""
+
+
+def _hold_rms(flown) -> float:
+    s = series(flown)
+    t = s["t_s"]
+    second_half = (t >= 8.0) & (t < 12.0)
+    err = np.stack([s[f"pos_ned_m_{i}"] - s[f"ref_pos_ned_m_{i}"] for i in range(3)], axis=1)
+    return float(np.sqrt(np.mean(np.sum(err[second_half] ** 2, axis=1))))
+
+
+def test_over_a_delayed_link_the_predicted_state_holds_within_twice_the_undelayed_error(tmp_path):
+    """Real time, the same mission without delay and over ``sitl-plant --link delay=50,jitter=20``
+    (both ways), flown at once. The delayed flight measures its latency (~110 ms), designs for the
+    predicted state and says so; the second half of its hold is at most twice the undelayed
+    flight's error (issue 11's target; 1.35x in the helix's hold, where the measured state's
+    design held 0.104 m against 0.0007 m)."""
+    mission = write_mission(tmp_path / "step.toml", STEP_AND_HOLD)
+    with ThreadPoolExecutor(2) as pool:
+        clean = pool.submit(fly, tmp_path, mission, lockstep=False, name="clean")
+        late = pool.submit(fly, tmp_path, mission, lockstep=False, name="late",
+                           plant_args=("--link", "delay=50,jitter=20", "--seed", "3"))  # fmt: skip
+        clean_flown, late_flown = clean.result(), late.result()
+    for flown in (clean_flown, late_flown):
+        assert flown.returncode == 0 and flown.status == "complete", flown.stderr
+    said = re.search(r"latency (\d+) ms, the law handed the state predicted over it", late_flown.stderr)
+    assert said and 80 <= int(said.group(1)) <= 200, late_flown.stderr  # ~2 x 50 ms + one telemetry period
+    # without delay the latency is one telemetry period and the loopback's round trip (~11 ms)
+    said = re.search(r"latency (\d+) ms, the law handed the state predicted over it", clean_flown.stderr)
+    assert said and int(said.group(1)) < 40, clean_flown.stderr
+    clean_rms, late_rms = _hold_rms(clean_flown), _hold_rms(late_flown)
+    print(f"\nhold's second half: {late_rms:.5f} m over 50 +- 20 ms, {clean_rms:.5f} m without")
+    assert math.isfinite(late_rms) and late_rms <= 2.0 * clean_rms
