@@ -125,3 +125,27 @@ def test_a_tilt_held_by_its_setpoint_accelerates_the_vehicle_that_way():
 def test_a_prediction_needs_a_latency():
     with pytest.raises(ValueError, match="latency > 0"):
         LatencyPredictor(_plant_model(0.0), TO, mass_kg=0.5)
+
+
+def test_the_design_doc_quotes_the_latency_designs_as_they_come_out():
+    """docs/controller-design.md, "Latency": the settling times and margins it quotes for 114 ms
+    (measured state, predicted state) and for none are the design's, to the digits quoted."""
+    import re
+
+    from helpers import REPO
+
+    text = " ".join((REPO / "docs" / "controller-design.md").read_text().split())
+    spec = D.MarginSpec()
+    measured = D.design_gains(_plant_model(0.114), TO, spec, velocity_integral=True).north
+    none = D.design_gains(_plant_model(0.0), TO, spec, velocity_integral=True).north
+    ahead = D.design_gains(replace(_plant_model(0.114), predict=True), TO, spec, velocity_integral=True).north
+    quoted = re.search(r"the design for the measured state settles in ([0-9.]+) s \(\|pole\| max ([0-9.]+)\) where the "
+                       r"design for no latency settles in ([0-9.]+) s \(([0-9.]+)\)", text)  # fmt: skip
+    assert quoted, "the sentence on the measured state's design is gone from docs/controller-design.md"
+    assert quoted.groups() == (f"{measured.settling_time_s:.2f}", f"{measured.spectral_radius:.3f}",
+                               f"{none.settling_time_s:.2f}", f"{none.spectral_radius:.3f}")  # fmt: skip
+    quoted = re.search(r"at 114 ms the design for the predicted state settles in ([0-9.]+) s: \|pole\| max ([0-9.]+), gain "
+                       r"margin ([0-9.]+), phase margin ([0-9.]+)°, and a delay margin of ([0-9]+) ms", text)  # fmt: skip
+    assert quoted, "the sentence on the predicted state's design is gone from docs/controller-design.md"
+    assert quoted.groups() == (f"{ahead.settling_time_s:.2f}", f"{ahead.spectral_radius:.3f}", f"{ahead.gain_margin:.2f}",
+                               f"{ahead.phase_margin_deg:.1f}", f"{ahead.delay_margin_s * 1000:.0f}")  # fmt: skip
