@@ -112,6 +112,14 @@ def make_flight(link, *, duration_s: float = 1.0, config: FlightConfig | None = 
     return flight, clock
 
 
+def run_flight(link, **kwargs) -> tuple:
+    """(the flight's result, the lines it said) of a flight over ``link``."""
+    events: list[str] = []
+    flight, _ = make_flight(link, **kwargs)
+    flight._event = events.append
+    return flight.run(), events
+
+
 def command_sequence(link: PlantLink) -> list[tuple[int, float]]:
     return [(m.command, m.param1) for m in link.sent_of("COMMAND_LONG") if m.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL]
 
@@ -526,10 +534,7 @@ def test_stream_commands_lost_on_the_way_are_sent_again_until_acknowledged():
         return False
 
     link.drop = lossy
-    events: list[str] = []
-    flight, _ = make_flight(link)
-    flight._event = events.append
-    result = flight.run()
+    result, events = run_flight(link)
     assert result.status is FlightStatus.COMPLETE, result.detail
     assert lost == {mavlink.MAVLINK_MSG_ID_ODOMETRY: 4, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4}
     schedule = link.plant.streams[API].interval_us
@@ -583,10 +588,7 @@ def test_over_a_lossy_link_the_stream_burst_is_sent_again_whole(lost_tries):
         return False
 
     link.drop = lossy
-    events: list[str] = []
-    flight, _ = make_flight(link)
-    flight._event = events.append
-    result = flight.run()
+    result, events = run_flight(link)
     assert result.status is FlightStatus.COMPLETE, result.detail
     wanted = len(codec.UNREAD_STREAMS) + len(codec.SAMPLED_STREAMS)
     sent = [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL]
