@@ -1,0 +1,217 @@
+"""What PX4 SIH's estimator tells the offboard, against SIH's own truth (issue 11's PX4 holds).
+
+``offboard fly`` closes its loops on EKF2's LOCAL_POSITION_NED, as any offboard does. This flies
+the paper helix on a real PX4 SITL (`offboard fly`, no controller file) while a second client on
+PX4's ground-station link records HIL_STATE_QUATERNION, which PX4 fills from SIH's ground truth,
+beside LOCAL_POSITION_NED on the same link; then compares them:
+
+- over the airborne flight: EKF2's position and velocity error (RMS, north, east, down), and the
+  error of the velocity the law reads (``[law] velocity_from_position_s``, ConsistentVelocity);
+- over the second half of the hold at 12 m (18.5-25 s of the mission): how far the vehicle really
+  wanders (its true position's standard deviation) while the estimate it is held on stays put,
+  EKF2's mean velocity error there, and the tilt the flight shows (its ATTITUDE, as the tests and
+  ``make bench`` measure it).
+
+    python bench/px4_estimator.py [--speed F] [--json]
+
+Needs a PX4 SITL (``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl``); says so in one line without.
+HIL_STATE_QUATERNION carries no usable time (PX4 sends time_usec 0): each truth sample takes the
+time of the LOCAL_POSITION_NED before it on the same link, and the two are aligned by the lag
+(within +-50 ms) that best correlates their vertical velocities.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4  # noqa: E402
+from offboard.controller.velocity import ConsistentVelocity  # noqa: E402
+from offboard.missions import MISSIONS_DIR  # noqa: E402
+
+HELIX = MISSIONS_DIR / "paper-helix.toml"
+HOLD_S = (18.5, 25.0)  # the second half of the helix's hold at 12 m, mission time
+AIRBORNE_DOWN_M = -5.0  # "airborne": the estimate more than 5 m up
+RECORD_RATE_HZ = 50.0
+EARTH_RADIUS_M = 6378137.0
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+HIL_STATE_QUATERNION_ID = 115
+LOCAL_POSITION_NED_ID = 32
+
+
+@dataclass
+class GroundStationRecord:
+    """What the ground-station link carried: (time_boot s, x, y, z, vx, vy, vz) estimates and
+    (time s, lat deg, lon deg, alt m, vn, ve, vd) truths, the truth stamped with the estimate before it."""
+
+    estimates: list[tuple[float, ...]] = field(default_factory=list)
+    truths: list[tuple[float, ...]] = field(default_factory=list)
+
+
+def record_ground_station(port: int, stop: threading.Event, record: GroundStationRecord) -> None:
+    """Listen on PX4's ground-station link until ``stop``; ask for both messages every 2 s."""
+    from pymavlink import mavutil
+
+    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=250)
+    try:
+        if link.wait_heartbeat(timeout=30) is None:
+            return
+        interval_us = 1e6 / RECORD_RATE_HZ
+        asked = 0.0
+        last_time: float | None = None
+        while not stop.is_set():
+            if time.monotonic() - asked > 2.0:
+                for message_id in (HIL_STATE_QUATERNION_ID, LOCAL_POSITION_NED_ID):
+                    link.mav.command_long_send(link.target_system, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                               message_id, interval_us, 0, 0, 0, 0, 0)  # fmt: skip
+                asked = time.monotonic()
+            msg = link.recv_match(type=["LOCAL_POSITION_NED", "HIL_STATE_QUATERNION"], blocking=True, timeout=0.2)
+            if msg is None:
+                continue
+            if msg.get_type() == "LOCAL_POSITION_NED":
+                last_time = msg.time_boot_ms / 1000.0
+                record.estimates.append((last_time, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
+            elif last_time is not None:
+                record.truths.append((last_time, msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0,
+                                      msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0))  # fmt: skip
+    finally:
+        link.close()
+
+
+def _unique(rows: list[tuple[float, ...]]) -> np.ndarray:
+    a = np.asarray(rows, dtype=float).reshape(-1, 7)
+    _, first = np.unique(a[:, 0], return_index=True)
+    return a[first]
+
+
+def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float,
+            sample_time_s: float) -> dict:
+    """The figures of the module docstring from a flight's ground-station record and its series.csv
+    (a structured array with t_s, time_boot_ms and euler_rad_0/1)."""
+    est, tru = _unique(record.estimates), _unique(record.truths)
+    if len(est) < 100 or len(tru) < 100:
+        raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
+    lat0, lon0 = tru[0, 1], tru[0, 2]
+    true_pos = np.stack([np.radians(tru[:, 1] - lat0) * EARTH_RADIUS_M,
+                         np.radians(tru[:, 2] - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0)),
+                         -tru[:, 3]], axis=1)  # fmt: skip
+    true_vel = tru[:, 4:7]
+    lags = np.arange(-0.05, 0.0501, 0.0025)
+    scores = [np.corrcoef(np.interp(est[:, 0] + lag, tru[:, 0], true_vel[:, 2]), est[:, 6])[0, 1] for lag in lags]
+    lag = float(lags[int(np.nanargmax(scores))])
+    # the law's samples: every To of the estimate's clock
+    t = np.arange(est[0, 0], est[-1, 0], sample_time_s)
+    pos = np.stack([np.interp(t, est[:, 0], est[:, 1 + k]) for k in range(3)], axis=1)
+    vel = np.stack([np.interp(t, est[:, 0], est[:, 4 + k]) for k in range(3)], axis=1)
+    tpos = np.stack([np.interp(t + lag, tru[:, 0], true_pos[:, k]) for k in range(3)], axis=1)
+    tvel = np.stack([np.interp(t + lag, tru[:, 0], true_vel[:, k]) for k in range(3)], axis=1)
+    airborne = pos[:, 2] < AIRBORNE_DOWN_M
+    tpos += (pos[airborne] - tpos[airborne]).mean(axis=0)  # the estimate's origin, where the truth has none
+    read = np.empty_like(vel)
+    if velocity_from_position_s > 0:
+        consistent = ConsistentVelocity(velocity_from_position_s, sample_time_s)
+        for n in range(len(t)):
+            read[n] = consistent.update(pos[n], vel[n], t[n])
+    else:
+        read[:] = vel
+    mission_start = series["time_boot_ms"][0] / 1000.0 - series["t_s"][0]
+    hold = (t >= mission_start + HOLD_S[0]) & (t < mission_start + HOLD_S[1])
+    s_hold = (series["t_s"] >= HOLD_S[0]) & (series["t_s"] < HOLD_S[1])
+    tilt = np.degrees(np.arccos(np.cos(series["euler_rad_0"][s_hold]) * np.cos(series["euler_rad_1"][s_hold])))
+
+    def rms(x: np.ndarray) -> list[float]:
+        return [round(float(v), 4) for v in np.sqrt(np.mean(x**2, axis=0))]
+
+    return {
+        "truth_lag_s": lag,
+        "airborne_samples": int(airborne.sum()),
+        "position_error_rms_m": rms((pos - tpos)[airborne]),
+        "velocity_error_rms_m_s": rms((vel - tvel)[airborne]),
+        "velocity_read_error_rms_m_s": rms((read - tvel)[airborne]),
+        "velocity_from_position_s": velocity_from_position_s,
+        "hold_samples": int(hold.sum()),
+        "hold_true_position_std_m": [round(float(v), 4) for v in tpos[hold].std(axis=0)],
+        "hold_estimated_position_std_m": [round(float(v), 4) for v in pos[hold].std(axis=0)],
+        "hold_velocity_error_mean_m_s": [round(float(v), 4) for v in (vel - tvel)[hold].mean(axis=0)],
+        "hold_velocity_read_error_rms_m_s": rms((read - tvel)[hold]),
+        "hold_tilt_max_deg": round(float(tilt.max()), 3) if tilt.size else None,
+        "hold_tilt_rms_deg": round(float(np.sqrt(np.mean(tilt**2))), 3) if tilt.size else None,
+    }
+
+
+def fly(folder: Path, speed: float) -> dict:
+    """One helix on a fresh PX4 SITL with the ground-station recorder: ``compare``'s figures."""
+    record, stop = GroundStationRecord(), threading.Event()
+    run = folder / "run"
+    with running_px4(folder / "px4", speed=speed) as px4:
+        recorder = threading.Thread(target=record_ground_station, args=(px4.gcs_listen_port, stop, record), daemon=True)
+        recorder.start()
+        try:
+            flown = subprocess.run(
+                [sys.executable, "-m", "offboard.cli", "fly", str(HELIX), "--connect", f"udpin:127.0.0.1:{px4.api_listen_port}",
+                 "--run-dir", str(run), "--no-plots", "--json"],
+                capture_output=True, text=True, timeout=300, cwd=ROOT,
+            )  # fmt: skip
+        finally:
+            stop.set()
+            recorder.join(timeout=5)
+    if flown.returncode != 0:
+        raise RuntimeError(f"offboard fly exited {flown.returncode}: {flown.stderr.strip().splitlines()[-1:]}")
+    summary = json.loads((run / "summary.json").read_text())
+    series = np.genfromtxt(run / "series.csv", delimiter=",", names=True)
+    controller = summary["controller"]
+    figures = compare(record, series, float(controller["velocity_from_position_s"]), float(controller["sample_time_s"]))
+    figures["speed"] = speed
+    return figures
+
+
+def _axes(values: list[float], unit: str) -> str:
+    return ", ".join(f"{name} {v:.3f}" for name, v in zip(("north", "east", "down"), values)) + f" {unit}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = parser.parse_args(argv)
+    if px4_launcher() is None:
+        print(f"px4_estimator: {SKIP_REASON}", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="px4-estimator-") as tmp:
+        try:
+            f = fly(Path(tmp), args.speed)
+        except (RuntimeError, ValueError) as exc:
+            print(f"px4_estimator: {exc}", file=sys.stderr)
+            return 1
+    if args.json:
+        print(json.dumps(f, allow_nan=False))
+        return 0
+    print(f"PX4 SIH helix at --speed {args.speed:g}, EKF2's LOCAL_POSITION_NED against SIH's truth (HIL_STATE_QUATERNION)")
+    print(f"airborne ({f['airborne_samples']} samples): position error RMS {_axes(f['position_error_rms_m'], 'm')}")
+    print(f"  velocity error RMS {_axes(f['velocity_error_rms_m_s'], 'm/s')}")
+    print(f"  the velocity the law reads (T {f['velocity_from_position_s']:g} s): error RMS {_axes(f['velocity_read_error_rms_m_s'], 'm/s')}")
+    print(f"hold at 12 m, {HOLD_S[0]:g}-{HOLD_S[1]:g} s ({f['hold_samples']} samples):")
+    print(f"  true position std {_axes(f['hold_true_position_std_m'], 'm')}")
+    print(f"  estimated position std {_axes(f['hold_estimated_position_std_m'], 'm')}")
+    print(f"  EKF2 velocity error mean {_axes(f['hold_velocity_error_mean_m_s'], 'm/s')}")
+    print(f"  the velocity the law reads: error RMS {_axes(f['hold_velocity_read_error_rms_m_s'], 'm/s')}")
+    print(f"  tilt max {f['hold_tilt_max_deg']:.2f} deg, RMS {f['hold_tilt_rms_deg']:.2f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

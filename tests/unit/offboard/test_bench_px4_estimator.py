@@ -1,0 +1,73 @@
+"""bench/px4_estimator.py's comparison of EKF2's estimates with SIH's truth, on records made here
+with known errors (the flight itself needs a PX4: ``python bench/px4_estimator.py``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench.px4_estimator import EARTH_RADIUS_M, GroundStationRecord, compare
+
+LAT0, LON0, ALT0 = 47.397742, 8.545594, 488.0
+
+
+def _record(position_error, velocity_bias, truth_delay_s=0.0, seconds=40.0):
+    """A vehicle that climbs to 12 m, wanders north 0.1 m at 0.2 Hz in the hold and lands; the
+    estimate is the truth plus the given errors, at 50 Hz; the truth is stamped truth_delay_s late."""
+    record = GroundStationRecord()
+    for n in range(int(seconds * 50)):
+        t = 5.0 + n / 50.0
+        s = t - 5.0
+        down = -12.0 * min(1.0, s / 5.0) if s < 30 else -12.0 * max(0.0, 1 - (s - 30) / 5.0)
+        vd = -12.0 / 5.0 if s < 5 else (12.0 / 5.0 if 30 <= s < 35 else 0.0)
+        north = 0.1 * math.sin(2 * math.pi * 0.2 * s)
+        vn = 0.1 * 2 * math.pi * 0.2 * math.cos(2 * math.pi * 0.2 * s)
+        est = (north + position_error(s), 0.0, down, vn + velocity_bias, 0.0, vd)
+        record.estimates.append((t, *est))
+        lat = LAT0 + math.degrees(north / EARTH_RADIUS_M)
+        record.truths.append((t - truth_delay_s, lat, LON0, ALT0 - down, vn, 0.0, vd))
+    return record
+
+
+def _series(seconds=40.0):
+    t = np.arange(0.0, seconds, 0.05)
+    series = np.zeros(len(t), dtype=[("t_s", float), ("time_boot_ms", float), ("euler_rad_0", float), ("euler_rad_1", float)])
+    series["t_s"] = t
+    series["time_boot_ms"] = (t + 5.0) * 1000.0
+    series["euler_rad_0"] = np.radians(2.0) * np.sin(2 * np.pi * 0.5 * t)
+    return series
+
+
+def test_an_exact_estimate_has_no_error_and_the_hold_wander_is_the_trues():
+    f = compare(_record(lambda s: 0.0, 0.0), _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    assert f["position_error_rms_m"] == pytest.approx([0, 0, 0], abs=2e-3)
+    assert f["velocity_error_rms_m_s"] == pytest.approx([0, 0, 0], abs=2e-3)
+    assert f["hold_true_position_std_m"][0] == pytest.approx(0.1 / math.sqrt(2), rel=0.05)
+    assert f["hold_samples"] == 130 and f["hold_tilt_max_deg"] == pytest.approx(2.0, abs=0.05)
+
+
+def test_a_velocity_bias_is_reported_and_the_consistent_velocity_removes_it():
+    raw = compare(_record(lambda s: 0.0, 0.3), _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    read = compare(_record(lambda s: 0.0, 0.3), _series(), velocity_from_position_s=0.5, sample_time_s=0.05)
+    assert raw["velocity_error_rms_m_s"][0] == pytest.approx(0.3, abs=0.01)
+    assert raw["hold_velocity_error_mean_m_s"][0] == pytest.approx(0.3, abs=0.01)
+    assert read["hold_velocity_read_error_rms_m_s"][0] < 0.01  # the law reads the position's derivative
+
+
+def test_a_position_held_still_while_the_vehicle_wanders():
+    """The estimate holds still, the truth wanders: the PX4 hold's case."""
+    f = compare(_record(lambda s: -0.1 * math.sin(2 * math.pi * 0.2 * s), 0.0), _series(), 0.0, 0.05)
+    assert f["hold_estimated_position_std_m"][0] < 0.005 < 0.06 < f["hold_true_position_std_m"][0]
+
+
+def test_the_truth_is_aligned_in_time():
+    f = compare(_record(lambda s: 0.0, 0.0, truth_delay_s=0.02), _series(), 0.0, 0.05)
+    assert f["truth_lag_s"] == pytest.approx(-0.02, abs=0.003)
+    assert max(f["velocity_error_rms_m_s"]) < 0.01
+
+
+def test_too_little_recorded_is_one_line():
+    with pytest.raises(ValueError, match="too little recorded"):
+        compare(GroundStationRecord(), _series(), 0.0, 0.05)
