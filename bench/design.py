@@ -217,6 +217,45 @@ def _delay_lines(flights: list[dict]) -> list[str]:
     return out
 
 
+#: issue 11's targets for the designed law (helix RMS m over 5-11.9 s, hold tilt deg, peak tilt deg)
+DEMO_TARGET = (0.05, 3.0, 35.0)
+PX4_TARGET = (0.10, 5.0)
+
+
+def _target_lines(flights: list[dict]) -> list[str]:
+    """Issue 11's flight targets for the designed law, met or not, row by row: the demo's flight
+    (sitl-plant, real time: helix at most 0.05 m, every hold within 3 deg, the peak within the
+    35 deg tilt limit) and every real PX4 flight (complete, every hold within 5 deg, the helix at
+    most 0.10 m)."""
+    out = []
+    for f in flights:
+        if f["controller"] != "designed" or f["condition"] not in ("real time", "--speed 4, vehicle clock"):
+            continue
+        misses = []
+        helix = f["mission"] == "paper-helix.toml"
+        if f["vehicle"] == "sitl-plant":
+            if not helix:
+                continue
+            limit_m, limit_tilt, peak = DEMO_TARGET
+            if f.get("peak_tilt_deg") is None or f["peak_tilt_deg"] > peak:
+                misses.append(f"peak tilt {_f(f.get('peak_tilt_deg'), '.1f')} deg > {peak:g}")
+        else:
+            limit_m, limit_tilt = PX4_TARGET
+        if f.get("status") != "complete":
+            misses.append(f"status {f.get('status')}")
+        if f.get("hold_tilt_max_deg") is None or f["hold_tilt_max_deg"] > limit_tilt:
+            misses.append(f"hold tilt {_f(f.get('hold_tilt_max_deg'), '.1f')} deg > {limit_tilt:g}")
+        if helix and (f.get("moving_rms_m") is None or f["moving_rms_m"] > limit_m):
+            misses.append(f"helix {_f(f.get('moving_rms_m'), '.3f')} m > {limit_m:g}")
+        verdict = "met" if not misses else "not met: " + ", ".join(misses)
+        out.append(f"- {f['vehicle']}, {f['mission']}, {f['condition']}: {verdict}")
+    if out:
+        out = ["", "Issue 11's targets for the designed law (sitl-plant in real time, `make demo`'s flight: helix "
+               "5-11.9 s at most 0.05 m, the holds within 3 deg, the peak within the 35 deg limit; real PX4: "
+               "complete, every hold within 5 deg, the helix at most 0.10 m):", "", *out]  # fmt: skip
+    return out
+
+
 def markdown(result: dict) -> str:
     """The part's section of bench/RESULTS.md."""
     lines = [
@@ -239,6 +278,7 @@ def markdown(result: dict) -> str:
             f"{_f(f.get('peak_tilt_deg'), '.1f')} |"
         )
     lines += _delay_lines(result["flights"])
+    lines += _target_lines(result["flights"])
     if not result["px4"]:
         lines += ["", "No PX4 SITL was found (set `PX4_SITL=/path/to/px4-sitl`): no real-PX4 rows."]
     return "\n".join(lines)
