@@ -6,7 +6,8 @@ PX4's ground-station link records HIL_STATE_QUATERNION, which PX4 fills from SIH
 beside LOCAL_POSITION_NED on the same link; then compares them:
 
 - over the airborne flight: EKF2's position and velocity error (RMS, north, east, down), and the
-  error of the velocity the law reads (``[law] velocity_from_position_s``, ConsistentVelocity);
+  error of the velocity the law reads (``[law] velocity_from_position_s``, ConsistentVelocity),
+  with the flight's time constant and, offline on the same record, others;
 - over the second half of the hold at 12 m (18.5-25 s of the mission): how far the vehicle really
   wanders (its true position's standard deviation) while the estimate it is held on stays put,
   EKF2's mean velocity error there, and the tilt the flight shows (its ATTITUDE, as the tests and
@@ -47,6 +48,8 @@ HELIX = MISSIONS_DIR / "paper-helix.toml"
 HOLD_S = (18.5, 25.0)  # the second half of the helix's hold at 12 m, mission time
 AIRBORNE_DOWN_M = -5.0  # "airborne": the estimate more than 5 m up
 RECORD_RATE_HZ = 50.0
+#: the velocity filter's time constants compared offline on the same record (0: EKF2's velocity)
+TIME_CONSTANTS_S = (0.0, 0.05, 0.1, 0.25, 0.5, 1.0)
 EARTH_RADIUS_M = 6378137.0
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 HIL_STATE_QUATERNION_ID = 115
@@ -98,8 +101,15 @@ def _unique(rows: list[tuple[float, ...]]) -> np.ndarray:
     return a[first]
 
 
-def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float,
-            sample_time_s: float) -> dict:
+def _velocity_read(pos: np.ndarray, vel: np.ndarray, t: np.ndarray, time_constant_s: float, sample_time_s: float) -> np.ndarray:
+    """The velocity the law reads at each sample with ``[law] velocity_from_position_s`` = T (0: EKF2's own)."""
+    if time_constant_s <= 0:
+        return vel.copy()
+    consistent = ConsistentVelocity(time_constant_s, sample_time_s)
+    return np.array([consistent.update(pos[n], vel[n], t[n]) for n in range(len(t))])
+
+
+def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float, sample_time_s: float) -> dict:
     """The figures of the module docstring from a flight's ground-station record and its series.csv
     (a structured array with t_s, time_boot_ms and euler_rad_0/1)."""
     est, tru = _unique(record.estimates), _unique(record.truths)
@@ -121,13 +131,7 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
     tvel = np.stack([np.interp(t + lag, tru[:, 0], true_vel[:, k]) for k in range(3)], axis=1)
     airborne = pos[:, 2] < AIRBORNE_DOWN_M
     tpos += (pos[airborne] - tpos[airborne]).mean(axis=0)  # the estimate's origin, where the truth has none
-    read = np.empty_like(vel)
-    if velocity_from_position_s > 0:
-        consistent = ConsistentVelocity(velocity_from_position_s, sample_time_s)
-        for n in range(len(t)):
-            read[n] = consistent.update(pos[n], vel[n], t[n])
-    else:
-        read[:] = vel
+    read = _velocity_read(pos, vel, t, velocity_from_position_s, sample_time_s)
     mission_start = series["time_boot_ms"][0] / 1000.0 - series["t_s"][0]
     hold = (t >= mission_start + HOLD_S[0]) & (t < mission_start + HOLD_S[1])
     s_hold = (series["t_s"] >= HOLD_S[0]) & (series["t_s"] < HOLD_S[1])
@@ -143,6 +147,9 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
         "velocity_error_rms_m_s": rms((vel - tvel)[airborne]),
         "velocity_read_error_rms_m_s": rms((read - tvel)[airborne]),
         "velocity_from_position_s": velocity_from_position_s,
+        "velocity_read_error_rms_by_time_constant_m_s": {
+            f"{tc:g}": rms((_velocity_read(pos, vel, t, tc, sample_time_s) - tvel)[airborne]) for tc in TIME_CONSTANTS_S
+        },
         "hold_samples": int(hold.sum()),
         "hold_true_position_std_m": [round(float(v), 4) for v in tpos[hold].std(axis=0)],
         "hold_estimated_position_std_m": [round(float(v), 4) for v in pos[hold].std(axis=0)],
@@ -203,7 +210,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"PX4 SIH helix at --speed {args.speed:g}, EKF2's LOCAL_POSITION_NED against SIH's truth (HIL_STATE_QUATERNION)")
     print(f"airborne ({f['airborne_samples']} samples): position error RMS {_axes(f['position_error_rms_m'], 'm')}")
     print(f"  velocity error RMS {_axes(f['velocity_error_rms_m_s'], 'm/s')}")
-    print(f"  the velocity the law reads (T {f['velocity_from_position_s']:g} s): error RMS {_axes(f['velocity_read_error_rms_m_s'], 'm/s')}")
+    print(
+        f"  the velocity the law reads (T {f['velocity_from_position_s']:g} s): error RMS {_axes(f['velocity_read_error_rms_m_s'], 'm/s')}"
+    )
+    by_t = f["velocity_read_error_rms_by_time_constant_m_s"]
+    print(
+        "  the same record read with other time constants T (0: EKF2's velocity): "
+        + "; ".join(f"T {tc} s: north {v[0]:.3f}, east {v[1]:.3f}" for tc, v in by_t.items())
+        + " m/s"
+    )
     print(f"hold at 12 m, {HOLD_S[0]:g}-{HOLD_S[1]:g} s ({f['hold_samples']} samples):")
     print(f"  true position std {_axes(f['hold_true_position_std_m'], 'm')}")
     print(f"  estimated position std {_axes(f['hold_estimated_position_std_m'], 'm')}")

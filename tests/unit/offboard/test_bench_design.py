@@ -31,7 +31,11 @@ def test_each_designed_flight_is_judged_against_its_target():
 
 
 def test_the_demos_flight_must_keep_its_peak_within_the_tilt_limit():
-    (line,) = [x for x in _target_lines([_row("sitl-plant", "paper-helix.toml", "real time", 0.04, 2.0, peak=51.0)]) if x.startswith("- ")]
+    (line,) = [
+        x
+        for x in _target_lines([_row("sitl-plant", "paper-helix.toml", "real time", 0.04, 2.0, peak=51.0)])
+        if x.startswith("- ")
+    ]
     assert line.endswith("not met: peak tilt 51.0 deg > 35")
 
 

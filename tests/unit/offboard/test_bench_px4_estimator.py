@@ -71,3 +71,11 @@ def test_the_truth_is_aligned_in_time():
 def test_too_little_recorded_is_one_line():
     with pytest.raises(ValueError, match="too little recorded"):
         compare(GroundStationRecord(), _series(), 0.0, 0.05)
+
+
+def test_other_time_constants_are_read_from_the_same_record():
+    f = compare(_record(lambda s: 0.0, 0.3), _series(), velocity_from_position_s=0.5, sample_time_s=0.05)
+    by_t = f["velocity_read_error_rms_by_time_constant_m_s"]
+    assert by_t["0"][0] == pytest.approx(0.3, abs=0.01)  # EKF2's own velocity, its bias whole
+    assert by_t["0.5"] == f["velocity_read_error_rms_m_s"]
+    assert by_t["0.05"][0] < by_t["1"][0] < 0.3  # a constant bias: the faster filter removes it sooner
