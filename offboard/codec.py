@@ -99,6 +99,9 @@ class MeasuredState:
         (roll, pitch, yaw) as ATTITUDE reports them.
     body_rate_frd_rad_s : ndarray (3,)
         (p, q, r) as ATTITUDE reports them.
+    age_s : float or None
+        How long before the sample the ATTITUDE arrived (s, our clock), when the sample is taken
+        on our own clock; None otherwise (lockstep, the vehicle's clock: sampled as it arrives).
     """
 
     time_boot_ms: int
@@ -107,6 +110,7 @@ class MeasuredState:
     vel_ned_m_s: np.ndarray
     euler_rad: np.ndarray
     body_rate_frd_rad_s: np.ndarray
+    age_s: float | None = None
 
     @property
     def quat_wxyz(self) -> np.ndarray:

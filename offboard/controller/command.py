@@ -44,7 +44,9 @@ class StateEstimate(Protocol):
 
     ``offboard.codec.MeasuredState`` (from ATTITUDE and LOCAL_POSITION_NED) and the simulator's
     ``VehicleState`` both are one. An estimate may also carry ``position_time_boot_ms``, its
-    position's own stamp (MeasuredState does): the paper's velocity filter then uses it.
+    position's own stamp (MeasuredState does): the paper's velocity filter then uses it; and
+    ``age_s``, how long before the sample it arrived: the latency prediction then predicts over
+    the latency plus this sample's age less the usual one.
     """
 
     @property

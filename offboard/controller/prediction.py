@@ -18,7 +18,18 @@ for, and the design keeps its bandwidth (4.1 s at 114 ms).
   input, ``g tilt_sp`` per horizontal axis and ``u cos(roll_sp) cos(pitch_sp) / m - g`` up.
 
 It keeps no model state between samples beyond those setpoints (a Smith predictor in finite
-form): a model error costs accuracy over one latency, never a drift. The heading is taken as
+form): a model error costs accuracy over one latency, never a drift.
+
+**The measurement's age.** Sampled on our own clock, a sample reads the telemetry that came last,
+and how long ago it came changes from sample to sample: at 100 Hz telemetry and 20 Hz samples, a
+sample taken as a burst arrives reads it or the one 10 ms older, by turns, when the two clocks'
+phases meet (a real-time flight's position stamps then stepped 40, 60, 40, 60 ms apart). Predicted
+over a fixed L, every other state was 10 ms short, and the law answered with setpoints that
+alternated by 6 deg of tilt and 0.5 N of thrust sample to sample (1.3 deg where the phases did not
+meet, and 0.4 deg in lockstep). An estimate that carries ``age_s`` is predicted over
+``L + age - mean age`` (the mean over the last ``AGE_AVERAGE_SAMPLES``): the design's latency on
+average, the same instant after the sample every time. The horizons are tabulated around L at
+``HORIZON_STEP_S``. The heading is taken as
 constant over the latency (the yaw reference's rate is bounded by MPC_YAWRAUTO_MAX, 45 deg/s:
 7 deg over 150 ms). Pure numpy; no clock, no I/O.
 """
@@ -56,6 +67,13 @@ class PredictedState:
     position_time_boot_ms: float | None = None
 
 
+#: the horizons' grid (s): 1 ms of horizon is at most a few tenths of a millimetre and a
+#: hundredth of a degree of the predicted state at the law's speeds
+HORIZON_STEP_S = 0.001
+#: samples over which the measurement's usual age is averaged (exponentially)
+AGE_AVERAGE_SAMPLES = 20
+
+
 class LatencyPredictor:
     """The state ``model.latency_s`` after the measurement (module docstring).
 
@@ -78,20 +96,43 @@ class LatencyPredictor:
         self.mass_kg = mass_kg
         self.gravity_m_s2 = gravity_m_s2
         drag = model.drag_per_s
-        self._forward = latency_predictor(*tilt_axis_plant(model.pitch, gravity_m_s2, drag), sample_time_s, model.latency_s,
-                                          HORIZONTAL_MEASURED)  # fmt: skip
-        self._right = latency_predictor(*tilt_axis_plant(model.roll, gravity_m_s2, drag), sample_time_s, model.latency_s,
-                                        HORIZONTAL_MEASURED)  # fmt: skip
-        self._up = latency_predictor(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s,
-                                     VERTICAL_MEASURED)  # fmt: skip
-        self.in_flight = self._forward[1].shape[1]  # m + 1 setpoints
+        axes = ((tilt_axis_plant(model.pitch, gravity_m_s2, drag), HORIZONTAL_MEASURED),
+                (tilt_axis_plant(model.roll, gravity_m_s2, drag), HORIZONTAL_MEASURED),
+                (vertical_plant(model.thrust_time_constant_s, drag), VERTICAL_MEASURED))  # fmt: skip
+        # horizons L + k step, k = -K..K, within [0, L + To]: an age may move the horizon by up to a sample
+        steps = int(round(sample_time_s / HORIZON_STEP_S))
+        self._horizons = [self.latency_s + k * HORIZON_STEP_S for k in range(-steps, steps + 1)
+                          if self.latency_s + k * HORIZON_STEP_S > 0.0]  # fmt: skip
+        self._centre = next(i for i, h in enumerate(self._horizons) if abs(h - self.latency_s) < HORIZON_STEP_S / 2)
+        tables = [[latency_predictor(a, b, sample_time_s, h, measured) for h in self._horizons] for (a, b), measured in axes]
+        self.in_flight = max(mu.shape[1] for axis in tables for _, mu in axis)  # m + 1 setpoints at the longest horizon
+        # per horizon: (Mx, Mu) of forward, right, up, Mu padded with zero columns to in_flight
+        self._tables = [tuple((mx, np.pad(mu, ((0, 0), (0, self.in_flight - mu.shape[1])))) for mx, mu in
+                              (axis[i] for axis in tables)) for i in range(len(self._horizons))]  # fmt: skip
         self._inputs: deque[tuple[float, float, float]] = deque(maxlen=self.in_flight)
         self.reset()
 
     def reset(self) -> None:
-        """No setpoint in flight: the vehicle holds hover's (zero inputs)."""
+        """No setpoint in flight: the vehicle holds hover's (zero inputs); no age seen yet."""
         self._inputs.clear()
         self._inputs.extend([(0.0, 0.0, 0.0)] * self.in_flight)
+        self._mean_age_s: float | None = None
+
+    def horizon_s(self, age_s: float | None) -> float:
+        """The horizon a measurement ``age_s`` old is predicted over (module docstring), on the
+        grid; the latency itself without an age. Averages the age in (call once a sample)."""
+        if age_s is None or not math.isfinite(age_s):
+            return self.latency_s
+        age = max(0.0, age_s)
+        if self._mean_age_s is None:
+            self._mean_age_s = age
+        else:
+            self._mean_age_s += (age - self._mean_age_s) / AGE_AVERAGE_SAMPLES
+        k = self._centre + int(round((age - self._mean_age_s) / HORIZON_STEP_S))
+        return self._horizons[min(max(k, 0), len(self._horizons) - 1)]
+
+    def _index(self, horizon_s: float) -> int:
+        return self._centre + int(round((horizon_s - self.latency_s) / HORIZON_STEP_S))
 
     def record(self, thrust_n: float, roll_setpoint_rad: float, pitch_setpoint_rad: float) -> None:
         """The setpoint this sample sent (roll and pitch about the heading), as the model's inputs."""
@@ -111,9 +152,11 @@ class LatencyPredictor:
         right = np.array([-s * pos[0] + c * pos[1], -s * vel[0] + c * vel[1], roll, p_rate, 0.0, 0.0])
         up = np.array([-pos[2], -vel[2], 0.0])
         inputs = np.array(self._inputs)  # (m + 1, 3): u(n-1) ... u(n-m-1)
-        f = self._forward[0] @ fwd + self._forward[1] @ inputs[:, 0]
-        r = self._right[0] @ right + self._right[1] @ inputs[:, 1]
-        u = self._up[0] @ up + self._up[1] @ inputs[:, 2]
+        horizon = self.horizon_s(getattr(state, "age_s", None))
+        (fx, fu), (rx, ru), (ux, uu) = self._tables[self._index(horizon)]
+        f = fx @ fwd + fu @ inputs[:, 0]
+        r = rx @ right + ru @ inputs[:, 1]
+        u = ux @ up + uu @ inputs[:, 2]
         pos_ned = np.array([c * f[0] - s * r[0], s * f[0] + c * r[0], -u[0]])
         vel_ned = np.array([c * f[1] - s * r[1], s * f[1] + c * r[1], -u[1]])
         euler = np.array([r[2], -f[2], yaw])

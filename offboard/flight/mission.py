@@ -196,6 +196,7 @@ class Flight:
         self.references = ReferencePairs(trajectory, self.to)
         #: with a latency prediction the law sees the state L ahead, and the references L ahead with it
         self.lookahead_s = 0.0
+        self._attitude_heard_s: float | None = None  # when the latest ATTITUDE came (our clock)
         self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
         self.notes: list[str] = []
@@ -554,6 +555,8 @@ class Flight:
         if self.log_clock is not None:
             self.log_clock.boot_ms = max(self.log_clock.boot_ms, int(msg.time_boot_ms))
         now = self.clock()
+        if msg.get_type() == "ATTITUDE":
+            self._attitude_heard_s = now
         self.supervisor.heard(now)
         sampler.meter(msg, now)
         if self.supervisor.in_outage and sampler.has_telemetry:
@@ -617,6 +620,9 @@ class Flight:
         recording = not sampler.mission_done and n <= sampler.mission_samples
         ref_n, ref_n1 = self.references.pair(t)
         if self.lookahead_s > 0.0:  # the predicted state meets the references of its own time
+            if not (self.config.lockstep or sampler.on_vehicle_clock) and self._attitude_heard_s is not None:
+                # on our clock the telemetry read is 0 to a telemetry period old: predicted over its age
+                measured = replace(measured, age_s=max(0.0, now - self._attitude_heard_s))
             command = self.controller.step(measured, *self.references_ahead.pair(t + self.lookahead_s))
         else:
             command = self.controller.step(measured, ref_n, ref_n1)

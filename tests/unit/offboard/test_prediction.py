@@ -149,3 +149,37 @@ def test_the_design_doc_quotes_the_latency_designs_as_they_come_out():
     assert quoted, "the sentence on the predicted state's design is gone from docs/controller-design.md"
     assert quoted.groups() == (f"{ahead.settling_time_s:.2f}", f"{ahead.spectral_radius:.3f}", f"{ahead.gain_margin:.2f}",
                                f"{ahead.phase_margin_deg:.1f}", f"{ahead.delay_margin_s * 1000:.0f}")  # fmt: skip
+
+
+def test_a_measurement_some_milliseconds_older_is_carried_to_the_same_instant():
+    """On our own clock a sample reads telemetry 0 or 10 ms old by turns (a real-time flight's
+    position stamps stepped 40, 60, 40 ms apart): each is predicted over L + its age less the
+    usual age, so both land on the same instant after the sample, where a fixed L left every
+    other state 10 ms short (and the law's setpoints alternated by 6 deg)."""
+    model = _plant_model(0.011)
+    p = LatencyPredictor(model, TO, mass_kg=0.5, gravity_m_s2=9.81)
+    v = np.array([2.0, -1.0, 0.0])
+    for k in range(200):  # hover's thrust in flight; ages 0, 10, 0, 10 ms: usual age 5 ms
+        p.record(0.5 * 9.81, 0.0, 0.0)
+        p.horizon_s(0.010 * (k % 2))
+    fresh = replace_age(_state([1.0, 1.0, -5.0], v, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0]), 0.0)
+    older = replace_age(_state(np.array([1.0, 1.0, -5.0]) - 0.010 * v, v, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0]), 0.010)
+    a, b = p.predict(fresh).pos_ned_m, p.predict(older).pos_ned_m
+    assert np.allclose(a, b, atol=np.linalg.norm(v) * 0.0011)  # within the horizons' 1 ms grid
+    assert np.allclose(a, [1.0, 1.0, -5.0] + v * (0.011 - 0.005), atol=np.linalg.norm(v) * 0.0011)
+    # without an age: the latency itself, as in lockstep and in process
+    assert p.horizon_s(None) == pytest.approx(0.011)
+
+
+def test_the_horizon_stays_within_a_sample_of_the_latency_and_a_reset_forgets_the_age():
+    p = LatencyPredictor(_plant_model(0.02), TO, mass_kg=0.5)
+    assert p.horizon_s(0.004) == pytest.approx(0.02)  # the first age is the usual one
+    assert p.horizon_s(5.0) == pytest.approx(0.02 + TO)  # an age past a sample: the longest horizon
+    assert p.horizon_s(math.nan) == pytest.approx(0.02)
+    p.reset()
+    assert p.horizon_s(0.5) == pytest.approx(0.02)
+
+
+def replace_age(state, age_s):
+    state.age_s = age_s
+    return state
