@@ -7,7 +7,9 @@ beside LOCAL_POSITION_NED on the same link; then compares them:
 
 - over the airborne flight: EKF2's position and velocity error (RMS, north, east, down), and the
   error of the velocity the law reads (``[law] velocity_from_position_s``, ConsistentVelocity),
-  with the flight's time constant and, offline on the same record, others;
+  as the flight read it (its T, identified in flight with ``velocity_from_position_identify``)
+  and, offline on the same record, with other T and with the T the whole record identifies
+  (``offboard.controller.velocity.estimate_noise``: is the identified T the one the truth favours?);
 - over the second half of the hold at 12 m (18.5-25 s of the mission): how far the vehicle really
   wanders (its true position's standard deviation) while the estimate it is held on stays put,
   EKF2's mean velocity error there, and the tilt the flight shows (its ATTITUDE, as the tests and
@@ -41,7 +43,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4  # noqa: E402
-from offboard.controller.velocity import ConsistentVelocity  # noqa: E402
+from offboard.controller.velocity import ConsistentVelocity, estimate_noise  # noqa: E402
 from offboard.missions import MISSIONS_DIR  # noqa: E402
 
 HELIX = MISSIONS_DIR / "paper-helix.toml"
@@ -49,7 +51,7 @@ HOLD_S = (18.5, 25.0)  # the second half of the helix's hold at 12 m, mission ti
 AIRBORNE_DOWN_M = -5.0  # "airborne": the estimate more than 5 m up
 RECORD_RATE_HZ = 50.0
 #: the velocity filter's time constants compared offline on the same record (0: EKF2's velocity)
-TIME_CONSTANTS_S = (0.0, 0.05, 0.1, 0.25, 0.5, 1.0)
+TIME_CONSTANTS_S = (0.0, 0.01, 0.05, 0.1, 0.25, 0.5, 1.0)
 EARTH_RADIUS_M = 6378137.0
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 HIL_STATE_QUATERNION_ID = 115
@@ -101,17 +103,21 @@ def _unique(rows: list[tuple[float, ...]]) -> np.ndarray:
     return a[first]
 
 
-def _velocity_read(pos: np.ndarray, vel: np.ndarray, t: np.ndarray, time_constant_s: float, sample_time_s: float) -> np.ndarray:
-    """The velocity the law reads at each sample with ``[law] velocity_from_position_s`` = T (0: EKF2's own)."""
+def _velocity_read(pos: np.ndarray, vel: np.ndarray, t: np.ndarray, time_constant_s: float, sample_time_s: float,
+                   identify: bool = False) -> np.ndarray:  # fmt: skip
+    """The velocity the law reads at each sample with ``[law] velocity_from_position_s`` = T (0: EKF2's own),
+    and ``velocity_from_position_identify``."""
     if time_constant_s <= 0:
         return vel.copy()
-    consistent = ConsistentVelocity(time_constant_s, sample_time_s)
+    consistent = ConsistentVelocity(time_constant_s, sample_time_s, identify=identify)
     return np.array([consistent.update(pos[n], vel[n], t[n]) for n in range(len(t))])
 
 
-def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float, sample_time_s: float) -> dict:
+def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float, sample_time_s: float,
+            identify: bool = False) -> dict:  # fmt: skip
     """The figures of the module docstring from a flight's ground-station record and its series.csv
-    (a structured array with t_s, time_boot_ms and euler_rad_0/1)."""
+    (a structured array with t_s, time_boot_ms and euler_rad_0/1), the law's velocity filter
+    with T = ``velocity_from_position_s`` and ``identify`` as the flight's controller had them."""
     est, tru = _unique(record.estimates), _unique(record.truths)
     if len(est) < 100 or len(tru) < 100:
         raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
@@ -131,7 +137,9 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
     tvel = np.stack([np.interp(t + lag, tru[:, 0], true_vel[:, k]) for k in range(3)], axis=1)
     airborne = pos[:, 2] < AIRBORNE_DOWN_M
     tpos += (pos[airborne] - tpos[airborne]).mean(axis=0)  # the estimate's origin, where the truth has none
-    read = _velocity_read(pos, vel, t, velocity_from_position_s, sample_time_s)
+    read = _velocity_read(pos, vel, t, velocity_from_position_s, sample_time_s, identify)
+    noise = estimate_noise(pos, vel, sample_time_s, time_s=t)  # the whole record, as identify weighs its last 30 s
+    identified_s = float(noise.time_constant_s())
     mission_start = series["time_boot_ms"][0] / 1000.0 - series["t_s"][0]
     hold = (t >= mission_start + HOLD_S[0]) & (t < mission_start + HOLD_S[1])
     s_hold = (series["t_s"] >= HOLD_S[0]) & (series["t_s"] < HOLD_S[1])
@@ -147,6 +155,10 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
         "velocity_error_rms_m_s": rms((vel - tvel)[airborne]),
         "velocity_read_error_rms_m_s": rms((read - tvel)[airborne]),
         "velocity_from_position_s": velocity_from_position_s,
+        "velocity_from_position_identify": identify,
+        "identified": {"time_constant_s": round(identified_s, 4), "bias_walk_m_s_sqrt_s": round(float(noise.bias_walk_m_s_sqrt_s), 4),
+                       "white_m_s": round(float(noise.white_m_s), 4), "position_white_m": round(float(noise.position_white_m), 5),
+                       "velocity_read_error_rms_m_s": rms((_velocity_read(pos, vel, t, identified_s, sample_time_s) - tvel)[airborne])},
         "velocity_read_error_rms_by_time_constant_m_s": {
             f"{tc:g}": rms((_velocity_read(pos, vel, t, tc, sample_time_s) - tvel)[airborne]) for tc in TIME_CONSTANTS_S
         },
@@ -181,7 +193,8 @@ def fly(folder: Path, speed: float) -> dict:
     summary = json.loads((run / "summary.json").read_text())
     series = np.genfromtxt(run / "series.csv", delimiter=",", names=True)
     controller = summary["controller"]
-    figures = compare(record, series, float(controller["velocity_from_position_s"]), float(controller["sample_time_s"]))
+    figures = compare(record, series, float(controller["velocity_from_position_s"]), float(controller["sample_time_s"]),
+                      bool(controller.get("velocity_from_position_identify", False)))
     figures["speed"] = speed
     return figures
 
@@ -210,8 +223,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"PX4 SIH helix at --speed {args.speed:g}, EKF2's LOCAL_POSITION_NED against SIH's truth (HIL_STATE_QUATERNION)")
     print(f"airborne ({f['airborne_samples']} samples): position error RMS {_axes(f['position_error_rms_m'], 'm')}")
     print(f"  velocity error RMS {_axes(f['velocity_error_rms_m_s'], 'm/s')}")
+    how = "identified in flight from" if f["velocity_from_position_identify"] else "T"
     print(
-        f"  the velocity the law reads (T {f['velocity_from_position_s']:g} s): error RMS {_axes(f['velocity_read_error_rms_m_s'], 'm/s')}"
+        f"  the velocity the law reads ({how} {f['velocity_from_position_s']:g} s): error RMS {_axes(f['velocity_read_error_rms_m_s'], 'm/s')}"
+    )
+    ident = f["identified"]
+    print(
+        f"  identified from the whole record (offboard.controller.velocity.estimate_noise): bias walk "
+        f"{ident['bias_walk_m_s_sqrt_s']:.3f} m/s/sqrt(s), white {ident['white_m_s']:.3f} m/s (position {ident['position_white_m'] * 1000:.1f} mm) "
+        f"-> T {ident['time_constant_s']:.3f} s: error RMS {_axes(ident['velocity_read_error_rms_m_s'], 'm/s')}"
     )
     by_t = f["velocity_read_error_rms_by_time_constant_m_s"]
     print(

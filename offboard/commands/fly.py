@@ -365,6 +365,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "velocity_integral_limit_m_s2": c.velocity_integral_limit_m_s2,
             "reference_lead_s2": list(c.reference_lead_s2), "tilt_lead": c.tilt_lead,
             "linear_drag_n_s_m": c.linear_drag_n_s_m, "velocity_from_position_s": c.velocity_from_position_s,
+            "velocity_from_position_identify": c.velocity_from_position_identify,
             "velocity_integral_hold_s": c.velocity_integral_hold_s,
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),

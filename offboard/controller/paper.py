@@ -111,7 +111,8 @@ class PaperController:
         self.vehicle_model = VehicleModel(vehicle_model)  # a caller's word: its enum
         self.sample_time_s = params.sample_time_s
         self.law = RosalesController(params)
-        self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s)
+        self.velocity = (ConsistentVelocity(params.velocity_from_position_s, params.sample_time_s,
+                                            identify=params.velocity_from_position_identify)
                          if params.velocity_from_position_s > 0 else None)  # fmt: skip
         self.predictor = predictor
 

@@ -156,6 +156,10 @@ class ControllerParams:
         position it tracks (``offboard.controller.velocity``): below 1/T the derivative of the
         position estimate, above it the vehicle's velocity estimate. 0, the default, reads the
         velocity as measured: the paper's law.
+    velocity_from_position_identify : bool
+        Choose that T from the estimates' own noise in flight (``ConsistentVelocity(identify=True)``:
+        the steady-state Kalman filter of their velocity bias, from 5 s of samples on),
+        ``velocity_from_position_s`` until then. False, the default: T as given.
     """
 
     sample_time_s: float = 0.05
@@ -177,6 +181,7 @@ class ControllerParams:
     linear_drag_n_s_m: float = 0.0
     velocity_integral_hold_s: float = 0.0
     velocity_from_position_s: float = 0.0
+    velocity_from_position_identify: bool = False
 
     def __post_init__(self) -> None:
         for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
@@ -199,6 +204,8 @@ class ControllerParams:
             raise ValueError(f"velocity_integral_hold_s must be >= 0, got {self.velocity_integral_hold_s}")
         if not (math.isfinite(self.velocity_from_position_s) and self.velocity_from_position_s >= 0):
             raise ValueError(f"velocity_from_position_s must be >= 0, got {self.velocity_from_position_s}")
+        if self.velocity_from_position_identify and not self.velocity_from_position_s > 0:
+            raise ValueError("velocity_from_position_identify needs velocity_from_position_s > 0 (the T it starts from)")
         if not (math.isfinite(self.tilt_lead) and self.tilt_lead >= 0):
             raise ValueError(f"tilt_lead must be >= 0, got {self.tilt_lead}")
         if len(self.reference_lead_s2) != 2 or not all(math.isfinite(v) for v in self.reference_lead_s2):
@@ -230,6 +237,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
     if limits.thrust_min_n is not None and limits.thrust_max_n is not None and limits.thrust_min_n >= limits.thrust_max_n:
         raise limits_table.error("thrust_min_n", "must be below thrust_max_n")
     limits_table.reject_unknown()
+    if law.boolean("velocity_from_position_identify", False) and not law.number("velocity_from_position_s", 0.0, ge=0) > 0:
+        raise law.error("velocity_from_position_identify", "needs velocity_from_position_s > 0 (the T it starts from)")
     params = ControllerParams(
         sample_time_s=law.number("sample_time_s", gt=0),
         yaw_aware=law.boolean("yaw_aware", False),
@@ -241,6 +250,7 @@ def controller_from_table(f: Fields) -> ControllerParams:
         tilt_lead=law.number("tilt_lead", 0.0, ge=0),
         velocity_integral_hold_s=law.number("velocity_integral_hold_s", 0.0, ge=0),
         velocity_from_position_s=law.number("velocity_from_position_s", 0.0, ge=0),
+        velocity_from_position_identify=law.boolean("velocity_from_position_identify", False),
         mass_kg=model.number("mass_kg", gt=0),
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]

@@ -43,10 +43,13 @@ SIH_PARAMS = ("SIH_MASS", "SIH_T_MAX", "SIH_Q_MAX", "SIH_IXX", "SIH_IYY", "SIH_I
               "SIH_T_TAU", "SIH_KDV", "CA_ROTOR_COUNT")  # fmt: skip
 
 #: T of the designed controller's velocity filter (``[law] velocity_from_position_s``,
-#: ``offboard.controller.velocity``), s. Measured on PX4 SIH's EKF2 (docs/controller-design.md):
-#: its velocity departs from its position's derivative by 0.12-0.20 m/s RMS with a correlation
-#: time of 1.5-2 s; T a quarter of that removes the slow part, and spans 10 samples at 20 Hz, so
-#: the derivative's sample noise is averaged over them. Where the two agree it changes nothing.
+#: ``offboard.controller.velocity``), s. PX4 SIH's EKF2 velocity departs from its position's
+#: derivative by 0.12-0.20 m/s RMS with a correlation time of 1.5-2 s (docs/controller-design.md);
+#: T a quarter of that removes the slow part, and spans 10 samples at 20 Hz, so that a
+#: derivative's white noise is averaged over them. Where the two agree it changes nothing.
+#: (``velocity_from_position_identify`` chooses T in flight from the estimates' noise instead: on
+#: PX4 SIH it reads the velocity closer to the truth but has not held steadier; the same
+#: document has the flights.)
 VELOCITY_FROM_POSITION_S = 0.5
 
 #: PX4's defaults of the speed limits (mc_pos_control params).
@@ -219,6 +222,8 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"reference_lead_s2 = [{_fmt(params.reference_lead_s2[0])}, {_fmt(params.reference_lead_s2[1])}]",
         "# T of the filter that makes the velocity read consistent with the position tracked (0: as measured)",
         f"velocity_from_position_s = {_fmt(params.velocity_from_position_s)}",
+        "# T chosen in flight from the estimates' own noise (the Kalman filter of their velocity bias), the above until then",
+        f"velocity_from_position_identify = {'true' if params.velocity_from_position_identify else 'false'}",
         "",
         "[model]                # the vehicle as the controller believes it",
         f"mass_kg = {_fmt(params.mass_kg)}",

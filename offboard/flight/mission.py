@@ -239,6 +239,11 @@ class Flight:
         if status is FlightStatus.INTERRUPTED and not detail:
             detail = "interrupted by the user"
         loop = self.sampler.finish()
+        identified = getattr(getattr(self.controller, "velocity", None), "noise", None)
+        if identified is not None:
+            self._note(f"velocity filter: T {identified.time_constant_s():.3f} s, chosen from the estimates' noise "
+                       f"(their velocity bias walks {identified.bias_walk_m_s_sqrt_s:.3f} m/s/sqrt(s), "
+                       f"{identified.white_m_s:.3f} m/s of white noise in the position's derivative)")
         record = self.rows.build(phases=self.phases, status=status, status_detail=detail, meta=self.meta)
         for builder in (self.rows, loop.periods):
             if builder.spool_error is not None:

@@ -265,6 +265,8 @@ def flight_controller(
                 "tilt_lead", "linear_drag_n_s_m", "velocity_from_position_s", "velocity_integral_hold_s"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
+    # a flight recorded before the key existed read its velocity filter at the fixed T
+    changes["velocity_from_position_identify"] = bool(recorded.get("velocity_from_position_identify", False))
     if "inertia_kg_m2" in recorded:
         changes["inertia_kg_m2"] = tuple(float(v) for v in recorded["inertia_kg_m2"])
     if "reference_lead_s2" in recorded:

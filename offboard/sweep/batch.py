@@ -147,7 +147,8 @@ def fly_group(setups: list[FlightSetup]) -> list[Series]:
     form = ctl.euler_rate_form
     lead = ctl.reference_lead_s2
     # [law] velocity_from_position_s: PaperController's filter, elementwise over the batch
-    consistent = ConsistentVelocity(ctl.velocity_from_position_s, to) if ctl.velocity_from_position_s > 0 else None
+    consistent = (ConsistentVelocity(ctl.velocity_from_position_s, to, identify=ctl.velocity_from_position_identify)
+                  if ctl.velocity_from_position_s > 0 else None)  # fmt: skip
 
     # the vehicles
     x = np.empty((n, STATE_SIZE))

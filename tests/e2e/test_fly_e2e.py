@@ -352,3 +352,29 @@ def test_a_vehicle_four_times_faster_is_flown_on_its_own_clock(tmp_path):
     hold = (t >= 18.5) & (t < 25.0)
     print(f"\n--speed 4: helix 5-11.9 s RMS {rms(err[(t >= 5.0) & (t < 11.9)]):.4f} m, hold tilt max {tilt[hold].max():.3f} deg")
     assert rms(err[(t >= 5.0) & (t < 11.9)]) < 0.05 and tilt[hold].max() < 3.0
+
+
+def test_a_controller_that_identifies_its_velocity_filter_reads_the_telemetrys_noise(tmp_path):
+    """``velocity_from_position_identify = true`` over MAVLink: the plant's imu model puts 2 cm of
+    white noise on the position and 5 cm/s on the velocity, nothing that walks, so the filter that
+    is the Kalman filter of a velocity bias trusts the velocity for as long as the record can
+    justify (T = NOISE_FIT_SPAN_S, 1 s); the flight says so and records the choice."""
+    from offboard.controller.velocity import NOISE_FIT_SPAN_S
+
+    designed = tmp_path / "designed.toml"
+    made = subprocess.run([PY, "-m", "offboard.cli", "tune", "--vehicle", str(PAPER_VEHICLE_FILE), "--output", str(designed)],
+                          capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    text = designed.read_text()
+    assert "\nvelocity_from_position_identify = false\n" in text
+    designed.write_text(text.replace("velocity_from_position_identify = false", "velocity_from_position_identify = true"))
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", duration_s=20.0), fly_args=("--controller", str(designed)),
+                plant_args=("--noise", "imu", "--seed", "3"))  # fmt: skip
+    assert flown.returncode == 0, flown.stderr
+    assert flown.summary["controller"]["velocity_from_position_identify"] is True
+    notes = [n for n in flown.summary["notes"] if n.startswith("velocity filter:")]
+    assert len(notes) == 1, flown.summary["notes"]
+    walk = float(re.search(r"bias walks ([0-9.]+) m/s", notes[0]).group(1))
+    white = float(re.search(r"([0-9.]+) m/s of white noise", notes[0]).group(1))
+    assert f"T {NOISE_FIT_SPAN_S:.3f} s" in notes[0] and walk < 0.05
+    assert 0.4 < white < 0.8  # sqrt(2) 0.02 m / 0.05 s of the position's derivative, and the velocity's own

@@ -79,3 +79,16 @@ def test_other_time_constants_are_read_from_the_same_record():
     assert by_t["0"][0] == pytest.approx(0.3, abs=0.01)  # EKF2's own velocity, its bias whole
     assert by_t["0.5"] == f["velocity_read_error_rms_m_s"]
     assert by_t["0.05"][0] < by_t["1"][0] < 0.3  # a constant bias: the faster filter removes it sooner
+
+
+def test_the_record_identifies_a_time_constant_and_reads_with_it():
+    """A constant bias does not walk, and the estimates are otherwise exact: the identification
+    sees no white noise and a walk of about nothing; the T it chooses reads the velocity within
+    what the fixed T does (here both take out the constant 0.3 m/s)."""
+    f = compare(_record(lambda s: 0.0, 0.3), _series(), velocity_from_position_s=0.5, sample_time_s=0.05, identify=True)
+    ident = f["identified"]
+    assert ident["white_m_s"] < 0.01 and ident["position_white_m"] < 0.001
+    assert 0.0 < ident["time_constant_s"] <= 1.0
+    assert ident["velocity_read_error_rms_m_s"][0] < 0.3 / 2
+    assert f["velocity_from_position_identify"] is True
+    assert f["velocity_read_error_rms_m_s"][0] < 0.3 / 2  # the flight's filter, identifying, removed it too
