@@ -57,6 +57,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from offboard.demo import free_udp_ports  # noqa: E402  (after the path is set)
+from offboard.model.busywait import LOCKSTEP_SPIN_S, poll_readable  # noqa: E402
 from offboard.model.vehicle import PAPER_VEHICLE_FILE  # noqa: E402
 
 PY = sys.executable
@@ -224,8 +225,9 @@ def _cycles_per_s(summary: dict) -> float:
 # --- the floor: a bare two-process pymavlink ping-pong ------------------------------------------
 
 
-def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int) -> None:
-    """The vehicle side: ATTITUDE + LOCAL_POSITION_NED stamped T, wait for the echo of T."""
+def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: float = 0.0) -> None:
+    """The vehicle side: ATTITUDE + LOCAL_POSITION_NED stamped T, wait for the echo of T (polling
+    for up to ``spin_s`` before it sleeps, as the lockstep loop waits)."""
     from pymavlink.dialects.v20 import common as mavlink
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -248,6 +250,7 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int) -> None:
         while True:
             sock.sendto(packets, peer)
             try:
+                _poll(sock, spin_s)
                 data = sock.recv(65535)
             except socket.timeout:
                 continue  # the client was not up yet: send again
@@ -259,7 +262,7 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int) -> None:
     print(json.dumps({"cycles": cycles, "wall_s": wall}), flush=True)
 
 
-def _floor_client(port: int) -> None:
+def _floor_client(port: int, spin_s: float = 0.0) -> None:
     """The client side: parse the pair, answer SET_ATTITUDE_TARGET echoing T."""
     from pymavlink.dialects.v20 import common as mavlink
 
@@ -268,6 +271,7 @@ def _floor_client(port: int) -> None:
     packer = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
     parser = mavlink.MAVLink(None)
     while True:
+        _poll(sock, spin_s)
         data, addr = sock.recvfrom(65535)
         if data == b"stop":
             return
@@ -281,17 +285,24 @@ def _floor_client(port: int) -> None:
                 packer.seq = (packer.seq + 1) & 0xFF
 
 
-def floor(cycles: int, warmup: int = 200) -> dict:
-    """Cycles per second of the bare ping-pong (two processes, like the loop)."""
+def _poll(sock: socket.socket, spin_s: float) -> None:
+    """Poll ``sock`` for up to ``spin_s`` before the caller's blocking receive (``busywait``)."""
+    if spin_s > 0.0:
+        poll_readable([sock], spin_s)
+
+
+def floor(cycles: int, warmup: int = 200, spin_s: float = 0.0) -> dict:
+    """Cycles per second of the bare ping-pong (two processes, like the loop; each side polling for
+    up to ``spin_s`` before it sleeps, as the lockstep loop's do with ``LOCKSTEP_SPIN_S``)."""
     vehicle_port, client_port = free_udp_ports(2)
     procs = []
     try:
-        client = subprocess.Popen([PY, __file__, "--floor-role", "client", "--port", str(client_port)], cwd=ROOT,
-                                  start_new_session=True)  # fmt: skip
+        client = subprocess.Popen([PY, __file__, "--floor-role", "client", "--port", str(client_port), "--spin-s", str(spin_s)],
+                                  cwd=ROOT, start_new_session=True)  # fmt: skip
         procs.append(client)
         vehicle = subprocess.Popen(
             [PY, __file__, "--floor-role", "vehicle", "--port", str(vehicle_port), "--peer-port", str(client_port),
-             "--cycles", str(cycles), "--warmup", str(warmup)],
+             "--cycles", str(cycles), "--warmup", str(warmup), "--spin-s", str(spin_s)],
             cwd=ROOT, stdout=subprocess.PIPE, text=True, start_new_session=True,
         )  # fmt: skip
         procs.append(vehicle)
@@ -356,7 +367,7 @@ def _parsed(frames: list[str]) -> list:
     return [m for f in frames for m in (parser.parse_buffer(bytes.fromhex(f)) or [])]
 
 
-def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warmup: int) -> None:
+def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warmup: int, spin_s: float = 0.0) -> None:
     """The vehicle side of the second floor: cycle k's recorded messages, packed by pymavlink into
     one datagram, then wait for the SET_ATTITUDE_TARGET echoing its T."""
     from pymavlink.dialects.v20 import common as mavlink
@@ -383,6 +394,7 @@ def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warm
             sock.sendto(packets, peer)
             while not done:
                 try:
+                    _poll(sock, spin_s)
                     data = sock.recv(65535)
                 except socket.timeout:
                     break  # the client was not up yet: send again
@@ -393,7 +405,7 @@ def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warm
     print(json.dumps({"cycles": cycles, "wall_s": wall}), flush=True)
 
 
-def _mix_client(port: int, cycles_file: Path) -> None:
+def _mix_client(port: int, cycles_file: Path, spin_s: float = 0.0) -> None:
     """The client side: parse the datagram, answer with the cycle's recorded messages (packed by
     pymavlink, one datagram each, as the offboard sends them), found by the ATTITUDE's T."""
     from pymavlink.dialects.v20 import common as mavlink
@@ -404,6 +416,7 @@ def _mix_client(port: int, cycles_file: Path) -> None:
     packer = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
     parser = mavlink.MAVLink(None)
     while True:
+        _poll(sock, spin_s)
         data, addr = sock.recvfrom(65535)
         if data == b"stop":
             return
@@ -414,9 +427,10 @@ def _mix_client(port: int, cycles_file: Path) -> None:
                     packer.seq = (packer.seq + 1) & 0xFF
 
 
-def mix_floor(plant_tlog: Path, cycles: int, warmup: int = 200) -> dict:
+def mix_floor(plant_tlog: Path, cycles: int, warmup: int = 200, spin_s: float = 0.0) -> dict:
     """Cycles per second of a two-process pymavlink ping-pong carrying, cycle by cycle, the
-    messages a real lockstep flight carried (``recorded_cycles`` of its plant tlog)."""
+    messages a real lockstep flight carried (``recorded_cycles`` of its plant tlog); ``spin_s``
+    as ``floor``'s."""
     recorded = recorded_cycles(plant_tlog)
     vehicle_port, client_port = free_udp_ports(2)
     procs = []
@@ -425,11 +439,12 @@ def mix_floor(plant_tlog: Path, cycles: int, warmup: int = 200) -> dict:
         cycles_file.write_text(json.dumps(recorded))
         try:
             client = subprocess.Popen([PY, __file__, "--floor-role", "mix-client", "--port", str(client_port),
-                                       "--cycles-file", str(cycles_file)], cwd=ROOT, start_new_session=True)  # fmt: skip
+                                       "--cycles-file", str(cycles_file), "--spin-s", str(spin_s)],
+                                      cwd=ROOT, start_new_session=True)  # fmt: skip
             procs.append(client)
             vehicle = subprocess.Popen(
                 [PY, __file__, "--floor-role", "mix-vehicle", "--port", str(vehicle_port), "--peer-port", str(client_port),
-                 "--cycles", str(cycles), "--warmup", str(warmup), "--cycles-file", str(cycles_file)],
+                 "--cycles", str(cycles), "--warmup", str(warmup), "--cycles-file", str(cycles_file), "--spin-s", str(spin_s)],
                 cwd=ROOT, stdout=subprocess.PIPE, text=True, start_new_session=True,
             )  # fmt: skip
             procs.append(vehicle)
@@ -694,13 +709,21 @@ def measure(quick: bool = False, long_s: float | None = None) -> dict:
                     f"Python {platform.python_version()}"}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
         folder = Path(tmp)
-        floor_run = floor(cycles=1000 if quick else 5000)
+        # the floors wait as the loop does (polling for up to LOCKSTEP_SPIN_S, offboard.model.busywait),
+        # and, for what the waiting is worth, sleeping at once
+        n_floor = 1000 if quick else 5000
+        floor_run = floor(cycles=n_floor, spin_s=LOCKSTEP_SPIN_S)
+        floor_sleeping = floor(cycles=n_floor)
         # the lockstep helix, twice unprofiled (the better one counts: the machine is shared)
         runs = [fly(folder / f"lockstep-{i}", PAPER_HELIX, lockstep=True) for i in range(1 if quick else 2)]
         best = max(runs, key=lambda r: _cycles_per_s(r["summary"]))
         rate = _cycles_per_s(best["summary"])
-        mix = mix_floor(Path(best["run_dir"]) / "plant.tlog", cycles=1000 if quick else 5000)
+        mix = mix_floor(Path(best["run_dir"]) / "plant.tlog", cycles=n_floor, spin_s=LOCKSTEP_SPIN_S)
+        mix_sleeping = mix_floor(Path(best["run_dir"]) / "plant.tlog", cycles=n_floor)
         result["lockstep"] = {
+            "spin_s": LOCKSTEP_SPIN_S,
+            "floor_sleeping_cycles_per_s": floor_sleeping["cycles_per_s"],
+            "mix_floor_sleeping_cycles_per_s": mix_sleeping["cycles_per_s"],
             "cycles_per_s": rate,
             "all_cycles_per_s": [_cycles_per_s(r["summary"]) for r in runs],
             "samples": best["summary"]["loop"]["samples"],
@@ -772,7 +795,10 @@ def markdown(result: dict) -> str:
         "(`python -m offboard.demo --lockstep`'s configuration). Cycles/s = the offboard's samples over the wall time "
         "from its first to its last sample (flight only). Floor: two bare pymavlink processes, "
         "ATTITUDE + LOCAL_POSITION_NED stamped T one way, SET_ATTITUDE_TARGET echoing T back, nothing else. "
-        f"Plant physics and PX4 attitude/rate loop compiled with numba: {'yes' if result.get('compiled_plant') else 'no'}.",
+        f"Plant physics and PX4 attitude/rate loop compiled with numba: {'yes' if result.get('compiled_plant') else 'no'}."
+        + (f" Every process waits as the lockstep loop's do: polling its socket for up to {ls['spin_s'] * 1e6:.0f} µs, then "
+           "sleeping in select (`offboard/model/busywait.py`); the floors are also measured sleeping at once, which is "
+           "how the loop waited before: the wake-up of a halted vCPU, twice a cycle." if "spin_s" in ls else ""),
         "",
         "| loop | cycles/s | × real time (0.05 s/cycle) | vs floor |",
         "|---|---:|---:|---:|",
@@ -784,6 +810,10 @@ def markdown(result: dict) -> str:
     if mix is not None:
         lines.append(f"| floor: pymavlink ping-pong of the loop's own messages | {ls['mix_floor_cycles_per_s']:.0f} | – | "
                      f"{100 * ls['mix_floor_cycles_per_s'] / ls['floor_cycles_per_s']:.0f} % |")  # fmt: skip
+    if "floor_sleeping_cycles_per_s" in ls:
+        for name, key in (("bare", "floor_sleeping_cycles_per_s"), ("the loop's own messages", "mix_floor_sleeping_cycles_per_s")):
+            lines.append(f"| floor ({name}), each side sleeping in its wait at once | {ls[key]:.0f} | – | "
+                         f"{100 * ls[key] / ls['floor_cycles_per_s']:.0f} % |")  # fmt: skip
     if "reference_sim_cycles_per_s" in ls:
         ref = ls["reference_sim_cycles_per_s"]
         lines.append(f"| before: plant on the interpreted `VehicleSim` (`SITL_PLANT_NO_NUMBA=1`) | {ref:.0f} | "
@@ -888,18 +918,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-port", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--cycles", type=int, default=1000, help=argparse.SUPPRESS)
     parser.add_argument("--warmup", type=int, default=200, help=argparse.SUPPRESS)
+    parser.add_argument("--spin-s", type=float, default=0.0, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.floor_role == "vehicle":
-        _floor_vehicle(args.port, args.peer_port, args.cycles, args.warmup)
+        _floor_vehicle(args.port, args.peer_port, args.cycles, args.warmup, args.spin_s)
         return 0
     if args.floor_role == "client":
-        _floor_client(args.port)
+        _floor_client(args.port, args.spin_s)
         return 0
     if args.floor_role == "mix-vehicle":
-        _mix_vehicle(args.port, args.peer_port, args.cycles_file, args.cycles, args.warmup)
+        _mix_vehicle(args.port, args.peer_port, args.cycles_file, args.cycles, args.warmup, args.spin_s)
         return 0
     if args.floor_role == "mix-client":
-        _mix_client(args.port, args.cycles_file)
+        _mix_client(args.port, args.cycles_file, args.spin_s)
         return 0
     result = measure(quick=args.quick, long_s=args.long_s)
     if args.json is not None:

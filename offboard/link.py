@@ -44,6 +44,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.codec import frame_header
 from offboard.model import mavfast
+from offboard.model.busywait import poll_readable
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter, wall_clock_us
 from offboard.signing import SigningSession, Verdict
@@ -141,8 +142,10 @@ class MavLink:
         tlog_path: str | Path | None = None,
         log_time_us: Callable[[], int] = wall_clock_us,
         signing: SigningSession | None = None,
+        spin_s: float = 0.0,
     ) -> None:
         self.connect = connect
+        self.spin_s = spin_s  # lockstep: poll this long before sleeping in a wait (offboard.model.busywait)
         if not connect.startswith(SCHEMES) and not (connect.startswith("/") or connect.upper().startswith("COM")):
             raise LinkError(f"--connect {connect!r}: expected a pymavlink connection string such as "
                             "udpin:0.0.0.0:14540, udpout:127.0.0.1:14580, tcp:127.0.0.1:5760 or a serial device")
@@ -306,6 +309,8 @@ class MavLink:
             time.sleep(min(timeout_s, 0.001))
             return
         try:
+            if self.spin_s > 0.0 and poll_readable([self._fileno], min(self.spin_s, timeout_s)):
+                return
             select.select([self._fileno], [], [], timeout_s)
         except (InterruptedError, ValueError, OSError):
             time.sleep(min(timeout_s, 0.001))

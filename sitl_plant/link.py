@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.model import mavfast
+from offboard.model.busywait import LOCKSTEP_SPIN_S, poll_readable
 from offboard.model.errors import LinkError
 from offboard.model.tlog import TlogWriter
 from offboard.signing import SigningKey, SigningSession, Verdict, persist, save_key
@@ -321,6 +322,9 @@ class Link:
                 return True
             timeout_s = min(timeout_s, first - now)
         try:
+            # lockstep: the offboard answers within a few hundred microseconds, caught awake
+            if self.lockstep and poll_readable(self._socks, min(LOCKSTEP_SPIN_S, timeout_s)):
+                return True
             readable, _, _ = select.select(self._socks, [], [], timeout_s)
         except InterruptedError:
             return False

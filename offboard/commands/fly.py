@@ -304,6 +304,7 @@ def _signing_key(path: Path) -> SigningKey:
 def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: FlightConfig, meta: dict, run_dir: Path,
          tlog: Path, log_clock: LogClock, console: _Console, started: float) -> int:
     from offboard.link import MavLink
+    from offboard.model.busywait import LOCKSTEP_SPIN_S
 
     signing = None
     if args.signing_key is not None:
@@ -311,7 +312,8 @@ def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: Fl
         # persisted), the wall clock otherwise (the timestamp kept in the key file)
         signing = SigningSession(_signing_key(args.signing_key), log_clock, key_path=None if args.lockstep else args.signing_key,
                                  lockstep=args.lockstep)  # fmt: skip
-    link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock, signing=signing)
+    link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock, signing=signing,
+                   spin_s=LOCKSTEP_SPIN_S if args.lockstep else 0.0)  # fmt: skip
     console.event(f"listening on {args.connect}" if args.connect.startswith("udpin") else f"connecting to {args.connect}")
     try:
         with _Interrupts() as interrupts:

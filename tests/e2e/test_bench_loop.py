@@ -55,11 +55,18 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     assert "ATTITUDE_QUATERNION" not in counts and "HIGHRES_IMU" not in counts
     assert not _alive("--floor-role")
     floor = loop.floor(cycles=30, warmup=5)
+    # the floors also wait as the loop does: polling, then sleeping (offboard.model.busywait)
+    polled = loop.floor(cycles=30, warmup=5, spin_s=loop.LOCKSTEP_SPIN_S)
+    polled_mix = loop.mix_floor(tlog, cycles=30, warmup=5, spin_s=loop.LOCKSTEP_SPIN_S)
+    assert polled["cycles"] == polled_mix["cycles"] == 30 and polled["cycles_per_s"] > 0 and polled_mix["cycles_per_s"] > 0
+    assert not _alive("--floor-role")
     rate = loop._cycles_per_s(run["summary"])
     result = {
         "lockstep": {
-            "cycles_per_s": rate, "floor_cycles_per_s": floor["cycles_per_s"], "ratio": rate / floor["cycles_per_s"],
-            "mix_floor_cycles_per_s": mix["cycles_per_s"], "mix_floor": mix, "mix_ratio": rate / mix["cycles_per_s"],
+            "cycles_per_s": rate, "floor_cycles_per_s": polled["cycles_per_s"], "ratio": rate / polled["cycles_per_s"],
+            "mix_floor_cycles_per_s": polled_mix["cycles_per_s"], "mix_floor": polled_mix,
+            "mix_ratio": rate / polled_mix["cycles_per_s"], "spin_s": loop.LOCKSTEP_SPIN_S,
+            "floor_sleeping_cycles_per_s": floor["cycles_per_s"], "mix_floor_sleeping_cycles_per_s": mix["cycles_per_s"],
             "commands": ["python -m sitl_plant.cli", "python -m offboard.cli fly"],
         },  # fmt: skip
         "profile": {"error": "not profiled in the smoke test"},
@@ -69,5 +76,6 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     text = loop.markdown(result)
     assert text.count("| floor: pymavlink ping-pong of the loop's own messages |") == 1
     assert "≥ 50 % of the floor of its own messages" in text
+    assert text.count("each side sleeping in its wait at once |") == 2 and "polling its socket for up to 500 µs" in text
     for pid in run["pids"]:
         assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
