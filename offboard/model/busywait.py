@@ -18,13 +18,21 @@ import os
 import select
 import time
 from collections.abc import Sequence
+from typing import Protocol, TypeVar
+
+
+class _HasFileno(Protocol):
+    def fileno(self) -> int: ...
+
+
+_Fd = TypeVar("_Fd", bound=int | _HasFileno)
 
 #: How long a lockstep wait polls before it sleeps, s: about twice the peer's usual turnaround
 #: (the plant's 50 RK4 steps and autopilot, or the offboard's law and records: 100-250 us).
 LOCKSTEP_SPIN_S = 0.0005
 
 
-def poll_readable(fds: Sequence[object], spin_s: float) -> list:
+def poll_readable(fds: Sequence[_Fd], spin_s: float) -> list[_Fd]:
     """The readable ones of ``fds`` (sockets or file numbers) as soon as one is, polling for up to
     ``spin_s`` (yielding between polls); [] when none became readable in that time."""
     end = time.perf_counter() + spin_s
