@@ -53,6 +53,7 @@ class Loss:
     final: tuple[int, tuple[int, int], int] = (0, (0, 0), 0)
     texts: list[str] = field(default_factory=list)
     sink_m_s: float = NAN  # mean descent speed 1.5-5.5 s after the failsafe (down +)
+    height_at_failsafe_m: float = NAN
     height_at_end_m: float = NAN
 
 
@@ -96,6 +97,7 @@ def fly_script(c: Client) -> dict[int, Loss]:
         assert c.wait(lambda: any("Failsafe activated" in x for x in c.texts_since(t_stop)), 15.0, SPEED), \
             f"no failsafe (COM_OBL_RC_ACT {action}, client on {c.port}, mode {c.mode}, texts {c.texts_since(t_stop)})"
         t_fs = c.t_s
+        loss.height_at_failsafe_m = ground - c.down_m
         settle_heartbeat(c)
         loss.heartbeat = heartbeat_state(c)
         c.wait_sim(max(0.0, t_fs + 8.0 - c.t_s))
@@ -144,7 +146,10 @@ def test_the_actions_fly_as_px4s(runs, parity_finding):
         parity_finding(f"commander.obl_rc_act.{action}.sink", f"offboard loss, COM_OBL_RC_ACT {action} ({ACTION_NAMES[action]}): "
                        "descent 1.5-5.5 s after the failsafe (m/s)", px4[action].sink_m_s, plant[action].sink_m_s)  # fmt: skip
     for action in (1, 4):
-        assert plant[action].sink_m_s == pytest.approx(px4[action].sink_m_s, rel=0.35), action
+        # the vehicles' states in the message: a CI run (loaded machine) saw PX4 sink 0.37 m/s in
+        # Altitude and end landed and disarmed 8 s after the failsafe, which from 10 m at 0.7 m/s
+        # cannot be; not reproduced on an idle or a loaded machine since
+        assert plant[action].sink_m_s == pytest.approx(px4[action].sink_m_s, rel=0.35), (action, px4[action], plant[action])
     for action in (2, 5):
         assert abs(px4[action].sink_m_s) < 0.35 and abs(plant[action].sink_m_s) < 0.35, action
     assert px4[3].sink_m_s > 0.4 and plant[3].sink_m_s > 0.4
