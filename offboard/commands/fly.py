@@ -364,6 +364,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "gains": dataclasses.asdict(c.gains),
             "integral_gain_per_s": c.integral_gain_per_s, "integral_limit_m_s": c.integral_limit_m_s,
             "velocity_integral_gain_per_s2": c.velocity_integral_gain_per_s2,
+            "vertical_velocity_integral_gain_per_s2": c.vertical_velocity_integral_gain_per_s2,
             "velocity_integral_limit_m_s2": c.velocity_integral_limit_m_s2,
             "reference_lead_s2": list(c.reference_lead_s2), "tilt_lead": c.tilt_lead,
             "linear_drag_n_s_m": c.linear_drag_n_s_m, "velocity_from_position_s": c.velocity_from_position_s,

@@ -856,11 +856,13 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
                  rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
     """The fastest law that meets ``spec`` on every plant given (one set shared by the axes).
 
-    "Fastest": the smallest spectral radius of the loop without its integral (the integral,
-    slow by design, would otherwise set the radius); with ``integral``, the largest integral
-    fraction (``INTEGRAL_FRACTIONS``) that keeps ``spec`` too; likewise with
-    ``velocity_integral`` (``VELOCITY_INTEGRAL_FRACTIONS``). A grid of rates and leads, then a
-    finer grid of rates around the best.
+    "Fastest": the smallest spectral radius of the loop without its integral. With ``integral``
+    (``INTEGRAL_FRACTIONS``) or ``velocity_integral`` (``VELOCITY_INTEGRAL_FRACTIONS``): the
+    largest integral fraction that some candidate keeps ``spec`` with, then the fastest of those
+    candidates. (The fastest first and then its largest fraction made the design jump with the
+    latency: on sitl-plant's loop the fastest proportional loop kept only q = 0.05 at 60 ms and
+    0.1 at 110 ms, and the integral's mode then took 34 s and 16 s to 2 % where at 100 ms it takes
+    3.8 s.) A grid of rates and leads, then a finer grid of rates around the best.
 
     Raises
     ------
@@ -890,16 +892,20 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
 
         if not fractions:
             return verified([AxisGains(kp[i], kv[i], c[i]) for i in order])
-        # the fastest candidate that keeps the margins with an integral, and its largest integral
-        idx = np.repeat(np.array(order), len(fractions))
-        q = np.tile(np.array(fractions), len(order))
-        if velocity_integral:
-            ki, kiv = np.zeros_like(q), np.round(q * ((1.0 - kv[idx]) / to) ** 2, 4)
-        else:
-            ki, kiv = np.round(q * (1.0 - kp[idx]) / to, 4), np.zeros_like(q)
-        ok = np.isfinite(_search(plants, AxisGains(kp[idx], kv[idx], c[idx], ki, kiv), to, spec))
-        # candidates in speed order, fractions from the largest
-        return verified([AxisGains(kp[idx[j]], kv[idx[j]], c[idx[j]], ki[j], kiv[j]) for j in np.flatnonzero(ok)])
+        # the largest integral fraction some candidate keeps the margins with, then the fastest
+        # (proportional loop) of those candidates
+        idx = np.flatnonzero(np.isfinite(rho))
+        for q in fractions:
+            if velocity_integral:
+                ki, kiv = np.zeros(idx.size), np.round(q * ((1.0 - kv[idx]) / to) ** 2, 4)
+            else:
+                ki, kiv = np.round(q * (1.0 - kp[idx]) / to, 4), np.zeros(idx.size)
+            ok = np.isfinite(_search(plants, AxisGains(kp[idx], kv[idx], c[idx], ki, kiv), to, spec))
+            ranked = [j for j in np.argsort(rho[idx], kind="stable") if ok[j]][:64]
+            found = verified([AxisGains(kp[idx[j]], kv[idx[j]], c[idx[j]], ki[j], kiv[j]) for j in ranked])
+            if found is not None:
+                return found
+        return None
 
     a, b, c = (g.ravel() for g in np.meshgrid(rates, rates, leads, indexing="ij"))
     coarse = pick(a, b, c)
@@ -940,11 +946,15 @@ def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: Margi
     """The fastest law (gains, and the tilt lead and integral action where allowed) that keeps
     ``spec`` on every axis of ``model`` (module docstring).
 
-    The law has one integral gain for all axes (``[law] integral_gain_per_s``, or
-    ``velocity_integral_gain_per_s2``): the vertical axis is designed with the one the horizontal
-    design chose. Both are off by default here; ``offboard tune`` and ``offboard fly`` design the
-    velocity integral (docs/controller-design.md: the position integral, added to eq. 32's desired
-    speed, is cut by the speed bounds exactly when a disturbance needs it most).
+    The position integral (``[law] integral_gain_per_s``) is one gain for all axes: the vertical
+    axis is designed with the one the horizontal design chose. The velocity integral has its own
+    vertical gain (``[law] vertical_velocity_integral_gain_per_s2``, as PX4 has MPC_XY_VEL_I_ACC
+    and MPC_Z_VEL_I_ACC), designed with the vertical loop (``_search_vertical``): shared, the
+    horizontal one was a twentieth of the vertical loop's own rate squared there, and its slow
+    pole (2 % in 14-15 s) set how long a vertical error took to go. Both integrals are off by
+    default here; ``offboard tune`` and ``offboard fly`` design the velocity integral
+    (docs/controller-design.md: the position integral, added to eq. 32's desired speed, is cut by
+    the speed bounds exactly when a disturbance needs it most).
 
     With ``body_rates`` the law closes the attitude loop itself (``--output rates``): its angle
     gains are designed first (``design_angle_gains``, into ``model.angle_gains``), then the
@@ -959,7 +969,7 @@ def design_gains(model: InnerLoopModel, sample_time_s: float = 0.05, spec: Margi
     north_plant, east_plant, up_plant = axis_plants(model, to)
     h = search_gains((north_plant, east_plant), to, spec, leads=LEAD_GRID if tilt_lead else np.zeros(1), integral=integral,
                      velocity_integral=velocity_integral)  # fmt: skip
-    v = _search_vertical(up_plant, to, spec, float(h.integral_per_s), float(h.velocity_integral_per_s2))
+    v = _search_vertical(up_plant, to, spec, float(h.integral_per_s), velocity_integral=velocity_integral)
     north, east, up = analyse_axis(north_plant, h, to), analyse_axis(east_plant, h, to), analyse_axis(up_plant, v, to)
     reference_lead = (0.5 * (north.reference_lead_s2 + east.reference_lead_s2), up.reference_lead_s2)
     return Design(to, north, east, up, reference_lead, spec, model)
@@ -976,34 +986,51 @@ def step_hold_s(design: Design) -> float:
     return math.ceil(max(times) / to) * to
 
 
-def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float, kiv: float = 0.0,
+def _search_vertical(plant: DiscretePlant, to: float, spec: MarginSpec, ki: float, *, velocity_integral: bool = False,
                      rates_per_s: np.ndarray = RATE_GRID_PER_S) -> AxisGains:  # fmt: skip
-    """The vertical axis's (k_pos, k_vel) with the integral gains ``ki``, ``kiv`` fixed (shared
-    with the horizontal axes)."""
+    """The vertical axis's (k_pos, k_vel) with the position integral gain ``ki`` fixed (shared
+    with the horizontal axes) and, with ``velocity_integral``, its own velocity integral.
+
+    As ``search_gains``: the fastest loop without its integrals that keeps the margins with them;
+    with ``velocity_integral``, first the largest fraction q of ``VELOCITY_INTEGRAL_FRACTIONS``
+    (ki = q rv^2, rv = (1 - k_vel) / To) that some candidate keeps them with. Sharing the
+    horizontal axes' integral, the vertical one was q = 0.05 of the vertical loop's rate squared,
+    and its PI zero at 0.27 /s was the loop's slowest pole (2 % in 14 s on sitl-plant's loop,
+    15 s on PX4 SIH's); designed with the vertical loop it settles in about 2 s with the same
+    margins."""
     rates = np.asarray(rates_per_s, dtype=float)
     a, b = (g.ravel() for g in np.meshgrid(rates, rates, indexing="ij"))
-    def rank(kp: np.ndarray, kv: np.ndarray) -> np.ndarray:
-        # as search_gains: the fastest loop without its integral (slow by design) that keeps
-        # the margins with it
-        ok = np.isfinite(_search((plant,), AxisGains(kp, kv, 0.0, ki, kiv), to, spec))
-        return np.where(ok, _search((plant,), AxisGains(kp, kv), to, MarginSpec(0.0, -math.inf, 0.0)), np.inf)
-
-    cand = AxisGains(np.round(np.exp(-a * to), 4), np.round(np.exp(-b * to), 4), 0.0, ki, kiv)
-    rho = rank(np.asarray(cand.k_pos), np.asarray(cand.k_vel))
-    if not np.isfinite(rho).any():
-        raise ValueError(f"no vertical gains keep the margins at To {to:g} s with integral gains {ki:g} /s, {kiv:g} /s^2")
-    best = int(np.argmin(rho))
     step = float(np.log(rates[1] / rates[0]))
     fine = np.exp(np.linspace(-step, step, 7))
-    a2, b2 = (g.ravel() for g in np.meshgrid(a[best] * fine, b[best] * fine, indexing="ij"))
-    cand2 = AxisGains(np.round(np.exp(-a2 * to), 4), np.round(np.exp(-b2 * to), 4), 0.0, ki, kiv)
-    rho2 = rank(np.asarray(cand2.k_pos), np.asarray(cand2.k_vel))
-    for i in [int(i) for i in np.argsort(rho2) if np.isfinite(rho2[i])]:
-        # the first the full analysis passes too (the search's frequency grid is coarser)
-        g = AxisGains(float(np.asarray(cand2.k_pos)[i]), float(np.asarray(cand2.k_vel)[i]), 0.0, ki, kiv)
-        if analyse_axis(plant, g, to).meets(spec):
-            return g
-    return AxisGains(float(np.asarray(cand.k_pos)[best]), float(np.asarray(cand.k_vel)[best]), 0.0, ki, kiv)
+
+    def candidates(a: np.ndarray, b: np.ndarray, q: float) -> AxisGains:
+        kp, kv = np.round(np.exp(-a * to), 4), np.round(np.exp(-b * to), 4)
+        return AxisGains(kp, kv, np.zeros_like(kp), np.full_like(kp, ki), np.round(q * ((1.0 - kv) / to) ** 2, 4))
+
+    def rank(cand: AxisGains) -> np.ndarray:
+        # the fastest loop without its integrals (slow by design) that keeps the margins with them
+        kp, kv, _, _, _ = cand.arrays()
+        ok = np.isfinite(_search((plant,), cand, to, spec))
+        return np.where(ok, _search((plant,), AxisGains(kp, kv), to, MarginSpec(0.0, -math.inf, 0.0)), np.inf)
+
+    for q in sorted(VELOCITY_INTEGRAL_FRACTIONS, reverse=True) if velocity_integral else [0.0]:
+        cand = candidates(a, b, q)
+        rho = rank(cand)
+        if not np.isfinite(rho).any():
+            continue
+        best = int(np.argmin(rho))
+        a2, b2 = (g.ravel() for g in np.meshgrid(a[best] * fine, b[best] * fine, indexing="ij"))
+        cand2 = candidates(a2, b2, q)
+        rho2 = rank(cand2)
+        kp2, kv2, _, _, kiv2 = cand2.arrays()
+        for i in [int(i) for i in np.argsort(rho2) if np.isfinite(rho2[i])]:
+            # the first the full analysis passes too (the search's frequency grid is coarser)
+            g = AxisGains(float(kp2[i]), float(kv2[i]), 0.0, ki, float(kiv2[i]))
+            if analyse_axis(plant, g, to).meets(spec):
+                return g
+        kp, kv, _, _, kiv = cand.arrays()
+        return AxisGains(float(kp[best]), float(kv[best]), 0.0, ki, float(kiv[best]))
+    raise ValueError(f"no vertical gains keep the margins at To {to:g} s with integral gain {ki:g} /s")
 
 
 # --- designs near a design: what offboard tune --search flies ------------------------------------
@@ -1031,18 +1058,17 @@ def nearby_designs(design: Design, limit: int = 12) -> list[Design]:
 
     Every combination of ``NEAR_RATE_FACTORS`` on the horizontal position and velocity rates,
     ``NEAR_LEAD_STEPS`` on the tilt lead (not below 0) and ``NEAR_INTEGRAL_FACTORS`` on the
-    velocity integral (the vertical axis keeping its gains, with the shared integral), rounded as a
+    horizontal velocity integral (the vertical axis keeping its gains and its own integral), rounded as a
     controller file writes them and analysed in full; kept where every axis meets ``design.spec``.
     ``design`` itself first, then the others nearest first (one factor changed, then two ...; of
-    as many changes, the faster horizontal loop first: the smaller spectral radius of its
-    proportional part, the integral being slow by design), at most ``limit`` in all.
+    as many changes, the faster horizontal loop first: the smaller spectral radius of the whole
+    loop, as ``search_gains`` ranks), at most ``limit`` in all.
     """
     to = design.sample_time_s
     h, v = design.horizontal, design.vertical
     rate_pos, rate_vel = -math.log(float(h.k_pos)) / to, -math.log(float(h.k_vel)) / to
     seen = {(float(h.k_pos), float(h.k_vel), float(h.lead), float(h.velocity_integral_per_s2))}
     near: list[tuple[int, float, Design]] = []
-    north_plant, _, _ = axis_plants(design.model, to)
     for fp in NEAR_RATE_FACTORS:
         for fv in NEAR_RATE_FACTORS:
             for step in NEAR_LEAD_STEPS:
@@ -1052,12 +1078,11 @@ def nearby_designs(design: Design, limit: int = 12) -> list[Design]:
                     if (kp, kv, lead, kiv) in seen:
                         continue
                     seen.add((kp, kv, lead, kiv))
-                    candidate = with_gains(design, AxisGains(kp, kv, lead, float(h.integral_per_s), kiv),
-                                           AxisGains(v.k_pos, v.k_vel, 0.0, v.integral_per_s, kiv))  # fmt: skip
+                    candidate = with_gains(design, AxisGains(kp, kv, lead, float(h.integral_per_s), kiv), v)
                     axes = (candidate.north, candidate.east, candidate.up)
                     if all(a.meets(design.spec) for a in axes):
                         changes = (fp != 1.0) + (fv != 1.0) + (lead != float(h.lead)) + (fi != 1.0)
-                        speed = analyse_axis(north_plant, AxisGains(kp, kv, lead), to).spectral_radius
+                        speed = candidate.north.spectral_radius
                         near.append((changes, speed, candidate))
     near.sort(key=lambda item: item[:2])
     return [design, *(d for _, _, d in near[: max(0, limit - 1)])]

@@ -243,15 +243,18 @@ def law_step(
     dx4 = x4d - g.kx4 * (memory.x4d - x4) - x4
     dx6 = x6d - g.kx6 * (memory.x6d - x6) - x6
     a1, a3, a5 = memory.a1, memory.a3, memory.a5
-    kiv = params.velocity_integral_gain_per_s2
+    kiv_xy = params.velocity_integral_gain_per_s2
+    kiv_z = kiv_xy if params.vertical_velocity_integral_gain_per_s2 is None else params.vertical_velocity_integral_gain_per_s2
+    kiv = kiv_xy + kiv_z  # > 0: some velocity integral
     if kiv > 0.0:
         # optional integral of the velocity errors of eq. 33 (not in the paper): an acceleration
         # that makes up a steady disturbance (a mass error, wind, an estimator's tilt bias), so
-        # that eq. 33's speed, and with it eq. 32's position, settles without an offset
+        # that eq. 33's speed, and with it eq. 32's position, settles without an offset; the
+        # vertical axis may have its own gain (``vertical_velocity_integral_gain_per_s2``)
         cap = params.velocity_integral_limit_m_s2
-        a1 = ops.minimum(ops.maximum(a1 + kiv * to * (memory.x2d - x2), -cap), cap)
-        a3 = ops.minimum(ops.maximum(a3 + kiv * to * (memory.x4d - x4), -cap), cap)
-        a5 = ops.minimum(ops.maximum(a5 + kiv * to * (memory.x6d - x6), -cap), cap)
+        a1 = ops.minimum(ops.maximum(a1 + kiv_xy * to * (memory.x2d - x2), -cap), cap)
+        a3 = ops.minimum(ops.maximum(a3 + kiv_xy * to * (memory.x4d - x4), -cap), cap)
+        a5 = ops.minimum(ops.maximum(a5 + kiv_z * to * (memory.x6d - x6), -cap), cap)
         dx2, dx4, dx6 = dx2 + to * a1, dx4 + to * a3, dx6 + to * a5
     if params.linear_drag_n_s_m > 0.0:
         # a believed linear drag -d v (N): eq. 23's x2(n+1) = x2(n) + To (-u/m sin x9 - d/m x2(n)),

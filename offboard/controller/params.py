@@ -128,6 +128,10 @@ class ControllerParams:
         ki of the optional integral action on the velocity errors of eq. 33 (``law`` module
         docstring), m/s^2 of acceleration per metre of integrated speed error; 0 (the default)
         is the paper's law.
+    vertical_velocity_integral_gain_per_s2 : float or None
+        The velocity integral's ki on the vertical axis (PX4's MPC_Z_VEL_I_ACC beside
+        MPC_XY_VEL_I_ACC): the design chooses it with the vertical loop (``design._search_vertical``).
+        None, the default, uses ``velocity_integral_gain_per_s2`` on every axis.
     velocity_integral_limit_m_s2 : float
         The velocity integral's acceleration is clamped to +- this on each axis (default g / 2:
         a steady disturbance beyond it, a 50 % mass error or a 27 deg tilt bias, is not one to
@@ -175,6 +179,7 @@ class ControllerParams:
     integral_gain_per_s: float = 0.0
     integral_limit_m_s: float = 3.0
     velocity_integral_gain_per_s2: float = 0.0
+    vertical_velocity_integral_gain_per_s2: float | None = None
     velocity_integral_limit_m_s2: float = 4.9
     reference_lead_s2: tuple[float, float] = (0.0, 0.0)
     tilt_lead: float = 0.0
@@ -196,6 +201,9 @@ class ControllerParams:
             raise ValueError(f"integral_limit_m_s must be > 0, got {self.integral_limit_m_s}")
         if not (math.isfinite(self.velocity_integral_gain_per_s2) and self.velocity_integral_gain_per_s2 >= 0):
             raise ValueError(f"velocity_integral_gain_per_s2 must be >= 0, got {self.velocity_integral_gain_per_s2}")
+        up = self.vertical_velocity_integral_gain_per_s2
+        if up is not None and not (math.isfinite(up) and up >= 0):
+            raise ValueError(f"vertical_velocity_integral_gain_per_s2 must be >= 0, got {up}")
         if not (math.isfinite(self.velocity_integral_limit_m_s2) and self.velocity_integral_limit_m_s2 > 0):
             raise ValueError(f"velocity_integral_limit_m_s2 must be > 0, got {self.velocity_integral_limit_m_s2}")
         if not (math.isfinite(self.linear_drag_n_s_m) and self.linear_drag_n_s_m >= 0):
@@ -245,6 +253,8 @@ def controller_from_table(f: Fields) -> ControllerParams:
         integral_gain_per_s=law.number("integral_gain_per_s", 0.0, ge=0),
         integral_limit_m_s=law.number("integral_limit_m_s", 3.0, gt=0),
         velocity_integral_gain_per_s2=law.number("velocity_integral_gain_per_s2", 0.0, ge=0),
+        vertical_velocity_integral_gain_per_s2=law.number("vertical_velocity_integral_gain_per_s2", ge=0)
+        if law.has("vertical_velocity_integral_gain_per_s2") else None,
         velocity_integral_limit_m_s2=law.number("velocity_integral_limit_m_s2", 4.9, gt=0),
         reference_lead_s2=law.vector("reference_lead_s2", 2, default=(0.0, 0.0)),  # type: ignore[arg-type]
         tilt_lead=law.number("tilt_lead", 0.0, ge=0),

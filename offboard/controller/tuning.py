@@ -129,6 +129,7 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
     return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
                              integral_gain_per_s=float(h.integral_per_s),
                              velocity_integral_gain_per_s2=float(h.velocity_integral_per_s2),
+                             vertical_velocity_integral_gain_per_s2=float(v.velocity_integral_per_s2),
                              reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2),
                              velocity_integral_hold_s=round(step_hold_s(design), 4) if h.velocity_integral_per_s2 else 0.0,
                              velocity_from_position_s=VELOCITY_FROM_POSITION_S)
@@ -213,6 +214,9 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         f"integral_gain_per_s = {_fmt(params.integral_gain_per_s)}",
         f"integral_limit_m_s = {_fmt(params.integral_limit_m_s)}",
         f"velocity_integral_gain_per_s2 = {_fmt(params.velocity_integral_gain_per_s2)}",
+        *([] if params.vertical_velocity_integral_gain_per_s2 is None else [
+            "# the vertical axis's own (designed with the vertical loop)",
+            f"vertical_velocity_integral_gain_per_s2 = {_fmt(params.vertical_velocity_integral_gain_per_s2)}"]),
         f"velocity_integral_limit_m_s2 = {_fmt(params.velocity_integral_limit_m_s2)}",
         "# after a reference step the velocity integral holds until settled, at most this long (s)",
         f"velocity_integral_hold_s = {_fmt(params.velocity_integral_hold_s)}",

@@ -265,6 +265,9 @@ def flight_controller(
                 "tilt_lead", "linear_drag_n_s_m", "velocity_from_position_s", "velocity_integral_hold_s"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
+    # a flight recorded before the key existed flew one velocity integral gain on every axis
+    up = recorded.get("vertical_velocity_integral_gain_per_s2")
+    changes["vertical_velocity_integral_gain_per_s2"] = None if up is None else float(up)
     # a flight recorded before the key existed read its velocity filter at the fixed T
     changes["velocity_from_position_identify"] = bool(recorded.get("velocity_from_position_identify", False))
     if "inertia_kg_m2" in recorded:

@@ -86,6 +86,8 @@ PARAMETERS: dict[str, Parameter] = {
     **{f"controller.gains.kx{k}": Parameter(f"Table I gain k_x{k}, in (0, 1)", gt=0, lt=1) for k in range(1, 13)},
     "controller.integral_gain_per_s": Parameter("integral action ki (1/s; 0 = the paper's law)", ge=0),
     "controller.velocity_integral_gain_per_s2": Parameter("velocity integral ki (1/s^2; 0 = the paper's law)", ge=0),
+    "controller.vertical_velocity_integral_gain_per_s2": Parameter("the vertical axis's own velocity integral ki (1/s^2)",
+                                                                   ge=0),
     "controller.tilt_lead": Parameter("lead on the attitude handed to an autopilot (px4 drive)", ge=0),
     "controller.velocity_integral_hold_s": Parameter("the velocity integral's hold after a reference step (s; 0 = "
                                                      "on the bounds only)", ge=0),

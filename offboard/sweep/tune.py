@@ -31,7 +31,8 @@ from offboard.sweep.runner import local_cluster, run_sweep
 from offboard.sweep.spec import Distribution, DistributionKind, SweepSpec
 
 #: What a sweep may not vary for a search: what the search itself chooses.
-CHOSEN = ("controller.gains.", "controller.tilt_lead", "controller.velocity_integral", "controller.integral_gain_per_s",
+CHOSEN = ("controller.gains.", "controller.tilt_lead", "controller.velocity_integral", "controller.vertical_velocity_integral",
+          "controller.integral_gain_per_s",
           "controller.sample_time_s", "controller.velocity_from_position_s")  # fmt: skip
 
 

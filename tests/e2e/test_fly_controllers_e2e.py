@@ -37,8 +37,13 @@ def test_a_mavlink_flight_is_the_in_process_flight_through_px4s_attitude_loop(tm
     print(f"\n{kind}: largest difference {difference.max() * 1000:.2f} mm over {len(difference)} samples")
     # float32 on the wire (positions to ~1e-6 m, setpoints to ~1e-7) is the only difference; it
     # grows through a 47 s flight with 35 deg banks to a few mm (3 mm measured). A wrong frame,
-    # a sample of latency or another inner loop costs decimetres.
-    assert difference.max() < 0.02
+    # a sample of latency or another inner loop costs decimetres. The designed law's velocity
+    # integral holds in a sample whose tilt is bounded (conditional integration), and where the
+    # free tilt leaves the 35 deg bound the rounding can move that sample: at the figure-eight's
+    # stop at 38 s (nine samples at the bound) one sample is 1.46 /s^2 x 50 ms x 1.5 m/s of
+    # integral, which grows to 20 mm half a second later (measured: 0.06 mm at 38.05 s, 1.8 mm
+    # as the bound releases at 38.45 s, 20 mm at 39.6 s, 0.09 mm again by 45 s).
+    assert difference.max() < (0.05 if kind == "paper-designed" else 0.02)
     assert np.max(np.linalg.norm(in_process["ref_pos_ned_m"] - np.stack([s[f"ref_pos_ned_m_{i}"] for i in range(3)], axis=1),
                                  axis=1)) < 1e-9  # fmt: skip
 
