@@ -1061,14 +1061,15 @@ def nearby_designs(design: Design, limit: int = 12) -> list[Design]:
     horizontal velocity integral (the vertical axis keeping its gains and its own integral), rounded as a
     controller file writes them and analysed in full; kept where every axis meets ``design.spec``.
     ``design`` itself first, then the others nearest first (one factor changed, then two ...; of
-    as many changes, the faster horizontal loop first: the smaller spectral radius of the whole
-    loop, as ``search_gains`` ranks), at most ``limit`` in all.
+    as many changes, the faster horizontal loop first: the smaller spectral radius of its
+    proportional part, as ``search_gains`` ranks), at most ``limit`` in all.
     """
     to = design.sample_time_s
     h, v = design.horizontal, design.vertical
     rate_pos, rate_vel = -math.log(float(h.k_pos)) / to, -math.log(float(h.k_vel)) / to
     seen = {(float(h.k_pos), float(h.k_vel), float(h.lead), float(h.velocity_integral_per_s2))}
     near: list[tuple[int, float, Design]] = []
+    north_plant, _, _ = axis_plants(design.model, to)
     for fp in NEAR_RATE_FACTORS:
         for fv in NEAR_RATE_FACTORS:
             for step in NEAR_LEAD_STEPS:
@@ -1082,7 +1083,7 @@ def nearby_designs(design: Design, limit: int = 12) -> list[Design]:
                     axes = (candidate.north, candidate.east, candidate.up)
                     if all(a.meets(design.spec) for a in axes):
                         changes = (fp != 1.0) + (fv != 1.0) + (lead != float(h.lead)) + (fi != 1.0)
-                        speed = candidate.north.spectral_radius
+                        speed = analyse_axis(north_plant, AxisGains(kp, kv, lead), to).spectral_radius
                         near.append((changes, speed, candidate))
     near.sort(key=lambda item: item[:2])
     return [design, *(d for _, _, d in near[: max(0, limit - 1)])]
