@@ -31,9 +31,11 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
-# two workers, a test file at a time each (a module's PX4 or bench fixture starts once; tests/conftest.py)
+# two workers, a test file at a time each (a module's PX4 or bench fixture starts once), in the order
+# tests/conftest.py gives the files (long ones first, PX4 ones between the others): xdist >= 3.8
+# reorders them by their number of tests unless told not to
 test: $(TEST_STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
 test-fast: $(TEST_STAMP)

@@ -45,7 +45,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
     """The items, a module's together, in the order ``make test``'s two workers should take the
-    modules (``--dist loadfile`` hands them out in collection order): the long ones first, so that
+    modules (``--dist loadfile --no-loadscope-reorder`` hands them out in collection order; without the
+    flag xdist >= 3.8 sorts them by their number of tests): the long ones first, so that
     the short ones fill the gaps at the end instead of one worker finishing a long module alone
     while the other idles; and the PX4 modules alternating with the other long ones, so that two
     PX4 SITLs seldom share the two cores (their timings are compared with the plant's). Long: a

@@ -45,7 +45,9 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile")  # two workers (tests/conftest.py)
+    # two workers, a file at a time each, in tests/conftest.py's order (xdist's own would put the
+    # files with the most tests first, and the PX4 modules together at the end)
+    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile --no-loadscope-reorder")
 
 
 def test_demo_then_test_installs_only_the_test_extra(tmp_path):
