@@ -31,9 +31,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
-# two workers, a test file at a time each (a module's PX4 or bench fixture starts once), in the order
-# tests/conftest.py gives the files (long ones first, PX4 ones between the others): xdist >= 3.8
-# reorders them by their number of tests unless told not to
+# two workers, a test file at a time each (its PX4 or bench fixture starts once), all the PX4 files on
+# one worker (never two PX4 SITLs at once), in the order tests/conftest.py gives them (the PX4 files
+# and the long ones first): xdist >= 3.8 reorders them unless told not to
 test: $(TEST_STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
@@ -52,9 +52,10 @@ bench: $(STAMP)
 # measure: the px4 parity tests with their findings recorded (PARITY_FINDINGS, tests/conftest.py),
 # then the page rendered from them (bench/parity.py), even when a test failed (its rows say so; make
 # still fails). Needs a PX4 SITL ($$PX4_SITL, or ../shared/px4-sitl as the tests find it); a few
-# minutes. Not part of make test or make demo.
+# minutes, one PX4 at a time (tests/conftest.py puts the PX4 files on one xdist worker: two PX4 SITLs
+# at once made their timings flaky). Not part of make test or make demo.
 PARITY_RUN     ?= runs/parity-findings
-PARITY_WORKERS ?= 2
+PARITY_WORKERS ?= 1
 PARITY_TESTS   := $(sort $(wildcard tests/e2e/test_px4_parity_*.py))
 
 parity: $(TEST_STAMP)

@@ -24,13 +24,19 @@ E2E_DIR = Path(__file__).resolve().parent / "e2e"
 
 #: e2e modules whose tests fly on the wall clock (a real-time plant, PX4 at --speed, timeouts and
 #: rates measured in wall time), marked ``realtime`` (``-m "not realtime"`` leaves them out).
-#: ``make test`` runs on two workers a file at a time (pytest-xdist ``--dist loadfile``): a module's
-#: PX4 or bench fixture starts once, and a flight shares the cores with at most one other test.
 REALTIME_MODULES = frozenset({
     "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fuzz",
     "test_killed", "test_lost_track", "test_plant_cli_faults", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
     "test_plant_services_e2e",
 })  # fmt: skip
+
+#: The one xdist scope of every PX4 module under ``--dist loadfile`` (``pytest_xdist_make_scheduler``).
+PX4_SCOPE = "px4-sitl"
+
+
+def is_px4_module(path: str | Path) -> bool:
+    """Whether a test module flies a real PX4 SITL (tests/e2e/test_px4_*.py, each starting its own)."""
+    return Path(path).name.startswith("test_px4_")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -38,34 +44,47 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         path = Path(str(item.fspath)).resolve()
         if E2E_DIR in path.parents:
             item.add_marker(pytest.mark.e2e)
-        if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or path.stem.startswith("test_px4"):
+        if path.stem in REALTIME_MODULES or item.get_closest_marker("px4") is not None or is_px4_module(path):
             item.add_marker(pytest.mark.realtime)
     items[:] = long_modules_first(items)
 
 
 def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
-    """The items, a module's together, in the order ``make test``'s two workers should take the
-    modules (``--dist loadfile --no-loadscope-reorder`` hands them out in collection order; without the
-    flag xdist >= 3.8 sorts them by their number of tests): the long ones first, so that
-    the short ones fill the gaps at the end instead of one worker finishing a long module alone
-    while the other idles; and the PX4 modules alternating with the other long ones, so that two
-    PX4 SITLs seldom share the two cores (their timings are compared with the plant's). Long: a
-    PX4 module, an e2e one (processes), or one marked ``slow``. Within each kind, the collection order."""
+    """The items, a module's together, in the order ``make test``'s two workers should take them
+    (``--dist loadfile --no-loadscope-reorder`` hands the scopes out in collection order; without
+    the flag xdist >= 3.8 sorts them by their number of tests): the PX4 modules first (one scope,
+    ``pytest_xdist_make_scheduler``: a few minutes), then the other long ones, then the short ones,
+    so that the short ones fill the gaps at the end instead of one worker finishing a long module
+    alone while the other idles. Long: an e2e module (processes) or one marked ``slow``. Within
+    each kind, the collection order."""
     modules: dict[str, list[pytest.Item]] = {}
     for item in items:
         modules.setdefault(str(item.fspath), []).append(item)
 
     def kind(group: list[pytest.Item]) -> int:
-        if any(i.get_closest_marker("px4") is not None for i in group):
+        if is_px4_module(str(group[0].fspath)):
             return 0
         return 1 if any(i.get_closest_marker(mark) for i in group for mark in ("slow", "realtime", "e2e")) else 2
 
-    by_kind: dict[int, list[list[pytest.Item]]] = {0: [], 1: [], 2: []}
-    for group in modules.values():
-        by_kind[kind(group)].append(group)
-    px4, long, short = by_kind[0], by_kind[1], by_kind[2]
-    alternating = [g for pair in zip(px4, long) for g in pair] + px4[len(long):] + long[len(px4):]
-    return [item for group in alternating + short for item in group]
+    return [item for group in sorted(modules.values(), key=kind) for item in group]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, ANN201 - xdist's hook
+    """``--dist loadfile`` (``make test``) with every PX4 module in one scope: one worker flies
+    them one after the other, so that a PX4 flight shares the cores with at most one other test and
+    never with a second PX4 SITL (their timings are compared with the plant's; two at once made
+    them flaky). Every other module is a scope of its own, as xdist's loadfile has it."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class Px4ModulesTogether(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = super()._split_scope(nodeid)
+            return PX4_SCOPE if is_px4_module(module) else module
+
+    return Px4ModulesTogether(config, log)
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:

@@ -45,8 +45,8 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    # two workers, a file at a time each, in tests/conftest.py's order (xdist's own would put the
-    # files with the most tests first, and the PX4 modules together at the end)
+    # two workers, a file (or all the PX4 files, tests/conftest.py) at a time each, in
+    # tests/conftest.py's order (xdist's own would put the files with the most tests first)
     assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile --no-loadscope-reorder")
 
 
@@ -81,3 +81,20 @@ def test_the_license_is_an_spdx_expression():
     project = tomllib.loads((REPO / "pyproject.toml").read_text())
     assert project["project"]["license"] == "MIT"
     assert any(r.replace(" ", "").startswith("setuptools>=77") for r in project["build-system"]["requires"])
+
+
+def test_make_test_flies_every_px4_module_on_one_worker_and_the_others_a_file_each(pytestconfig, monkeypatch):
+    """tests/conftest.py's scheduler for ``--dist loadfile``: never two PX4 SITLs at once."""
+    import conftest
+
+    monkeypatch.setattr(pytestconfig.option, "dist", "loadfile")
+    monkeypatch.setattr(pytestconfig.option, "tx", ["popen", "popen"], raising=False)  # -n 2
+    scheduler = conftest.pytest_xdist_make_scheduler(pytestconfig, None)
+    px4 = ["tests/e2e/test_px4_flight.py::test_a", "tests/e2e/test_px4_parity_wire.py::test_b[api]"]
+    assert {scheduler._split_scope(nodeid) for nodeid in px4} == {conftest.PX4_SCOPE}
+    assert scheduler._split_scope("tests/e2e/test_fly_e2e.py::test_c") == "tests/e2e/test_fly_e2e.py"
+    assert (
+        scheduler._split_scope("tests/unit/offboard/test_bench_px4sitl.py::test_d") == "tests/unit/offboard/test_bench_px4sitl.py"
+    )
+    monkeypatch.setattr(pytestconfig.option, "dist", "load")
+    assert conftest.pytest_xdist_make_scheduler(pytestconfig, None) is None  # xdist's own
