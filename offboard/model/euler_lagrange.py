@@ -161,17 +161,77 @@ def real_torques(
     form: EulerRateForm = EulerRateForm.CASTILLO,
 ) -> np.ndarray:
     """The generalised torques of eq. 16: ``tau = C(eta, eta_dot) eta_dot + J(eta) tau_tilde``."""
-    rows, rows_dot, g, _ = _rows(eta, eta_dot, form)
-    moments = _moments(inertia)
-    c = _coriolis(rows, rows_dot, g, eta_dot, moments)
-    t0, t1, t2 = float(tau_tilde[0]), float(tau_tilde[1]), float(tau_tilde[2])
-    for r in range(3):  # J tau~ = sum_r I_r w_r (w_r . tau~)
-        w = rows[r]
-        scale = moments[r] * (w[0] * t0 + w[1] * t1 + w[2] * t2)
-        c[0] += scale * w[0]
-        c[1] += scale * w[1]
-        c[2] += scale * w[2]
-    return np.array(c)
+    index, sign = _angle_and_sign(form)
+    theta, a = float(eta[1]), float(eta[index])
+    return np.array(real_torques_terms(
+        math.sin(theta), math.cos(theta), math.sin(a), math.cos(a), float(eta_dot[0]), float(eta_dot[1]),
+        float(eta_dot[2]), float(tau_tilde[0]), float(tau_tilde[1]), float(tau_tilde[2]),
+        float(inertia[0, 0]), float(inertia[1, 1]), float(inertia[2, 2]), index, sign,
+    ))  # fmt: skip
+
+
+def real_torques_terms(
+    st: float, ct: float, sa: float, ca: float, d0: float, d1: float, d2: float, t0: float, t1: float, t2: float,
+    i0: float, i1: float, i2: float, index: int, sign: float,
+) -> tuple[float, float, float]:
+    """Eq. 16, ``C(eta, eta_dot) eta_dot + J(eta) tau~``, on floats: ``real_torques`` given the sine
+    and cosine of theta (``st``, ``ct``) and of the W_eta angle (``sa``, ``ca``), eta_dot
+    (``d0..d2``), tau~ (``t0..t2``), the principal moments (``i0..i2``) and the form's terms
+    (``index``: the angle, 0 phi or 2 psi; ``sign``; ``EULER_FORM_TERMS``).
+
+    Written out, no arrays: the law's per-sample form, and what ``sitl_plant.dynamics.batch``
+    compiles for eq. 16 at every physics step. The sums run in ``_rows``/``_coriolis``'s order
+    (``coriolis_vector`` and ``generalized_inertia`` give the same to rounding)."""
+    a_dot = d0 if index == 0 else d2
+    theta_dot, psi_dot = d1, d2
+    # rows w_r of W, their derivatives, and g[r][k] (``_rows``)
+    w00, w01, w02 = 1.0, 0.0, -st
+    w10, w11, w12 = 0.0, ca, ct * sa
+    w20, w21, w22 = 0.0, sign * sa, ct * ca
+    v00, v01, v02 = 0.0, 0.0, -ct * theta_dot
+    v10, v11, v12 = 0.0, -sa * a_dot, -st * sa * theta_dot + ct * ca * a_dot
+    v20, v21, v22 = 0.0, sign * ca * a_dot, -st * ca * theta_dot - ct * sa * a_dot
+    g00, g01, g02 = 0.0, -ct * psi_dot, 0.0
+    g10, g11, g12 = 0.0, -st * sa * psi_dot, 0.0
+    g20, g21, g22 = 0.0, -st * ca * psi_dot, 0.0
+    extra1 = -sa * theta_dot + ct * ca * psi_dot
+    extra2 = sign * ca * theta_dot - ct * sa * psi_dot
+    if index == 0:
+        g10 += extra1
+        g20 += extra2
+    else:
+        g12 += extra1
+        g22 += extra2
+    c0 = c1 = c2 = 0.0
+    # r = 0, 1, 2 in the reference's order of accumulation
+    om = w00 * d0 + w01 * d1 + w02 * d2
+    wd = v00 * d0 + v01 * d1 + v02 * d2
+    c0 += i0 * (v00 * om + w00 * wd - om * g00)
+    c1 += i0 * (v01 * om + w01 * wd - om * g01)
+    c2 += i0 * (v02 * om + w02 * wd - om * g02)
+    om = w10 * d0 + w11 * d1 + w12 * d2
+    wd = v10 * d0 + v11 * d1 + v12 * d2
+    c0 += i1 * (v10 * om + w10 * wd - om * g10)
+    c1 += i1 * (v11 * om + w11 * wd - om * g11)
+    c2 += i1 * (v12 * om + w12 * wd - om * g12)
+    om = w20 * d0 + w21 * d1 + w22 * d2
+    wd = v20 * d0 + v21 * d1 + v22 * d2
+    c0 += i2 * (v20 * om + w20 * wd - om * g20)
+    c1 += i2 * (v21 * om + w21 * wd - om * g21)
+    c2 += i2 * (v22 * om + w22 * wd - om * g22)
+    s = i0 * (w00 * t0 + w01 * t1 + w02 * t2)
+    c0 += s * w00
+    c1 += s * w01
+    c2 += s * w02
+    s = i1 * (w10 * t0 + w11 * t1 + w12 * t2)
+    c0 += s * w10
+    c1 += s * w11
+    c2 += s * w12
+    s = i2 * (w20 * t0 + w21 * t1 + w22 * t2)
+    c0 += s * w20
+    c1 += s * w21
+    c2 += s * w22
+    return c0, c1, c2
 
 
 def euler_acceleration(

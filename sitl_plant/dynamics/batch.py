@@ -37,7 +37,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from offboard.model.euler_lagrange import EULER_FORM_TERMS, EulerRateForm
+from offboard.model.euler_lagrange import EULER_FORM_TERMS, EulerRateForm, real_torques_terms
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 from sitl_plant.dynamics import rigid_body
@@ -408,63 +408,9 @@ def _real_torques(e0, e1, e2, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign): 
                             index, sign)  # fmt: skip
 
 
-def _real_torques_sc(st, ct, sa, ca, d0, d1, d2, t0, t1, t2, i0, i1, i2, index, sign):  # noqa: ANN001, ANN202
-    """``_real_torques`` given the sine and cosine of theta (``st``, ``ct``) and of the W_eta
-    angle (``sa``, ``ca``)."""
-    a_dot = d0 if index == 0 else d2
-    theta_dot, psi_dot = d1, d2
-    # rows w_r of W, their derivatives, and g[r][k] (see euler_lagrange._rows)
-    w00, w01, w02 = 1.0, 0.0, -st
-    w10, w11, w12 = 0.0, ca, ct * sa
-    w20, w21, w22 = 0.0, sign * sa, ct * ca
-    v00, v01, v02 = 0.0, 0.0, -ct * theta_dot
-    v10, v11, v12 = 0.0, -sa * a_dot, -st * sa * theta_dot + ct * ca * a_dot
-    v20, v21, v22 = 0.0, sign * ca * a_dot, -st * ca * theta_dot - ct * sa * a_dot
-    g00, g01, g02 = 0.0, -ct * psi_dot, 0.0
-    g10, g11, g12 = 0.0, -st * sa * psi_dot, 0.0
-    g20, g21, g22 = 0.0, -st * ca * psi_dot, 0.0
-    extra1 = -sa * theta_dot + ct * ca * psi_dot
-    extra2 = sign * ca * theta_dot - ct * sa * psi_dot
-    if index == 0:
-        g10 += extra1
-        g20 += extra2
-    else:
-        g12 += extra1
-        g22 += extra2
-    c0 = c1 = c2 = 0.0
-    # r = 0, 1, 2 in the reference's order of accumulation
-    om = w00 * d0 + w01 * d1 + w02 * d2
-    wd = v00 * d0 + v01 * d1 + v02 * d2
-    c0 += i0 * (v00 * om + w00 * wd - om * g00)
-    c1 += i0 * (v01 * om + w01 * wd - om * g01)
-    c2 += i0 * (v02 * om + w02 * wd - om * g02)
-    om = w10 * d0 + w11 * d1 + w12 * d2
-    wd = v10 * d0 + v11 * d1 + v12 * d2
-    c0 += i1 * (v10 * om + w10 * wd - om * g10)
-    c1 += i1 * (v11 * om + w11 * wd - om * g11)
-    c2 += i1 * (v12 * om + w12 * wd - om * g12)
-    om = w20 * d0 + w21 * d1 + w22 * d2
-    wd = v20 * d0 + v21 * d1 + v22 * d2
-    c0 += i2 * (v20 * om + w20 * wd - om * g20)
-    c1 += i2 * (v21 * om + w21 * wd - om * g21)
-    c2 += i2 * (v22 * om + w22 * wd - om * g22)
-    s = i0 * (w00 * t0 + w01 * t1 + w02 * t2)
-    c0 += s * w00
-    c1 += s * w01
-    c2 += s * w02
-    s = i1 * (w10 * t0 + w11 * t1 + w12 * t2)
-    c0 += s * w10
-    c1 += s * w11
-    c2 += s * w12
-    s = i2 * (w20 * t0 + w21 * t1 + w22 * t2)
-    c0 += s * w20
-    c1 += s * w21
-    c2 += s * w22
-    return c0, c1, c2
-
-
-_real_torques_sc_i = _ijit(_real_torques_sc)
-_real_torques_sc = _jit(_real_torques_sc)
+# eq. 16 on floats, the law's own (euler_lagrange.real_torques_terms), compiled
+_real_torques_sc_i = _ijit(real_torques_terms)
+_real_torques_sc = _jit(real_torques_terms)
 
 
 @_jit
