@@ -37,6 +37,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from offboard.model import euler_lagrange
 from offboard.model.euler_lagrange import EULER_FORM_TERMS, EulerRateForm, real_torques_terms
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
@@ -845,7 +846,8 @@ def drop_stale_cache(kernel: CompiledKernel, depends_on: tuple[str, ...]) -> Non
             pass
 
 
-drop_stale_cache(_advance_many_kernel, (rigid_body.__file__,))  # this module's kernels have rigid_body's equations built in
+# this module's kernels have rigid_body's equations and euler_lagrange's eq. 16 built in
+drop_stale_cache(_advance_many_kernel, (rigid_body.__file__, euler_lagrange.__file__))
 
 
 def warm_up() -> None:
