@@ -14,7 +14,7 @@ at the same rate through the same attitude loop.
   10 ms (``--design-latency``); the baselines with the delay;
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
   mission with the designed gains, the helix with Table I's, the helix and the square with the
-  baselines, and the helix and the square with PX4 at ``--speed 4`` (``offboard fly --clock
+  baselines, and every bundled mission again with PX4 at ``--speed 4`` (``offboard fly --clock
   vehicle``).
 
 Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
@@ -188,7 +188,7 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
                     k += 1
                     record("real PX4", name, baseline, "real time",
                            fly_px4(MISSIONS / name, work / f"f{k}", controller=baseline))  # fmt: skip
-            for name in ("paper-helix.toml", "paper-square.toml"):
+            for name in FLY_MISSIONS:  # issue 11: every bundled mission at --speed 4 too
                 k += 1
                 record("real PX4", name, None, "--speed 4, vehicle clock",
                        fly_px4(MISSIONS / name, work / f"f{k}", controller=None, speed=4.0))  # fmt: skip
