@@ -225,6 +225,11 @@ def _cycles_per_s(summary: dict) -> float:
 # --- the floor: a bare two-process pymavlink ping-pong ------------------------------------------
 
 
+#: How soon a floor's vehicle sends its first cycle again while its client starts (the datagram to a
+#: port nobody has bound yet is lost; waiting the cycles' 5 s timeout cost every floor 5 s).
+START_RESEND_S = 0.1
+
+
 def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: float = 0.0) -> None:
     """The vehicle side: ATTITUDE + LOCAL_POSITION_NED stamped T, wait for the echo of T (polling
     for up to ``spin_s`` before it sleeps, as the lockstep loop waits)."""
@@ -232,12 +237,14 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: 
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", port))
-    sock.settimeout(5.0)
+    sock.settimeout(START_RESEND_S)  # the client may not be up yet: send again soon
     packer = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     parser = mavlink.MAVLink(None)
     peer = ("127.0.0.1", peer_port)
     start = 0.0
     for n in range(warmup + cycles):
+        if n == 1:
+            sock.settimeout(5.0)  # the client answered: from now on a lost answer is a long wait
         if n == warmup:
             start = time.perf_counter()
         t_ms = n * 50
@@ -376,12 +383,14 @@ def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warm
     plan = [(c["t_ms"], _parsed(c["vehicle"])) for c in recorded]
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", port))
-    sock.settimeout(5.0)
+    sock.settimeout(START_RESEND_S)  # the client may not be up yet: send again soon
     packer = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     parser = mavlink.MAVLink(None)
     peer = ("127.0.0.1", peer_port)
     start = 0.0
     for n in range(warmup + cycles):
+        if n == 1:
+            sock.settimeout(5.0)  # the client answered: from now on a lost answer is a long wait
         if n == warmup:
             start = time.perf_counter()
         t_ms, messages = plan[n % len(plan)]
