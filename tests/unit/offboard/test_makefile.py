@@ -26,7 +26,14 @@ def dry_run(target: str, venv: Path) -> list[str]:
 
 
 def installs(lines: list[str]) -> list[str]:
-    return [line.split(" -e ", 1)[1] for line in lines if "pip install" in line and " -e " in line]
+    """What each install line installs (uv's or, where uv is missing, pip's: the same in both)."""
+    found = []
+    for line in lines:
+        if "pip install" in line and " -e " in line:
+            targets = {part.split(";", 1)[0].strip() for part in line.split(" -e ")[1:]}
+            assert len(targets) == 1, line  # uv and the fallback install the same thing
+            found.append(targets.pop())
+    return found
 
 
 def stamp(path: Path) -> None:
