@@ -12,7 +12,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from helpers.flights import ENV, PY, arc_mission, fly
+from helpers.flights import ENV, PY, arc_hold_mission, fly
 from helpers.fuzz import FUZZ_FRAMES, fuzz_the_offboard
 from offboard.replay import TlogReader
 from offboard.signing import ACCEPTED_UNSIGNED
@@ -74,7 +74,6 @@ def intrude(ctx, offboard_frames: list[bytes] = (), vehicle_frames: list[bytes] 
                     mav.seq = (mav.seq + 1) & 0xFF
             for frame in vehicle_frames:
                 sock.sendto(frame, ("127.0.0.1", ctx.offboard_port))
-            time.sleep(0.01)  # all rounds within the short lockstep flight
     finally:
         sock.close()
 
@@ -82,7 +81,7 @@ def intrude(ctx, offboard_frames: list[bytes] = (), vehicle_frames: list[bytes] 
 def test_a_signed_lockstep_flight_refuses_the_intruder_and_the_fuzz_and_is_bit_identical(tmp_path):
     key = tmp_path / "key.bin"
     key.write_bytes(KEY)
-    mission = arc_mission(tmp_path / "arc.toml")
+    mission = arc_hold_mission(tmp_path / "arc-hold.toml")  # the intruder's rounds reach a flying offboard
     signed = ("--signing-key", str(key))
     b = fly(tmp_path, mission, name="quiet", fly_args=signed, plant_args=signed)
     # what each process sent early in the quiet flight, the attacked one sends too (the same

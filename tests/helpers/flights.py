@@ -57,6 +57,23 @@ until_s = 3
 """
 
 
+def arc_hold_mission(path: Path) -> Path:
+    """``arc_mission``, then a hold of 10 s where the arc ends: in lockstep the arc alone is over in
+    about 60 ms of wall time, too soon for frames a test sends at the offboard once it is armed."""
+    return write_mission(path, ARC_SEGMENTS + ARC_HOLD_SEGMENT)
+
+
+#: The hold after the arc of ``arc_hold_mission``.
+ARC_HOLD_SEGMENT = """
+[[mission.segment]]
+type = "hold"
+name = "hold"
+position = [-0.99, 0.14, 1.6]  # where the arc ends
+yaw = 0
+until_s = 13
+"""
+
+
 def hover_mission(path: Path, height_m: float = 2.0, duration_s: float = 3.0) -> Path:
     return write_mission(path, f'[[mission.segment]]\ntype = "hold"\nname = "hover"\nposition = [0, 0, {height_m}]\n'
                                f"yaw = 0\nuntil_s = {duration_s}\n")
