@@ -40,8 +40,11 @@ demo: $(STAMP)
 
 # two workers, a test file at a time each (its PX4 or bench fixture starts once), all the PX4 files on
 # one worker (never two PX4 SITLs at once), in the order tests/conftest.py gives them (the PX4 files
-# and the long ones first): xdist >= 3.8 reorders them unless told not to
+# and the long ones first): xdist >= 3.8 reorders them unless told not to. The project byte-compiled
+# first: each of the hundreds of processes the tests start imports it (0.60 -> 0.37 s a start), and
+# where PYTHONDONTWRITEBYTECODE is set (this machine, CI) Python would compile it again every time
 test: $(TEST_STAMP)
+	@$(PY) -m compileall -q offboard sitl_plant bench tests/helpers
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
