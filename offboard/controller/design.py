@@ -284,6 +284,22 @@ class DiscretePlant:
     lookahead_s: float = 0.0
 
 
+def distinct_plants(plants: tuple[DiscretePlant, ...]) -> tuple[DiscretePlant, ...]:
+    """``plants`` without repeats (equal to the bit): a vehicle symmetric in roll and pitch (equal
+    inertias and inner-loop gains, as PX4's defaults and the bundled vehicles are) has one
+    horizontal plant twice, and a search over both did all its work twice."""
+    out: list[DiscretePlant] = []
+    for plant in plants:
+        if not any(_same_plant(plant, seen) for seen in out):
+            out.append(plant)
+    return tuple(out)
+
+
+def _same_plant(a: DiscretePlant, b: DiscretePlant) -> bool:
+    return (a.drag_per_s == b.drag_per_s and a.lookahead_s == b.lookahead_s and np.array_equal(a.phi, b.phi)
+            and np.array_equal(a.gamma, b.gamma) and np.array_equal(a.c, b.c))  # fmt: skip
+
+
 def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, tilt_state: int | None = None,
                drag_per_s: float = 0.0) -> DiscretePlant:  # fmt: skip
     """Zero-order hold at ``sample_time_s`` with the input acting ``latency_s`` after the sample.
@@ -870,6 +886,7 @@ def search_gains(plants: tuple[DiscretePlant, ...], sample_time_s: float, spec: 
         No candidate meets the margins (the inner loop is too slow for these margins).
     """
     to = sample_time_s
+    plants = distinct_plants(plants)
     rates = np.asarray(rates_per_s, dtype=float)
     leads = np.asarray(leads, dtype=float)
     if integral and velocity_integral:

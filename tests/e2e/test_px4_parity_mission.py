@@ -317,7 +317,7 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         origin = f.track[-1]
         assert command(conn, sysid, MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1, flight=f) == 0
         assert command(conn, sysid, MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home_alt + 4.0, flight=f) == 0
-        assert record_until(conn, f, lambda f: len(f.modes) > 1 and f.modes[-1] == ((4, 3), True) and ((4, 2), True) in f.modes, 30.0), f.modes
+        assert record_until(conn, f, lambda f: len(f.modes) > 1 and f.modes[-1] == ((4, 3), True) and ((4, 2), True) in f.modes, 30.0), (f.modes, f.texts)
         north = lat * 1e-7 + 12.0 / 111195.0
         assert command(conn, sysid, MAV.MAV_CMD_DO_REPOSITION, -1, 1, 0, math.nan, north, lon * 1e-7, home_alt + 6.0, flight=f) == 0
         there = lambda f: f.track[-1][1] - origin[1] > 11.0  # noqa: E731
@@ -325,7 +325,7 @@ def test_reposition_then_return_climbs_to_rtl_return_alt_and_lands_at_home(vehic
         record_until(conn, f, lambda f: False, 0.5)
         at_rtl = len(f.track)
         assert command(conn, sysid, MAV.MAV_CMD_NAV_RETURN_TO_LAUNCH, flight=f) == 0
-        assert record_until(conn, f, lambda f: f.disarmed_at_ms is not None and f.track[-1][0] > f.track[at_rtl][0], 60.0), f.modes
+        assert record_until(conn, f, lambda f: f.disarmed_at_ms is not None and f.track[-1][0] > f.track[at_rtl][0], 60.0), (f.modes, f.texts)
         rtl = f.track[at_rtl:]
         top = min(rtl, key=lambda p: p[3])
         climbed = next(p for p in rtl if p[3] <= top[3] + 0.7)  # where it first came near the return height
@@ -381,7 +381,7 @@ def fly_orbits(conn, sysid) -> dict:
     origin = f.track[-1]
     assert command(conn, sysid, MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1, flight=f) == 0
     assert command(conn, sysid, MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home_alt + 6.0, flight=f) == 0
-    assert record_until(conn, f, lambda f: len(f.modes) > 1 and f.modes[-1] == ((4, 3), True) and ((4, 2), True) in f.modes, 30.0), f.modes
+    assert record_until(conn, f, lambda f: len(f.modes) > 1 and f.modes[-1] == ((4, 3), True) and ((4, 2), True) in f.modes, 30.0), (f.modes, f.texts)
     out = {}
     for radius, speed in ORBITS:
         here = f.track[-1]

@@ -179,10 +179,14 @@ class Flight:
     track: list[tuple[int, float, float, float]] = field(default_factory=list)
     acks: dict[int, int] = field(default_factory=dict)
     disarmed_at_ms: int | None = None
+    #: the vehicle's STATUSTEXTs (severity, text): what a failure's message shows (a failsafe names itself)
+    texts: list[tuple[int, str]] = field(default_factory=list)
 
     def note(self, msg) -> None:
         kind = msg.get_type()
-        if kind == "LOCAL_POSITION_NED":
+        if kind == "STATUSTEXT":
+            self.texts.append((msg.severity, msg.text))
+        elif kind == "LOCAL_POSITION_NED":
             self.track.append((msg.time_boot_ms, msg.x, msg.y, msg.z))
         elif kind == "MISSION_ITEM_REACHED":
             if not self.reached or self.reached[-1] != msg.seq:

@@ -29,7 +29,9 @@ from offboard.controller.design import (
     closed_loop,
     design_gains,
     discretise,
+    distinct_plants,
     inner_loop_from_params,
+    search_gains,
     law_state_space,
     rate_axis_plant,
     rate_output_plant,
@@ -603,3 +605,18 @@ def test_the_vertical_velocity_integral_is_a_controller_file_key_written_by_tune
     params = tuned_params(load_controller(PAPER_CONTROLLER_FILE), design, values)
     (tmp_path / "designed.toml").write_text(controller_file_text(params, design, source="test"))
     assert load_controller(tmp_path / "designed.toml") == params
+
+
+def test_a_symmetric_vehicles_two_horizontal_plants_are_searched_once_with_the_same_gains():
+    """The paper's quad (Ixx = Iyy, the same roll and pitch loops) has one horizontal plant twice:
+    the search drops the repeat, and what it finds is what it finds over both; an asymmetric
+    vehicle keeps both (and the design over both is the stricter one)."""
+    to = 0.05
+    model = inner_loop_from_params(plant_vehicle_params(), 0.011)
+    north, east, up = axis_plants(model, to)
+    assert distinct_plants((north, east)) == (north,) and distinct_plants((north, east, up)) == (north, up)
+    spec = MarginSpec()
+    assert search_gains((north, east), to, spec) == search_gains((north,), to, spec)
+    lopsided = inner_loop_from_params({**plant_vehicle_params(), "SIM_IXX": 2 * plant_vehicle_params()["SIM_IXX"]}, 0.011)
+    n2, e2, _ = axis_plants(lopsided, to)
+    assert len(distinct_plants((n2, e2))) == 2
