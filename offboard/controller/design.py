@@ -832,11 +832,23 @@ def _search(plants: tuple[DiscretePlant, ...], gains: AxisGains, to: float, spec
         return np.concatenate([_search(plants, AxisGains(kp[i:i + 1024], kv[i:i + 1024], lead[i:i + 1024], ki[i:i + 1024],
                                                          kiv[i:i + 1024]), to, spec)
                                for i in range(0, kp.size, 1024)])  # fmt: skip
+    rho = np.zeros(kp.shape)
+    for plant in plants:
+        rho = np.maximum(rho, np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(plant, gains, to))), axis=-1))
+    # the margins only where the loop is stable (an unstable candidate is out whatever its margins):
+    # each candidate's frequency response is its own, so the subset's are the batch's to the bit, as
+    # long as the law has the same states (law_state_space: an integral state if any candidate has one)
+    stable = np.flatnonzero(rho < 1.0)
+    if (bool(np.any(ki[stable] > 0.0)), bool(np.any(kiv[stable] > 0.0))) != (bool(np.any(ki > 0.0)), bool(np.any(kiv > 0.0))):
+        stable = np.arange(kp.size)
+    out = np.full(kp.shape, np.inf)
+    if stable.size == 0:
+        return out
+    kp, kv, lead, ki, kiv = kp[stable], kv[stable], lead[stable], ki[stable], kiv[stable]
     w = _frequencies(to, 600)
     z = np.exp(1j * w * to)
     ok = np.ones(kp.shape, dtype=bool)
-    rho = np.zeros(kp.shape)
-    law = _law_response(gains, z, to)  # (candidates, w, 3)
+    law = _law_response(AxisGains(kp, kv, lead, ki, kiv), z, to)  # (candidates, w, 3)
     f = 1.0 + lead[:, None]  # the believed drag's delta v(n) is a static term of K (law_state_space's d)
     for plant in plants:
         with_drag = law.copy()
@@ -845,8 +857,8 @@ def _search(plants: tuple[DiscretePlant, ...], gains: AxisGains, to: float, spec
         gm, pm, dm = _margins(loop, w)
         ok &= (gm >= spec.gain_margin) & (pm >= spec.phase_margin_deg) & (dm >= spec.delay_margin_s)
         ok &= _sensitivity_peak(loop) <= spec.sensitivity_peak
-        rho = np.maximum(rho, np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(plant, gains, to))), axis=-1))
-    return np.where(ok & (rho < 1.0), rho, np.inf)
+    out[stable] = np.where(ok & (rho[stable] < 1.0), rho[stable], np.inf)
+    return out
 
 
 #: The closed-loop rates searched for each of k_pos and k_vel (1/s): k = exp(-rate To), so the

@@ -17,6 +17,7 @@ from numpy.testing import assert_allclose
 
 from offboard.controller import PAPER_CONTROLLER_FILE, LawMemory, TrackingReference, law_step, load_controller
 from offboard.controller.design import (
+    _search,
     GRAVITY_M_S2,
     RATE_STATE,
     TILT_STATE,
@@ -620,3 +621,23 @@ def test_a_symmetric_vehicles_two_horizontal_plants_are_searched_once_with_the_s
     lopsided = inner_loop_from_params({**plant_vehicle_params(), "SIM_IXX": 2 * plant_vehicle_params()["SIM_IXX"]}, 0.011)
     n2, e2, _ = axis_plants(lopsided, to)
     assert len(distinct_plants((n2, e2))) == 2
+
+
+def test_the_search_checks_margins_of_stable_candidates_alone_and_finds_the_same():
+    """``_search`` computes the frequency responses only of the candidates whose loop is stable:
+    a candidate's figure is the same to the bit beside unstable ones as among stable ones alone,
+    and an unstable one is out (inf)."""
+    to = 0.05
+    north, east, _ = axis_plants(inner_loop_from_params(plant_vehicle_params(), 0.011), to)
+    rates = np.geomspace(0.2, 40.0, 12)
+    a, b = (g.ravel() for g in np.meshgrid(rates, rates, indexing="ij"))
+    kp, kv = np.round(np.exp(-a * to), 4), np.round(np.exp(-b * to), 4)
+    lead = np.full(kp.size, 0.5)
+    spec = MarginSpec()
+    every = _search((north, east), AxisGains(kp, kv, lead), to, spec)
+    finite = np.isfinite(every)
+    assert 0 < finite.sum() < kp.size  # some pass, some do not
+    alone = _search((north, east), AxisGains(kp[finite], kv[finite], lead[finite]), to, spec)
+    assert np.array_equal(alone, every[finite])
+    unstable = [i for i in range(0, kp.size, 3) if analyse_axis(north, AxisGains(kp[i], kv[i], lead[i]), to).spectral_radius >= 1.0]
+    assert unstable and np.all(np.isinf(every[unstable]))
