@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 import types
 from typing import Any, Protocol
 
@@ -786,19 +787,18 @@ class CompiledKernel(Protocol):
 
 
 def is_cached(*kernels: CompiledKernel) -> bool:
-    """Whether numba's on-disk cache holds these compiled kernels, newer than their source: then
-    loading them takes a fraction of a second, where compiling takes seconds (first run)."""
+    """Whether numba's on-disk cache holds these compiled kernels for the source this process
+    imported: then loading them takes a fraction of a second, where compiling takes seconds (first
+    run). Numba's own test, its index's stamp of the source (a hash of its content): a file
+    touched or checked out again unchanged is still cached, as numba loads it (a test of the
+    files' times said no there, and the plant then ran interpreted for good, since numba never
+    saved the index again)."""
     if not NUMBA:
         return False
     try:
-        for kernel in kernels:
-            index = kernel._cache._cache_file._index_path
-            source = kernel.py_func.__code__.co_filename
-            if not os.path.isfile(index) or os.path.getmtime(index) < os.path.getmtime(source):
-                return False
-    except (AttributeError, OSError):
+        return all(kernel._cache._cache_file._load_index() for kernel in kernels)
+    except (AttributeError, OSError, EOFError, ValueError, pickle.UnpicklingError):
         return False
-    return True
 
 
 def stale_cache_files(cache_dir: str | os.PathLike[str], module_stem: str, depends_on: tuple[str, ...]) -> list[str]:

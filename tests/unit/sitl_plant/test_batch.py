@@ -215,3 +215,34 @@ def test_a_kernel_cache_older_than_a_source_built_into_it_is_stale(tmp_path) -> 
     os.utime(cache / names[0], (new, new))
     assert [os.path.basename(p) for p in batch.stale_cache_files(cache, "px4_kernel", (str(dep),))] == [names[1]]
     assert batch.stale_cache_files(tmp_path / "absent", "px4_kernel", (str(dep),)) == []
+
+
+@pytest.mark.skipif(not batch.NUMBA, reason="numba is not installed: nothing is cached")
+def test_a_kernel_is_cached_for_its_sources_content_not_its_files_time(tmp_path) -> None:
+    """``is_cached`` asks numba's own index: a source touched (or checked out again) unchanged is
+    still cached, as numba loads it; a changed source is not. (A test of the files' times said no
+    to the first, and the plant, which flies compiled only when ``compiled_ready``, then ran
+    interpreted for good: numba loaded the cache and never wrote its index again.)"""
+    import os
+    import subprocess
+    import sys
+
+    module = tmp_path / "kernel_probe.py"
+    module.write_text("import numba\n\n@numba.njit(cache=True)\ndef add_one(x):\n    return x + 1\n")
+    probe = ("import sys; sys.path.insert(0, sys.argv[1]); import kernel_probe; from sitl_plant.dynamics import batch; "
+             "call = sys.argv[2] == 'call'; call and kernel_probe.add_one(1); print(batch.is_cached(kernel_probe.add_one))")  # fmt: skip
+
+    def cached(call: bool = False) -> str:
+        run = subprocess.run([sys.executable, "-c", probe, str(tmp_path), "call" if call else "look"], capture_output=True,
+                             text=True, timeout=120, env={k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"})  # fmt: skip
+        assert run.returncode == 0, run.stderr
+        return run.stdout.strip()
+
+    assert cached() == "False"  # never compiled
+    assert cached(call=True) == "True"  # compiled and saved
+    later = os.path.getmtime(module) + 60.0
+    os.utime(module, (later, later))  # touched: newer than the cache, the same source
+    assert cached() == "True"
+    module.write_text(module.read_text() + "\n# changed\n")
+    os.utime(module, (later + 60.0, later + 60.0))
+    assert cached() == "False"
