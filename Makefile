@@ -12,11 +12,13 @@ RUN    ?= runs/demo-$(shell date +%Y%m%d-%H%M%S)
 PIP    := $(PY) -m pip install --disable-pip-version-check --progress-bar off
 # The installer: uv, a pip-compatible installer from PyPI put into the venv first, fetches and
 # installs in parallel (the project and the test tools from a fresh clone in 26 s, where pip took
-# 77 s of make test's 10 minutes); pip itself where uv cannot be installed. Byte-compiled at install,
+# 77 s of make test's 10 minutes); pip itself where uv cannot be installed or fails (pip reads this
+# machine's pip.conf: its extra index and find-links, which uv does not). Byte-compiled at install,
 # as pip does: where PYTHONDONTWRITEBYTECODE is set nothing else would, and every process the tests
 # start would compile its imports again (make test took 2 minutes longer).
 UV     := $(VENV)/bin/uv
-INSTALL = if test -x $(UV); then $(UV) pip install --python $(PY) --compile-bytecode $(1); else $(PIP) $(1); fi
+INSTALL = if test -x $(UV) && $(UV) pip install --python $(PY) --compile-bytecode $(1); then :; \
+          else echo "make: installing with pip"; $(PIP) $(1); fi
 export MPLBACKEND := Agg
 
 .PHONY: demo test test-fast bench parity install clean
