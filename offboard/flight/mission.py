@@ -526,7 +526,17 @@ class Flight:
                 self._handle(msg)
 
     def _service(self, now: float) -> float:
-        """Time-driven work (heartbeat, staleness, real-time samples); returns how long to wait (s)."""
+        """Time-driven work (heartbeat, staleness, real-time samples); returns how long to wait (s).
+        Telemetry that looks stale is first looked for in the socket: what arrived while this
+        process was not running (a loaded host, a long pause) is not a link outage."""
+        if self.supervisor.stale(now) and not self.supervisor.in_outage:
+            while self.link.pending():  # until the telemetry is heard (the rest waits for the pump)
+                msg = self.link.recv(0.0)
+                if msg is not None:
+                    self._handle(msg)
+                if not self.supervisor.stale(self.clock()):
+                    break
+            now = self.clock()
         wait = min(0.05, self.client.service(now))
         wait = min(wait, self.supervisor.service(now))
         wait = min(wait, self.sampler.service(now))
