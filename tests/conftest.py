@@ -50,7 +50,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
-    """The items, a module's together, in the order ``make test``'s two workers should take them
+    """The items, a module's together, in the order ``make test``'s workers should take them
     (``--dist loadfile --no-loadscope-reorder`` hands the scopes out in collection order; without
     the flag xdist >= 3.8 sorts them by their number of tests): the PX4 modules first (one scope,
     ``pytest_xdist_make_scheduler``: a few minutes), then the other long ones, then the short ones,
@@ -87,10 +87,29 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, AN
     return Px4ModulesTogether(config, log)
 
 
+#: How much a worker lowers its priority once it runs anything but the PX4 modules (``yield_to_px4``).
+OTHERS_NICENESS = 5
+_yielded: list[bool] = []
+
+
+def yield_to_px4(item: pytest.Item) -> None:
+    """Under xdist, a worker lowers its priority (and its children's) before its first test that is
+    not a PX4 module's, for good: a PX4 SITL runs free on the wall clock (not in lockstep with the
+    test) and misses its own deadlines when the other workers' processes take its core, while the
+    other tests use what it leaves (``make test`` runs more workers than cores because most of the
+    suite waits on wall-clock flights: 27 % of the two cores sat idle with two workers). The PX4
+    modules come first in their worker's queue (``long_modules_first``), so that worker keeps its
+    priority through all of them."""
+    if os.environ.get("PYTEST_XDIST_WORKER") and not is_px4_module(str(item.fspath)) and not _yielded:
+        os.nice(OTHERS_NICENESS)
+        _yielded.append(True)
+
+
 def pytest_runtest_setup(item: pytest.Item) -> None:
     """A ``px4`` test without a PX4 SITL is skipped from here, so that ``-ra`` folds every such skip
     into one line saying how to point the tests at a PX4 (a ``skipif`` mark in each module gave a
-    line per test)."""
+    line per test). Every other worker yields the cores to the PX4 one (``yield_to_px4``)."""
+    yield_to_px4(item)
     if item.get_closest_marker("px4") is not None and px4_launcher() is None:
         pytest.skip(SKIP_REASON)
 

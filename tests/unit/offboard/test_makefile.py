@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -52,9 +53,9 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    # two workers, a file (or all the PX4 files, tests/conftest.py) at a time each, in
-    # tests/conftest.py's order (xdist's own would put the files with the most tests first)
-    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile --no-loadscope-reorder")
+    # three workers on two cores, a file (or all the PX4 files, tests/conftest.py) at a time each,
+    # in tests/conftest.py's order (xdist's own would put the files with the most tests first)
+    assert lines[-1].endswith("-m pytest -q -n 3 --dist loadfile --no-loadscope-reorder")
 
 
 def test_demo_then_test_installs_only_the_test_extra(tmp_path):
@@ -105,3 +106,18 @@ def test_make_test_flies_every_px4_module_on_one_worker_and_the_others_a_file_ea
     )
     monkeypatch.setattr(pytestconfig.option, "dist", "load")
     assert conftest.pytest_xdist_make_scheduler(pytestconfig, None) is None  # xdist's own
+
+
+@pytest.mark.parametrize("worker, module, niceness", [
+    ("gw1", "tests/e2e/test_fly_e2e.py", 5),  # another worker: yields to the PX4 one
+    ("gw0", "tests/e2e/test_px4_flight.py", 0),  # the PX4 worker keeps its priority
+    ("", "tests/e2e/test_fly_e2e.py", 0),  # no xdist (one process): nothing to yield to
+])  # fmt: skip
+def test_the_workers_yield_the_cores_to_the_px4_one(worker, module, niceness):
+    """tests/conftest.py's ``yield_to_px4``, in a process of its own (a niceness cannot be undone)."""
+    code = (f"import os, types, conftest; base = os.nice(0); item = types.SimpleNamespace(fspath={module!r}); "
+            "conftest.yield_to_px4(item); conftest.yield_to_px4(item); print(os.nice(0) - base)")  # twice: once only
+    env = {**os.environ, "PYTEST_XDIST_WORKER": worker, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "tests")])}
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO / "tests", env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout) == niceness
