@@ -95,11 +95,10 @@ _yielded: list[bool] = []
 def yield_to_px4(item: pytest.Item) -> None:
     """Under xdist, a worker lowers its priority (and its children's) before its first test that is
     not a PX4 module's, for good: a PX4 SITL runs free on the wall clock (not in lockstep with the
-    test) and misses its own deadlines when the other workers' processes take its core, while the
-    other tests use what it leaves (``make test`` runs more workers than cores because most of the
-    suite waits on wall-clock flights: 27 % of the two cores sat idle with two workers). The PX4
-    modules come first in their worker's queue (``long_modules_first``), so that worker keeps its
-    priority through all of them."""
+    test) and misses its own deadlines when the other workers' processes take its core (in loaded
+    runs of ``make test`` PX4 slowed at a corner it flies through, or never entered Mission mode),
+    while the other tests use what it leaves. The PX4 modules come first in their worker's queue
+    (``long_modules_first``), so that worker keeps its priority through all of them."""
     if os.environ.get("PYTEST_XDIST_WORKER") and not is_px4_module(str(item.fspath)) and not _yielded:
         os.nice(OTHERS_NICENESS)
         _yielded.append(True)

@@ -40,6 +40,10 @@ class Link(Protocol):
 
     def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None: ...
 
+    def pending(self) -> bool:
+        """Whether a message already waits (without blocking)."""
+        ...
+
 
 @dataclass(frozen=True)
 class FlightConfig:

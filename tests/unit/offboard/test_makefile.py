@@ -53,9 +53,9 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    # three workers on two cores, a file (or all the PX4 files, tests/conftest.py) at a time each,
-    # in tests/conftest.py's order (xdist's own would put the files with the most tests first)
-    assert lines[-1].endswith("-m pytest -q -n 3 --dist loadfile --no-loadscope-reorder")
+    # two workers, a file (or all the PX4 files, tests/conftest.py) at a time each, in
+    # tests/conftest.py's order (xdist's own would put the files with the most tests first)
+    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile --no-loadscope-reorder")
 
 
 def test_demo_then_test_installs_only_the_test_extra(tmp_path):
