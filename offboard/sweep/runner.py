@@ -250,7 +250,11 @@ def run_sweep(
     engine = SweepEngine(engine)
     total = spec.flights if limit is None else max(0, min(limit, spec.flights))
     started = time.perf_counter()
-    size = flights_per_task or estimate_flights_per_task(spec, engine)
+    if flights_per_task is None:
+        size = estimate_flights_per_task(spec, engine)  # which compiles or loads the kernels here too
+    else:
+        size = flights_per_task
+        _warm_up(spec, engine)  # compiled here once (numba's cache): the workers load them, not each compile them at once
     if flights_per_task is None and scheduler is None:  # at least TASKS_PER_WORKER + 1 tasks a worker: no worker idles
         size = max(1, min(size, -(-total // ((TASKS_PER_WORKER + 1) * (workers or os.cpu_count() or 1)))))
     cluster = None
