@@ -46,9 +46,10 @@ demo: $(STAMP)
 # the order tests/conftest.py gives them (the PX4 files and the long ones first): xdist >= 3.8
 # reorders them unless told not to. Three workers on the two cores filled the idle time (27 % with
 # two: most of the suite waits on wall-clock flights) but not the wall time: 464 and 554 s against
-# 509 and 524 s, the lockstep flights' busy-polling and the compiles sharing the cores three ways. The project byte-compiled
-# first: each of the hundreds of processes the tests start imports it (0.60 -> 0.37 s a start), and
-# where PYTHONDONTWRITEBYTECODE is set (this machine, CI) Python would compile it again every time
+# 509 and 524 s, the lockstep flights' busy-polling and the compiles sharing the cores three ways.
+# The project byte-compiled first: each of the hundreds of processes the tests start imports it
+# (0.60 -> 0.37 s a start), and where PYTHONDONTWRITEBYTECODE is set (this machine, CI) Python would
+# compile it again every time
 test: $(TEST_STAMP)
 	@$(PY) -m compileall -q offboard sitl_plant bench tests/helpers
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder

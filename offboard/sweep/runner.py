@@ -254,7 +254,7 @@ def run_sweep(
         size = estimate_flights_per_task(spec, engine)  # which compiles or loads the kernels here too
     else:
         size = flights_per_task
-        _warm_up(spec, engine)  # compiled here once (numba's cache): the workers load them, not each compile them at once
+        _warm_up(spec, engine)  # compiled here once, into numba's cache: a local cluster's workers load them, not each compile them
     if flights_per_task is None and scheduler is None:  # at least TASKS_PER_WORKER + 1 tasks a worker: no worker idles
         size = max(1, min(size, -(-total // ((TASKS_PER_WORKER + 1) * (workers or os.cpu_count() or 1)))))
     cluster = None
