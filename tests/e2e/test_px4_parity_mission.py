@@ -251,7 +251,7 @@ def test_a_short_mission_reaches_the_same_items_on_both(vehicles, parity_finding
             "end north m": round(land[1] - f.track[0][1], 2),
             "disarmed s": None if f.disarmed_at_ms is None else round((f.disarmed_at_ms - start) / 1000, 1),
         }
-        print(name, summary[name], "modes", f.modes, "texts", f.texts)  # a failsafe names itself
+        print(name, summary[name], "modes", f.modes, "texts", f.texts)  # the plant names its failsafe; PX4 v1.16 sends no STATUSTEXT on this link (measured)
     px4, plant = summary["px4"], summary["plant"]
     what = "short mission (take-off 5 m, 3 m/s, waypoint 12 m N, land)"
     parity_finding("mission.short.reached", f"{what}: MISSION_ITEM_REACHED", px4["reached"], plant["reached"])
