@@ -49,20 +49,30 @@ demo: $(STAMP)
 # 509 and 524 s, the lockstep flights' busy-polling and the compiles sharing the cores three ways.
 # The project byte-compiled first: each of the hundreds of processes the tests start imports it
 # (0.60 -> 0.37 s a start), and where PYTHONDONTWRITEBYTECODE is set (this machine, CI) Python would
-# compile it again every time
+# compile it again every time. numba's kernels: the plant's compiled first (7 s from cold), so that
+# every plant the tests start flies them from the first test on (a plant never compiles at start: it
+# flies the interpreted physics instead); the many-vehicle ones (a minute of one core from cold) in
+# the background at the lowest priority, on the cores the first tests leave idle while they wait on
+# wall-clock flights, and stopped with the tests (the tests that use them come later, or compile
+# what is not cached yet themselves)
 test: $(TEST_STAMP)
 	@$(PY) -m compileall -q offboard sitl_plant bench tests/helpers
+	@$(PY) -m sitl_plant.px4_kernel
+	@nice -n 19 $(PY) -m sitl_plant.dynamics.batch >/dev/null & warm=$$!; trap 'kill $$warm 2>/dev/null' EXIT INT TERM; \
+	echo "$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder"; \
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # the inner loop of development: the pure tests, no processes, no slow ones (under a minute)
 test-fast: $(TEST_STAMP)
 	$(PY) -m pytest -q -n 2 tests/unit -m "not slow and not e2e"
 
-# the [bench] extra, then numba's cache warmed (a plant never compiles at start-up), then the run
+# the [bench] extra, then numba's cache warmed (a plant never compiles at start-up; no figure includes
+# a compilation), then the run
 bench: $(STAMP)
 	@echo "make: installing the benchmark tools (numba, RotorPy, py-spy, Dask, pyarrow) into $(VENV)"
 	$(call INSTALL,--quiet -e '.[bench]')
 	$(PY) -m sitl_plant.px4_kernel
+	$(PY) -m sitl_plant.dynamics.batch
 	$(PY) bench/run.py --output bench/RESULTS.md
 
 # docs/parity/measured.md, issue 13's table "PX4 v1.16 and sitl-plant" generated from what the tests

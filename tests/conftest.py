@@ -30,6 +30,10 @@ REALTIME_MODULES = frozenset({
     "test_plant_services_e2e",
 })  # fmt: skip
 
+#: Long modules taken after the other long ones: the quick bench runs every many-vehicle kernel,
+#: which make test compiles in the background meanwhile (Makefile), not in the test's own time.
+LATE_LONG_MODULES = frozenset({"test_bench_smoke"})
+
 #: The one xdist scope of every PX4 module under ``--dist loadfile`` (``pytest_xdist_make_scheduler``).
 PX4_SCOPE = "px4-sitl"
 
@@ -55,16 +59,19 @@ def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
     the flag xdist >= 3.8 sorts them by their number of tests): the PX4 modules first (one scope,
     ``pytest_xdist_make_scheduler``: a few minutes), then the other long ones, then the short ones,
     so that the short ones fill the gaps at the end instead of one worker finishing a long module
-    alone while the other idles. Long: an e2e module (processes) or one marked ``slow``. Within
-    each kind, the collection order."""
+    alone while the other idles. Long: an e2e module (processes) or one marked ``slow``; the
+    ``LATE_LONG_MODULES`` after the other long ones. Within each kind, the collection order."""
     modules: dict[str, list[pytest.Item]] = {}
     for item in items:
         modules.setdefault(str(item.fspath), []).append(item)
 
     def kind(group: list[pytest.Item]) -> int:
-        if is_px4_module(str(group[0].fspath)):
+        path = Path(str(group[0].fspath))
+        if is_px4_module(path):
             return 0
-        return 1 if any(i.get_closest_marker(mark) for i in group for mark in ("slow", "realtime", "e2e")) else 2
+        if any(i.get_closest_marker(mark) for i in group for mark in ("slow", "realtime", "e2e")):
+            return 2 if path.stem in LATE_LONG_MODULES else 1
+        return 3
 
     return [item for group in sorted(modules.values(), key=kind) for item in group]
 

@@ -853,6 +853,26 @@ def warm_up() -> None:
 _EULER_FORMS = EULER_FORM_TERMS  # the one table (offboard.model.euler_lagrange)
 
 
+def compile_many() -> None:
+    """Compile (first time: about a minute on one core) or load the many-vehicle kernels by running
+    each once on three vehicles: ``derivative_many``, ``step_many`` and ``advance_many`` in its
+    per-vehicle and blocked forms (the sweep's). ``python -m sitl_plant.dynamics.batch``; make test
+    runs it in the background at the lowest priority (Makefile), make bench before its run.
+    The one-vehicle kernels are ``sitl_plant.px4_kernel.compile_all``'s."""
+    n = 3
+    params = VehicleParams()
+    x = np.zeros((n, STATE_SIZE))
+    x[:, 6] = 1.0
+    x[:, 2] = -1.0
+    p = np.tile(param_vector(params), (n, 1))
+    for mode in (2, 1):  # the sweep's first: more of the tests use it
+        advance_many(x, np.ones(n, dtype=bool), 2, 1e-3, np.full(n, params.mass_kg * params.gravity_m_s2),
+                     np.zeros((n, 3)), np.ones((n, 3)), next(iter(_EULER_FORMS)), p, np.zeros((n, 2, 3)), True,
+                     np.zeros((n, STATE_SIZE)), np.zeros((n, 4)), np.zeros(n, dtype=bool), mode=mode)  # fmt: skip
+    step_many(x, np.full(4, 300.0), np.zeros(3), params, 1e-3)
+    derivative_many(x, np.full(4, 300.0), np.zeros(3), params)
+
+
 class FastRigidBodySim(VehicleSim):
     """``VehicleSim`` with a ``RigidBodyModel``, stepped by the compiled kernels.
 
@@ -967,3 +987,11 @@ class FastRigidBodySim(VehicleSim):
         """The true state now; acceleration is the mean over the last physics step."""
         self._model._cmd = self._cmd  # the rotor speeds it reports with an instant motor model
         return super().truth()
+
+
+if __name__ == "__main__":
+    import time
+
+    start = time.monotonic()
+    compile_many()
+    print(f"many-vehicle kernels ready ({'numba' if NUMBA else 'no numba: interpreted'}) in {time.monotonic() - start:.1f} s")

@@ -121,3 +121,66 @@ def test_the_workers_yield_the_cores_to_the_px4_one(worker, module, niceness):
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO / "tests", env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert int(out.stdout) == niceness
+
+
+def test_make_test_compiles_the_plants_kernels_first_and_the_others_in_the_background(tmp_path):
+    lines = dry_run("test", tmp_path / "venv")
+    plant = next(i for i, line in enumerate(lines) if line.endswith("-m sitl_plant.px4_kernel"))
+    tests = next(i for i, line in enumerate(lines) if "-m pytest" in line)
+    assert plant < tests  # every plant a test starts finds its compiled kernels
+    background = "\n".join(lines[plant + 1:])
+    assert "nice -n 19 " in background and "-m sitl_plant.dynamics.batch >/dev/null &" in background
+
+
+def _fake_venv(venv: Path, pytest_exit: int) -> Path:
+    """A venv whose python does nothing but what make test asks of it: the many-vehicle kernels'
+    warm-up sleeps (its pid written down), pytest exits with ``pytest_exit``."""
+    (venv / "bin").mkdir(parents=True)
+    pidfile = venv / "warm.pid"
+    script = venv / "bin" / "python"
+    script.write_text(
+        "#!/bin/sh\n"
+        'case "$*" in\n'
+        f'  *sitl_plant.dynamics.batch*) echo $$ > {pidfile}; exec sleep 60 ;;\n'
+        f'  *pytest*) while [ ! -s {pidfile} ]; do sleep 0.05; done; exit {pytest_exit} ;;\n'
+        "  *) exit 0 ;;\n"
+        "esac\n"
+    )
+    script.chmod(0o755)
+    stamp(venv / ".installed")
+    stamp(venv / ".installed-test")
+    return pidfile
+
+
+@pytest.mark.parametrize("pytest_exit", [0, 3])
+def test_make_test_stops_the_background_compile_with_the_tests_and_keeps_their_status(tmp_path, pytest_exit):
+    pidfile = _fake_venv(tmp_path / "venv", pytest_exit)
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS", "MAKEOVERRIDES")}
+    proc = subprocess.run(["make", "--no-print-directory", "test", f"VENV={tmp_path / 'venv'}"], cwd=REPO,
+                          capture_output=True, text=True, timeout=30, env=env)  # fmt: skip
+    assert (proc.returncode == 0) == (pytest_exit == 0), proc.stderr
+    pid = int(pidfile.read_text())
+    for _ in range(100):  # the kill is sent as the recipe's shell exits; the sleeper goes at once
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, 9)
+        pytest.fail("make test left its background compile running")
+
+
+def test_the_quick_bench_comes_after_the_other_long_modules_and_before_the_short_ones():
+    import types
+
+    import conftest
+
+    def item(path: str, marks: tuple[str, ...]) -> types.SimpleNamespace:
+        return types.SimpleNamespace(fspath=path, get_closest_marker=lambda mark: mark if mark in marks else None)
+
+    items = [item("tests/unit/test_a.py", ()), item("tests/e2e/test_bench_smoke.py", ("slow", "e2e")),
+             item("tests/e2e/test_demo.py", ("e2e",)), item("tests/e2e/test_px4_flight.py", ("e2e",)),
+             item("tests/e2e/test_zzz.py", ("e2e",))]  # fmt: skip
+    order = [Path(i.fspath).stem for i in conftest.long_modules_first(items)]  # type: ignore[arg-type]
+    assert order == ["test_px4_flight", "test_demo", "test_zzz", "test_bench_smoke", "test_a"]
