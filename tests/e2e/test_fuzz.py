@@ -22,6 +22,8 @@ WATCHED = ("MPC_XY_VEL_MAX", "COM_OF_LOSS_T", "SIM_MASS", "MAV_SYS_ID")
 
 
 KEY = bytes(range(40, 72))
+#: how often a request is sent again while its answer is awaited (QGroundControl: 1 s for parameters)
+RESEND_S = 1.0
 
 
 class Client:
@@ -39,9 +41,16 @@ class Client:
     def send(self, msg) -> None:
         self.sock.sendto(msg.pack(self.mav), self.address)
 
-    def wait_for(self, kind: str, timeout_s: float = 10.0, where=lambda m: True):  # a loaded machine: slow, not wrong
+    def wait_for(self, kind: str, timeout_s: float = 10.0, where=lambda m: True, resend=None):  # a loaded machine: slow, not wrong
+        """The first ``kind`` message that passes ``where``; ``resend`` (the request it answers) is sent
+        again every ``RESEND_S`` meanwhile, as a ground station retries: a request that reaches
+        the plant's socket while the fuzz still fills its buffer is dropped by the kernel."""
         deadline = time.monotonic() + timeout_s
+        next_send = time.monotonic() + RESEND_S
         while time.monotonic() < deadline:
+            if resend is not None and time.monotonic() >= next_send:
+                self.send(resend)
+                next_send += RESEND_S
             try:
                 data = self.sock.recv(65535)
             except socket.timeout:
@@ -55,8 +64,9 @@ class Client:
         beat = self.wait_for("HEARTBEAT", where=lambda m: m.get_srcSystem() == 1)
         values = {}
         for name in WATCHED:
-            self.send(mavlink.MAVLink_param_request_read_message(1, 1, name.encode(), -1))
-            values[name] = self.wait_for("PARAM_VALUE", where=lambda m, n=name: m.param_id == n).param_value
+            request = mavlink.MAVLink_param_request_read_message(1, 1, name.encode(), -1)
+            self.send(request)
+            values[name] = self.wait_for("PARAM_VALUE", where=lambda m, n=name: m.param_id == n, resend=request).param_value
         return {"base_mode": beat.base_mode, "custom_mode": beat.custom_mode, "status": beat.system_status, **values}
 
 
