@@ -9,7 +9,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 RUN    ?= runs/demo-$(shell date +%Y%m%d-%H%M%S)
-TEST_WORKERS ?= 2
+TEST_WORKERS ?= 3
 PIP    := $(PY) -m pip install --disable-pip-version-check --progress-bar off
 # The installer: uv, a pip-compatible installer from PyPI put into the venv first, fetches and
 # installs in parallel (the project and the test tools from a fresh clone in 26 s, where pip took
@@ -41,12 +41,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
-# two workers, a test file at a time each (its PX4 or bench fixture starts once), all the PX4 files on
-# one worker (never two PX4 SITLs at once), which the other yields the cores to (tests/conftest.py), in
-# the order tests/conftest.py gives them (the PX4 files and the long ones first): xdist >= 3.8
-# reorders them unless told not to. Three workers on the two cores filled the idle time (27 % with
-# two: most of the suite waits on wall-clock flights) but not the wall time: 464 and 554 s against
-# 509 and 524 s, the lockstep flights' busy-polling and the compiles sharing the cores three ways.
+# three workers, a test file at a time each (its PX4 or bench fixture starts once): all the PX4 files on
+# one worker (never two PX4 SITLs at once), which takes nothing else and stops when they are done, and
+# which the other two yield the cores to (tests/conftest.py); the PX4 flights wait on the wall clock
+# (160-180 s of CPU in their 360 s, their PX4 SITLs and plants included), so they run beside two
+# workers for the rest of the suite, not in the place of one (pytest 557 -> 455 s from cold). In the order tests/conftest.py gives them (the PX4 files and the long ones first):
+# xdist >= 3.8 reorders them unless told not to. Three workers all taking any file filled the idle
+# time but not the wall time (464 and 554 s against 509 and 524 s with two): the lockstep flights'
+# busy-polling and the compiles shared the cores three ways to the end.
 # The project byte-compiled first: each of the hundreds of processes the tests start imports it
 # (0.60 -> 0.37 s a start), and where PYTHONDONTWRITEBYTECODE is set (this machine, CI) Python would
 # compile it again every time. numba's kernels: the plant's compiled first (7 s from cold), so that

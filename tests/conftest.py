@@ -79,9 +79,15 @@ def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
 @pytest.hookimpl(tryfirst=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, ANN201 - xdist's hook
     """``--dist loadfile`` (``make test``) with every PX4 module in one scope: one worker flies
-    them one after the other, so that a PX4 flight shares the cores with at most one other test and
-    never with a second PX4 SITL (their timings are compared with the plant's; two at once made
-    them flaky). Every other module is a scope of its own, as xdist's loadfile has it."""
+    them one after the other, so that a PX4 flight shares the cores with the other workers' tests
+    but never with a second PX4 SITL (their timings are compared with the plant's; two at once made
+    them flaky). Every other module is a scope of its own, as xdist's loadfile has it.
+
+    With at least ``PX4_WORKER_RETIRES_WITH`` other workers the PX4 one takes nothing else and
+    stops when its flights are done: a PX4 flight waits on the wall clock much of the time (the
+    PX4 modules took 160-180 s of CPU in 360 s, their PX4 SITLs and plants included), so ``make
+    test`` runs them beside two workers for the rest, which then have the cores to themselves;
+    with fewer other workers it goes on with their files."""
     if config.getvalue("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling
@@ -91,7 +97,19 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, AN
             module = super()._split_scope(nodeid)
             return PX4_SCOPE if is_px4_module(module) else module
 
+        def _reschedule(self, node) -> None:  # noqa: ANN001 - xdist's WorkerController
+            others = [n for n in self.nodes if n is not node and not n.shutting_down]
+            if PX4_SCOPE in self.assigned_work.get(node, {}) and len(others) >= PX4_WORKER_RETIRES_WITH:
+                if not node.shutting_down:
+                    node.shutdown()  # runs what it was given (the PX4 modules), then stops
+                return
+            super()._reschedule(node)
+
     return Px4ModulesTogether(config, log)
+
+
+#: How many other workers there must be for the PX4 worker to take nothing but the PX4 modules.
+PX4_WORKER_RETIRES_WITH = 2
 
 
 #: How much a worker lowers its priority once it runs anything but the PX4 modules (``yield_to_px4``).

@@ -53,9 +53,10 @@ def test_a_fresh_demo_installs_the_project_without_the_test_extra(tmp_path):
 def test_a_fresh_test_installs_the_test_extra_too(tmp_path):
     lines = dry_run("test", tmp_path / "venv")
     assert installs(lines) == [".", "'.[test]'"]
-    # two workers, a file (or all the PX4 files, tests/conftest.py) at a time each, in
-    # tests/conftest.py's order (xdist's own would put the files with the most tests first)
-    assert lines[-1].endswith("-m pytest -q -n 2 --dist loadfile --no-loadscope-reorder")
+    # three workers, a file (or all the PX4 files, on a worker that takes nothing else:
+    # tests/conftest.py) at a time each, in tests/conftest.py's order (xdist's own would put the
+    # files with the most tests first)
+    assert lines[-1].endswith("-m pytest -q -n 3 --dist loadfile --no-loadscope-reorder")
 
 
 def test_demo_then_test_installs_only_the_test_extra(tmp_path):
@@ -106,6 +107,64 @@ def test_make_test_flies_every_px4_module_on_one_worker_and_the_others_a_file_ea
     )
     monkeypatch.setattr(pytestconfig.option, "dist", "load")
     assert conftest.pytest_xdist_make_scheduler(pytestconfig, None) is None  # xdist's own
+
+
+PX4_LIKE_MODULE = """
+import os, time
+def test_{name}_{i}():
+    time.sleep({sleep})
+    with open(os.environ["WHO_RAN"], "a") as f:
+        f.write("{name} " + os.environ["PYTEST_XDIST_WORKER"] + "\\n")
+"""
+
+
+def _who_ran_what(tmp_path: Path, workers: int) -> dict[str, set[str]]:
+    """A real ``pytest -n workers --dist loadfile`` with tests/conftest.py's scheduler and order on
+    a tree of two PX4-named modules (short tests) and six others (longer): module -> its workers."""
+    tree = tmp_path / "tree"
+    tree.mkdir()
+    (tree / "conftest.py").write_text(
+        "import importlib.util\n"
+        f"spec = importlib.util.spec_from_file_location('project_conftest', {str(REPO / 'tests' / 'conftest.py')!r})\n"
+        "project = importlib.util.module_from_spec(spec); spec.loader.exec_module(project)\n"
+        "pytest_collection_modifyitems = project.pytest_collection_modifyitems\n"
+        "pytest_xdist_make_scheduler = project.pytest_xdist_make_scheduler\n"
+    )  # fmt: skip
+    modules = {"test_px4_a": 0.05, "test_px4_b": 0.05, **{f"test_other_{k}": 0.4 for k in range(6)}}
+    for name, sleep in modules.items():
+        (tree / f"{name}.py").write_text("".join(PX4_LIKE_MODULE.format(name=name, i=i, sleep=sleep) for i in range(3)))
+    who = tmp_path / "who.txt"
+    env = {k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"}  # the outer run's options are not this one's
+    env.update(WHO_RAN=str(who), PYTHONPATH=os.pathsep.join([str(REPO), str(REPO / "tests")]))
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", str(workers), "--dist", "loadfile",
+         "--no-loadscope-reorder", "--rootdir", str(tree), "-c", os.devnull, str(tree)],
+        cwd=tree, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    ran: dict[str, set[str]] = {}
+    for line in who.read_text().splitlines():
+        name, worker = line.split()
+        ran.setdefault(name, set()).add(worker)
+    assert sorted(ran) == sorted(modules)  # every module ran (3 tests each, below)
+    assert len(who.read_text().splitlines()) == 3 * len(modules)
+    return ran
+
+
+def test_the_px4_worker_takes_nothing_else_beside_two_others(tmp_path):
+    ran = _who_ran_what(tmp_path, 3)
+    px4_workers = ran["test_px4_a"] | ran["test_px4_b"]
+    assert len(px4_workers) == 1  # every PX4 module on one worker
+    others = set().union(*(w for name, w in ran.items() if not name.startswith("test_px4_")))
+    assert not px4_workers & others and len(others) == 2  # which ran nothing else; the two others ran the rest
+
+
+def test_with_one_other_worker_the_px4_worker_goes_on_with_the_rest(tmp_path):
+    ran = _who_ran_what(tmp_path, 2)
+    px4_workers = ran["test_px4_a"] | ran["test_px4_b"]
+    assert len(px4_workers) == 1
+    others = set().union(*(w for name, w in ran.items() if not name.startswith("test_px4_")))
+    assert px4_workers <= others  # two workers: both take the other files
 
 
 @pytest.mark.parametrize("worker, module, niceness", [
