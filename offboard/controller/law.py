@@ -47,13 +47,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
 
 from offboard.controller.params import ControllerParams
-from offboard.model.euler_lagrange import real_torques
+from offboard.model.euler_lagrange import EULER_FORM_TERMS, real_torques_terms
 from offboard.model.mixer import rotor_forces
 
 #: Math namespace for scalar (Python float) evaluation of ``law_step``.
@@ -381,14 +382,21 @@ class ControlOutput:
     torques_nm : ndarray, shape (3,)
         The real (generalised) torques of eq. 16, ``C(eta, eta_dot) eta_dot + J(eta) tau~``,
         with the controller's belief of the inertia, at the measured state.
-    rotor_forces_n : ndarray, shape (4,)
-        f1..f4 that give u and those torques through eq. 9-11 (rotor layout in
-        ``offboard.model.vehicle``); unbounded, so they may be negative.
+    arm_length_m, drag_to_thrust_m : float
+        The believed rotor layout (l, c) the rotor forces are mixed with.
     """
 
     law: LawOutput
     torques_nm: np.ndarray
-    rotor_forces_n: np.ndarray
+    arm_length_m: float
+    drag_to_thrust_m: float
+
+    @cached_property
+    def rotor_forces_n(self) -> np.ndarray:
+        """f1..f4 that give u and the eq. 16 torques through eq. 9-11 (rotor layout in
+        ``offboard.model.vehicle``); unbounded, so they may be negative. Mixed when asked for:
+        no drive of the flight loops reads them."""
+        return rotor_forces(self.law.thrust_n, self.torques_nm, self.arm_length_m, self.drag_to_thrust_m)
 
     @property
     def thrust_n(self) -> float:
@@ -413,7 +421,9 @@ class RosalesController:
 
     def __init__(self, params: ControllerParams) -> None:
         self.params = params
-        self._inertia = np.diag(params.inertia_kg_m2)
+        i0, i1, i2 = (float(i) for i in params.inertia_kg_m2)
+        self._inertia = (i0, i1, i2)  # the believed principal moments
+        self._form_terms = EULER_FORM_TERMS[params.euler_rate_form]  # W_eta's angle (index) and sign
         self.memory: LawMemory | None = None
 
     def reset(self) -> None:
@@ -428,8 +438,13 @@ class RosalesController:
         if self.memory is None:
             self.memory = LawMemory.from_state(state)
         law, self.memory = law_step(self.params, self.memory, state, ref_n, ref_n1)
-        eta = (state[6], state[8], state[10])  # eq. 16 reads them as floats: no arrays needed
-        eta_dot = (state[7], state[9], state[11])
-        torques = real_torques(eta, eta_dot, law.tau_tilde, self._inertia, self.params.euler_rate_form)
-        forces = rotor_forces(law.thrust_n, torques, self.params.arm_length_m, self.params.drag_to_thrust_m)
-        return ControlOutput(law=law, torques_nm=torques, rotor_forces_n=forces)
+        # eq. 16 on the measured angles and rates (floats: ``real_torques`` without its conversions)
+        index, sign = self._form_terms
+        theta, angle = state[8], state[6 + 2 * index]  # W_eta's angle: phi (index 0) or psi (2)
+        t0, t1, t2 = law.tau_tilde
+        i0, i1, i2 = self._inertia
+        torques: np.ndarray = np.array(real_torques_terms(
+            math.sin(theta), math.cos(theta), math.sin(angle), math.cos(angle), state[7], state[9], state[11],
+            t0, t1, t2, i0, i1, i2, index, sign,
+        ))  # fmt: skip
+        return ControlOutput(law, torques, self.params.arm_length_m, self.params.drag_to_thrust_m)

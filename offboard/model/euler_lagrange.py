@@ -313,11 +313,16 @@ def zyx_euler_rates_from_body_rates(euler_rad: np.ndarray, body_rate_frd_rad_s: 
     ``euler_rates_from_body_rates(euler, omega, "zyx")`` in closed form, for the physics step: the
     same map (they agree to rounding, ~1e-16 relative), written with tan theta.
     """
-    sr, cr = math.sin(euler_rad[0]), math.cos(euler_rad[0])
-    cp, tp = math.cos(euler_rad[1]), math.tan(euler_rad[1])
     p, q, r = (float(v) for v in body_rate_frd_rad_s)
+    return np.array(zyx_euler_rates_terms(float(euler_rad[0]), float(euler_rad[1]), p, q, r))
+
+
+def zyx_euler_rates_terms(roll: float, pitch: float, p: float, q: float, r: float) -> tuple[float, float, float]:
+    """``zyx_euler_rates_from_body_rates`` on floats: the ZYX Euler rates of the body rates (p, q, r)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp, tp = math.cos(pitch), math.tan(pitch)
     vertical = q * sr + r * cr
-    return np.array([p + vertical * tp, q * cr - r * sr, vertical / cp])
+    return p + vertical * tp, q * cr - r * sr, vertical / cp
 
 
 def zyx_body_torque_from_generalized(euler_rad: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:

@@ -30,10 +30,15 @@ def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.nda
 def euler_from_quat(q: np.ndarray) -> np.ndarray:
     """(roll, pitch, yaw) in radians, ZYX, from (w, x, y, z); pitch clipped to +-pi/2."""
     w, x, y, z = np.asarray(q, dtype=float).tolist()
+    return np.array(euler_from_quat_floats(w, x, y, z))
+
+
+def euler_from_quat_floats(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``euler_from_quat`` on the unit quaternion's four floats (a state read once per sample)."""
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.array([roll, pitch, yaw])
+    return roll, pitch, yaw
 
 
 def rotation_matrix(q: np.ndarray) -> np.ndarray:

@@ -958,8 +958,8 @@ class FastRigidBodySim(VehicleSim):
                 self._believed = (act.believed_inertia, np.ascontiguousarray(np.diag(act.believed_inertia), dtype=float))
             believed = self._believed[1]
             index, sign = _EULER_FORMS[act.form]
-            self.on_ground = bool(
-                _advance(self.x, n_steps, self.physics_dt_s, 1, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),
+            self.on_ground = bool(  # mode 2: eq. 16 with no trigonometric call, as the batch's (the same to rounding, 15 % faster)
+                _advance(self.x, n_steps, self.physics_dt_s, 2, float(act.thrust_n), np.asarray(act.tau_tilde, dtype=float),
                          believed, index, sign, self._p, winds, self.ground, self._last_xdot, self._cmd)  # fmt: skip
             )
         elif (advance := getattr(act, "advance_rigid_body", None)) is not None and advance(self, n_steps, winds):

@@ -41,9 +41,9 @@ import math
 
 import numpy as np
 
-from offboard.model.euler_lagrange import zyx_body_torque_from_generalized, zyx_euler_rates_from_body_rates
+from offboard.model.euler_lagrange import zyx_body_torque_from_generalized, zyx_euler_rates_from_body_rates, zyx_euler_rates_terms
 from offboard.model.mixer import rotor_forces, thrust_torque_from_rotor_forces
-from offboard.model.rotations import euler_from_quat, quat_from_euler
+from offboard.model.rotations import euler_from_quat, euler_from_quat_floats, quat_from_euler
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
 
@@ -390,8 +390,8 @@ class RigidBodyModel:
         s = x.tolist()  # floats: the arithmetic below is on Python floats, not numpy scalars
         qw, qx, qy, qz = s[6:10]
         norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        q = np.array((qw / norm, qx / norm, qy / norm, qz / norm))
-        eta = euler_from_quat(q)
+        qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
+        roll, pitch, yaw = euler_from_quat_floats(qw, qx, qy, qz)
         speeds = self._cmd.copy() if self.params.motor_time_constant_s == 0.0 else np.array(s[13:17])
         vn, ve, vd = s[3:6]
         return VehicleState(
@@ -399,10 +399,10 @@ class RigidBodyModel:
             pos_ned_m=np.array(s[0:3]),
             vel_ned_m_s=np.array(s[3:6]),
             acc_ned_m_s2=np.array(xdot[VEL], dtype=float),
-            euler_rad=eta,
-            euler_rate_rad_s=zyx_euler_rates_from_body_rates(eta, s[10:13]),
+            euler_rad=np.array((roll, pitch, yaw)),
+            euler_rate_rad_s=np.array(zyx_euler_rates_terms(roll, pitch, *s[10:13])),
             body_rate_frd_rad_s=np.array(s[10:13]),
-            quat_wxyz=q,
+            quat_wxyz=np.array((qw, qx, qy, qz)),
             motor_speeds_rad_s=speeds,
             on_ground=bool(s[2] >= 0.0 and not (vn or ve or vd)),
         )
