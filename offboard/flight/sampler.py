@@ -41,6 +41,15 @@ from pymavlink.dialects.v20 import common as mavlink
 #: What a sample sends: the setpoint answering a measured state (None: nothing to send).
 SetpointSource = Callable[[MeasuredState], mavlink.MAVLink_message | None]
 
+#: How much earlier than the kept message's stamp a message may be stamped and be one the link
+#: reordered (ms); earlier still, the vehicle's clock has started again (a reboot) and it is kept.
+OVERTAKEN_MS = 1000
+
+
+def _overtaken(stamp_ms: int, kept_ms: int) -> bool:
+    """Whether a message stamped ``stamp_ms`` is older than the kept one's ``kept_ms`` (reordered)."""
+    return 0 < kept_ms - stamp_ms <= OVERTAKEN_MS
+
 
 @dataclass
 class LoopStats:
@@ -54,6 +63,7 @@ class LoopStats:
     samples: int = 0
     overruns: int = 0  # real time: samples skipped because we were late by a whole period
     missed: int = 0  # real time: mission periods without a setpoint (telemetry stale)
+    overtaken: int = 0  # telemetry not kept: stamped before the message kept (reordered by the link)
     mission_wall_s: float = 0.0
     periods: RecordBuilder = field(default_factory=lambda: RecordBuilder({"period_s": 1}), repr=False, compare=False)
 
@@ -73,6 +83,7 @@ class LoopStats:
             "samples": self.samples,
             "overruns": self.overruns,
             "missed": self.missed,
+            "telemetry_overtaken": self.overtaken,
             "mission_wall_s": self.mission_wall_s,
             "rate_hz": self.samples / self.mission_wall_s if self.mission_wall_s > 0 else math.nan,
             "period_mean_s": float(np.mean(periods)) if len(periods) else math.nan,
@@ -156,7 +167,10 @@ class Sampler:
     # -- the telemetry -------------------------------------------------------------------------------
 
     def take(self, msg: mavlink.MAVLink_message) -> None:
-        """Keep the vehicle's ATTITUDE or LOCAL_POSITION_NED as the freshest.
+        """Keep the vehicle's ATTITUDE or LOCAL_POSITION_NED as the freshest: one stamped earlier
+        than the one kept, by at most ``OVERTAKEN_MS``, was overtaken on the way (a link that
+        reorders: a radio, a network) and is not kept; one stamped far earlier is a vehicle
+        whose clock started again, and is.
 
         Raises
         ------
@@ -165,6 +179,9 @@ class Sampler:
         """
         if msg.get_type() == "ATTITUDE":
             codec.check_attitude(msg)
+            if self.att is not None and _overtaken(int(msg.time_boot_ms), int(self.att.time_boot_ms)):
+                self.loop.overtaken += 1
+                return
             if self.att is None or int(msg.time_boot_ms) != int(self.att.time_boot_ms):
                 self._stamps_since_sample += 1  # a lockstep vehicle: one a period
             self.att = msg
@@ -173,6 +190,9 @@ class Sampler:
                 del self._recent_att[next(iter(self._recent_att))]
         else:
             codec.check_local_position(msg)
+            if self.lpn is not None and _overtaken(int(msg.time_boot_ms), int(self.lpn.time_boot_ms)):
+                self.loop.overtaken += 1
+                return
             self.lpn = msg
 
     def meter(self, msg: mavlink.MAVLink_message, now: float) -> None:

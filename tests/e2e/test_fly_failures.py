@@ -185,3 +185,6 @@ def test_a_hover_completes_over_a_lossy_delayed_link(tmp_path):
     assert flown.status == "complete" and flown.summary["landed"] and flown.summary["disarmed"]
     m = flown.summary["messages"]
     assert m["lost"] > 0.05 * m["received"]  # the link did lose (some 20 % of what the plant sent)
+    # and reorder: the jitter (+-20 ms) exceeds the telemetry's spacing (10 ms); what came after a
+    # newer one was not taken as the freshest state
+    assert flown.summary["loop"]["telemetry_overtaken"] > 0, flown.summary["loop"]

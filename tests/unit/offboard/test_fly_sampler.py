@@ -67,3 +67,32 @@ def test_each_mission_tick_is_a_sample_an_overrun_or_a_miss(stalls, stale, missi
     assert samples + overruns + missed == LAST + 1
     assert overruns == mission_overruns
     assert (missed > 0) == (stale != (0.0, 0.0))
+
+
+def _attitude(t_ms: int):
+    from pymavlink.dialects.v20 import common as mavlink
+
+    return mavlink.MAVLink_attitude_message(t_ms, 0.01, -0.02, 0.3, 0.0, 0.0, 0.0)
+
+
+def _position(t_ms: int):
+    from pymavlink.dialects.v20 import common as mavlink
+
+    return mavlink.MAVLink_local_position_ned_message(t_ms, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("make, kept", [(_attitude, "att"), (_position, "lpn")])
+def test_telemetry_overtaken_on_the_way_is_not_kept(make, kept):
+    """A link that reorders hands an older message after a newer one: the newer stays the freshest
+    (and the older is counted); a stamp far earlier is a vehicle whose clock started again."""
+    from offboard.flight.sampler import OVERTAKEN_MS
+
+    sampler = ScriptedSampler(lambda: 0.0, lambda t: True)
+    stamps = [100, 90, 110, 110, 105, 120, 120 - OVERTAKEN_MS]
+    for t_ms in stamps:
+        sampler.take(make(t_ms))
+    assert getattr(sampler, kept).time_boot_ms == 120 and sampler.loop.overtaken == 3  # 90, 105, 120 - OVERTAKEN_MS
+    sampler.take(make(20_000))
+    sampler.take(make(3))  # 19 997 ms earlier: the vehicle rebooted
+    assert getattr(sampler, kept).time_boot_ms == 3 and sampler.loop.overtaken == 3
+    assert sampler.loop.to_dict(TO)["telemetry_overtaken"] == 3
