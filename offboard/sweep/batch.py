@@ -49,8 +49,9 @@ from sitl_plant.dynamics.rigid_body import STATE_SIZE, RigidBodyModel
 from sitl_plant.dynamics.sensors import CleanSensors, PaperAccelNoise, sensors_from_spec
 from sitl_plant.dynamics.wind import wind_from_spec
 
-#: ``advance_many``'s mode for the paper's tau~: 2, eq. 16 with no trigonometric call (1: as the
-#: one-vehicle kernel computes it; the same flights to rounding, slower).
+#: ``advance_many``'s mode for the paper's tau~: 2, eq. 16 with no trigonometric call, as the
+#: one-vehicle kernel (``FastRigidBodySim``) computes it too (1: with the angles' sines and cosines;
+#: the same flights to rounding, slower).
 TAU_MODE = 2
 _BELIEF_FIELDS = ("mass_kg", "gravity_m_s2", "inertia_kg_m2", "arm_length_m", "drag_to_thrust_m")
 
