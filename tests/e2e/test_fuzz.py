@@ -15,7 +15,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from helpers.flights import ENV, PY, arc_hold_mission, fly, free_udp_ports
-from helpers.fuzz import FUZZ_FRAMES, STRANGERS, Fuzzer, fuzz_the_offboard
+from helpers.fuzz import AFTER_THE_FUZZ, FUZZ_FRAMES, STRANGERS, Fuzzer, fuzz_the_offboard
 from offboard.replay import TlogReader
 
 WATCHED = ("MPC_XY_VEL_MAX", "COM_OF_LOSS_T", "SIM_MASS", "MAV_SYS_ID")
@@ -154,7 +154,7 @@ def test_an_unsigned_offboard_survives_the_fuzz_and_ignores_a_stranger(tmp_path)
     # the arc, then a hold: the stranger's frames reach an offboard still flying (after the arc alone
     # a round sent as the flight ended was never read: 9 of 15 frames once)
     mission = arc_hold_mission(tmp_path / "arc-hold.toml")
-    flown = fly(tmp_path, mission, name="fuzzed", fly_args=("--target-system", "1"),
+    flown = fly(tmp_path, mission, name="fuzzed", fly_args=("--target-system", "1", *AFTER_THE_FUZZ),
                 before_plant=partial(fuzz_the_offboard, sysid_choices=STRANGERS), during=stranger)  # fmt: skip
     assert flown.returncode == 0 and flown.status == "complete" and flown.summary["disarmed"], flown.stderr
     assert "Traceback" not in flown.stderr, flown.stderr

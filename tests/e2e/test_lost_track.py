@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from offboard.clockrate import CHECK_SPAN_S, ClockRateMeter
+from offboard.clockrate import CHECK_SPAN_S, RATE_TOLERANCE, ClockRateMeter
 from offboard.metrics import LOST_TRACK_M, check_tracking, end_error_m
 from offboard.missions import MISSIONS_DIR
 from offboard.record import COLUMNS, FlightStatus, RecordBuilder
@@ -59,9 +59,10 @@ def test_a_faster_vehicle_on_our_own_clock_is_refused_before_arming(tmp_path):
     assert flown.returncode == 2, flown.stderr
     lines = [line for line in flown.stderr.splitlines() if line.startswith("offboard fly:")]  # (events: "offboard: ...")
     assert len(lines) == 1 and "Traceback" not in flown.stderr
-    # 4x asked; a loaded machine may not keep the plant at 4x, but never near real time
+    # 4x asked; a loaded machine may not keep the plant at 4x (1.67x once in CI, make test's workers
+    # and both processes on two cores), but it is refused for running faster than ours beyond the tolerance
     rate = float(re.search(r"the vehicle's clock runs at ([0-9.]+)x ours", lines[0]).group(1))
-    assert rate > 2.0 and lines[0].endswith("fly it with --clock vehicle"), lines[0]
+    assert rate > 1.0 + RATE_TOLERANCE and lines[0].endswith("fly it with --clock vehicle"), lines[0]
     commands = [m.command for m in read_tlog(flown.tlog) if m.get_type() == "COMMAND_LONG" and m.get_srcSystem() == 245]
     assert 400 not in commands and 176 not in commands  # neither ARM_DISARM nor DO_SET_MODE was sent
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink
 
 from helpers.flights import ENV, PY, arc_hold_mission, fly
-from helpers.fuzz import FUZZ_FRAMES, fuzz_the_offboard
+from helpers.fuzz import AFTER_THE_FUZZ, FUZZ_FRAMES, fuzz_the_offboard
 from offboard.replay import TlogReader
 from offboard.signing import ACCEPTED_UNSIGNED
 
@@ -88,7 +88,7 @@ def test_a_signed_lockstep_flight_refuses_the_intruder_and_the_fuzz_and_is_bit_i
     # bytes: that is what is asserted below), and has sent by the time it is armed: a replay
     replays = {"offboard_frames": first_sent(b.tlog, 245, REPLAYS), "vehicle_frames": first_sent(b.plant_tlog, 1, REPLAYS)}
     assert all(len(frames) == REPLAYS for frames in replays.values())
-    a = fly(tmp_path, mission, name="attacked", fly_args=signed, plant_args=signed, before_plant=fuzz_the_offboard,
+    a = fly(tmp_path, mission, name="attacked", fly_args=(*signed, *AFTER_THE_FUZZ), plant_args=signed, before_plant=fuzz_the_offboard,
             during=partial(intrude, **replays), quiet_plant=False)  # fmt: skip
     assert a.returncode == b.returncode == 0, a.stderr + b.stderr
     assert a.status == "complete" and a.summary["disarmed"]

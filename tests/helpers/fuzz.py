@@ -140,6 +140,12 @@ FUZZ_FRAMES = 100_000
 STRANGERS = (2, 200, 245, 255)
 
 
+#: ``offboard fly``'s wait for its vehicle when a fuzz comes first: the offboard parses the fuzz and
+#: the plant is started after it, which on a loaded machine (make test's workers on two cores)
+#: took more than the default 10 s once; how soon a vehicle is found is not what these flights test
+AFTER_THE_FUZZ = ("--heartbeat-timeout", "60")
+
+
 def fuzz_the_offboard(ctx, *, sysid_choices: tuple[int, ...] = (1, 2, 200, 245, 255)) -> None:  # noqa: ANN001
     """FUZZ_FRAMES frames of every kind at the offboard of a flight (``helpers.flights.fly``'s
     context), while it waits for its vehicle (during the flight they would be a flood that starves
