@@ -6,7 +6,7 @@ One PX4 (``--speed 4``) and one plant serve the module; the same client script
 climbs to 10 m in Offboard (taking off again first when the last action left the vehicle on the
 ground), sets the parameter, stops the setpoints and records, on the vehicle's clock: the heartbeat
 (base_mode, custom mode, system status) after "Failsafe activated", the STATUSTEXTs, the vertical
-speed between 1.5 and 5.5 s after the failsafe, and the heartbeat at the end. The default (0,
+speed between 1.5 and 5.5 s after the failsafe, and the heartbeat and height ``END_S`` after it. The default (0,
 Position) is compared in test_px4_parity_commander.py. Terminate (6) is flown last: PX4 stays in
 flight termination until rebooted.
 
@@ -41,6 +41,9 @@ SPEED = 4.0
 NAN = math.nan
 HEIGHT_M = 10.0
 STABILIZED, TERMINATION = (7, 0), (10, 0)
+#: when the end is read, after "Failsafe activated" (vehicle's clock): PX4's fall after Terminate
+#: began 1-3 s after the failsafe, and once in a loaded make test later, 2.3 m up still at 8 s
+END_S = 12.0
 ACTIONS = (1, 2, 3, 4, 5, 7, 6)  # Terminate last: only a reboot ends it
 ACTION_NAMES = {1: "Altitude", 2: "Stabilized", 3: "Return", 4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
 
@@ -112,7 +115,7 @@ def fly_script(c: Client) -> dict[int, Loss]:
         loss.height_at_failsafe_m = ground - c.down_m
         settle_heartbeat(c)
         loss.heartbeat = heartbeat_state(c)
-        c.wait_sim(max(0.0, t_fs + 8.0 - c.t_s))
+        c.wait_sim(max(0.0, t_fs + END_S - c.t_s))
         window = [s for s in c.samples if t_fs + 1.5 <= s.t_s <= t_fs + 5.5]
         loss.sink_m_s = (window[-1].pos_ned_m[2] - window[0].pos_ned_m[2]) / (window[-1].t_s - window[0].t_s)
         loss.height_at_end_m = ground - c.down_m
@@ -171,7 +174,7 @@ def test_disarm_and_terminate_as_px4(runs, parity_finding):
     px4, plant = runs
     for action in (7, 6):
         parity_finding(f"commander.obl_rc_act.{action}.end", f"offboard loss, COM_OBL_RC_ACT {action} ({ACTION_NAMES[action]}): "
-                       "8 s after the failsafe, heartbeat; height (m)",
+                       f"{END_S:g} s after the failsafe, heartbeat; height (m)",
                        *(f"{heartbeat_text(o[action].final)}; {o[action].height_at_end_m:.1f} m" for o in runs))  # fmt: skip
     for obs in runs:
         assert "Disarmed by failsafe" in obs[7].texts
