@@ -42,8 +42,9 @@ demo: $(STAMP)
 	$(PY) -m offboard.demo --run-dir $(RUN)
 
 # three workers, a test file at a time each (its PX4 or bench fixture starts once): all the PX4 files on
-# one worker (never two PX4 SITLs at once), which takes nothing else and stops when they are done, and
-# which the other two yield the cores to (tests/conftest.py); the PX4 flights wait on the wall clock
+# one worker (never two PX4 SITLs at once), then the files flown against a plant running free on the
+# wall clock (conftest's WALL_CLOCK_MODULES: a starved plant at --speed 4 broke a flight), which takes
+# nothing else and stops when they are done, and which the other two yield the cores to (tests/conftest.py); the PX4 flights wait on the wall clock
 # (160-180 s of CPU in their 360 s, their PX4 SITLs and plants included), so they run beside two
 # workers for the rest of the suite, not in the place of one (pytest 557 -> 455 s from cold). In the order tests/conftest.py gives them (the PX4 files and the long ones first):
 # xdist >= 3.8 reorders them unless told not to. Three workers all taking any file filled the idle

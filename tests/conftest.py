@@ -25,7 +25,8 @@ E2E_DIR = Path(__file__).resolve().parent / "e2e"
 #: e2e modules whose tests fly on the wall clock (a real-time plant, PX4 at --speed, timeouts and
 #: rates measured in wall time), marked ``realtime`` (``-m "not realtime"`` leaves them out).
 REALTIME_MODULES = frozenset({
-    "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fuzz",
+    "test_bench_loop", "test_bench_smoke", "test_demo", "test_fly_e2e", "test_fly_failures", "test_fly_latency",
+    "test_fly_vehicle_clock", "test_fuzz",
     "test_killed", "test_lost_track", "test_plant_cli_faults", "test_plant_e2e", "test_plant_mavproxy", "test_plant_mission_e2e",
     "test_plant_services_e2e",
 })  # fmt: skip
@@ -34,13 +35,26 @@ REALTIME_MODULES = frozenset({
 #: which make test compiles in the background meanwhile (Makefile), not in the test's own time.
 LATE_LONG_MODULES = frozenset({"test_bench_smoke"})
 
-#: The one xdist scope of every PX4 module under ``--dist loadfile`` (``pytest_xdist_make_scheduler``).
+#: The one xdist scope of every PX4 module under ``--dist loadfile`` (``pytest_xdist_make_scheduler``),
+#: and of the ``WALL_CLOCK_MODULES``.
 PX4_SCOPE = "px4-sitl"
+
+#: Modules whose figures are measured against a plant running free on the wall clock, faster than
+#: real time or behind a delayed link, flown on the PX4 worker after the PX4 modules and at its
+#: priority: on a niced worker of a loaded make test a starved plant at --speed 4 fell behind
+#: and caught up in a burst (0.7 s of its time in 50 ms) that the helix's 0.05 m could not
+#: survive. The PX4 worker finished 90-130 s before the others, so they also even the load.
+WALL_CLOCK_MODULES = frozenset({"test_fly_vehicle_clock", "test_fly_latency"})
 
 
 def is_px4_module(path: str | Path) -> bool:
     """Whether a test module flies a real PX4 SITL (tests/e2e/test_px4_*.py, each starting its own)."""
     return Path(path).name.startswith("test_px4_")
+
+
+def on_px4_worker(path: str | Path) -> bool:
+    """Whether a test module runs on make test's PX4 worker: a PX4 module or a ``WALL_CLOCK_MODULES`` one."""
+    return is_px4_module(path) or Path(path).stem in WALL_CLOCK_MODULES
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -57,7 +71,8 @@ def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
     """The items, a module's together, in the order ``make test``'s workers should take them
     (``--dist loadfile --no-loadscope-reorder`` hands the scopes out in collection order; without
     the flag xdist >= 3.8 sorts them by their number of tests): the PX4 modules first (one scope,
-    ``pytest_xdist_make_scheduler``: a few minutes), then the other long ones, then the short ones,
+    ``pytest_xdist_make_scheduler``: a few minutes), then the ``WALL_CLOCK_MODULES`` (the same
+    scope), then the other long ones, then the short ones,
     so that the short ones fill the gaps at the end instead of one worker finishing a long module
     alone while the other idles. Long: an e2e module (processes) or one marked ``slow``; the
     ``LATE_LONG_MODULES`` after the other long ones. Within each kind, the collection order."""
@@ -69,9 +84,11 @@ def long_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
         path = Path(str(group[0].fspath))
         if is_px4_module(path):
             return 0
+        if on_px4_worker(path):  # after the PX4 modules, in the same scope
+            return 1
         if any(i.get_closest_marker(mark) for i in group for mark in ("slow", "realtime", "e2e")):
-            return 2 if path.stem in LATE_LONG_MODULES else 1
-        return 3
+            return 3 if path.stem in LATE_LONG_MODULES else 2
+        return 4
 
     return [item for group in sorted(modules.values(), key=kind) for item in group]
 
@@ -81,7 +98,8 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, AN
     """``--dist loadfile`` (``make test``) with every PX4 module in one scope: one worker flies
     them one after the other, so that a PX4 flight shares the cores with the other workers' tests
     but never with a second PX4 SITL (their timings are compared with the plant's; two at once made
-    them flaky). Every other module is a scope of its own, as xdist's loadfile has it.
+    them flaky); the ``WALL_CLOCK_MODULES`` join that scope, after them. Every other module is a
+    scope of its own, as xdist's loadfile has it.
 
     With at least ``PX4_WORKER_RETIRES_WITH`` other workers the PX4 one takes nothing else and
     stops when its flights are done: a PX4 flight waits on the wall clock much of the time (the
@@ -95,7 +113,7 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):  # noqa: ANN001, AN
     class Px4ModulesTogether(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = super()._split_scope(nodeid)
-            return PX4_SCOPE if is_px4_module(module) else module
+            return PX4_SCOPE if on_px4_worker(module) else module
 
         def _reschedule(self, node) -> None:  # noqa: ANN001 - xdist's WorkerController
             others = [n for n in self.nodes if n is not node and not n.shutting_down]
@@ -119,12 +137,12 @@ _yielded: list[bool] = []
 
 def yield_to_px4(item: pytest.Item) -> None:
     """Under xdist, a worker lowers its priority (and its children's) before its first test that is
-    not a PX4 module's, for good: a PX4 SITL runs free on the wall clock (not in lockstep with the
+    not on the PX4 worker (``on_px4_worker``), for good: a PX4 SITL runs free on the wall clock (not in lockstep with the
     test) and misses its own deadlines when the other workers' processes take its core (in loaded
     runs of ``make test`` PX4 slowed at a corner it flies through, or never entered Mission mode),
     while the other tests use what it leaves. The PX4 modules come first in their worker's queue
     (``long_modules_first``), so that worker keeps its priority through all of them."""
-    if os.environ.get("PYTEST_XDIST_WORKER") and not is_px4_module(str(item.fspath)) and not _yielded:
+    if os.environ.get("PYTEST_XDIST_WORKER") and not on_px4_worker(str(item.fspath)) and not _yielded:
         os.nice(OTHERS_NICENESS)
         _yielded.append(True)
 

@@ -20,21 +20,11 @@ from offboard.inprocess import Scenario, run_scenario
 from offboard.missions import MISSIONS_DIR, load_mission
 from sitl_plant.params import to_float32
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
-from helpers.flights import ENV, PY, arc_mission, fly, free_udp_ports, hover_mission, read_tlog, series
+from helpers.flights import ENV, PY, arc_mission, error_3d, fly, free_udp_ports, hover_mission, read_tlog, rms, series
 
 pytestmark = pytest.mark.e2e
 
 HELIX = MISSIONS_DIR / "paper-helix.toml"
-
-
-def error_3d(s: dict) -> np.ndarray:
-    pos = np.stack([s[f"pos_ned_m_{i}"] for i in range(3)], axis=1)
-    ref = np.stack([s[f"ref_pos_ned_m_{i}"] for i in range(3)], axis=1)
-    return np.linalg.norm(ref - pos, axis=1)
-
-
-def rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(values**2)))
 
 
 def setpoints(messages: list, kind: str) -> list:
@@ -330,28 +320,6 @@ def test_the_body_rate_output_flies_its_own_design(tmp_path):
     assert peak and int(peak[1]) == round(float(tilt.max())), "the doc's peak tilt at the helix's end"
     table1 = fly(tmp_path, HELIX, fly_args=("--output", "rates", "--controller", "paper"), name="rates-table1")
     assert table1.summary["status"] == "diverged", table1.summary["status"]
-
-
-@pytest.mark.slow
-def test_a_vehicle_four_times_faster_is_flown_on_its_own_clock(tmp_path):
-    """sitl-plant --speed 4 in real time, offboard fly with its default --clock auto: it measures
-    the vehicle's clock running ~4x ours before OFFBOARD and samples on it, so To is 50 ms of the
-    vehicle's time (40 s of mission in 10 s of wall), and the law flies as in real time (issue 13:
-    on our own clock it flew 4.2 m RMS off and said "complete")."""
-    flown = fly(tmp_path, HELIX, lockstep=False, plant_args=("--speed", "4"))
-    assert flown.returncode == 0, flown.stderr
-    assert flown.summary["clock"] == "vehicle" and flown.summary["clock_rate"] > 2.0
-    assert "sampling every 50 ms of the vehicle's clock" in flown.stderr
-    s = series(flown)
-    t, err = s["t_s"], error_3d(s)
-    assert len(t) == 801
-    stamps = np.diff(s["time_boot_ms"])  # the vehicle's time between samples: To
-    assert np.median(stamps) == pytest.approx(50.0, abs=1.0)
-    assert flown.summary["loop"]["mission_wall_s"] < 20.0  # a quarter of the 40 s (and some slack)
-    tilt = np.degrees(np.arccos(np.cos(s["euler_rad_0"]) * np.cos(s["euler_rad_1"])))
-    hold = (t >= 18.5) & (t < 25.0)
-    print(f"\n--speed 4: helix 5-11.9 s RMS {rms(err[(t >= 5.0) & (t < 11.9)]):.4f} m, hold tilt max {tilt[hold].max():.3f} deg")
-    assert rms(err[(t >= 5.0) & (t < 11.9)]) < 0.05 and tilt[hold].max() < 3.0
 
 
 def test_a_controller_that_identifies_its_velocity_filter_reads_the_telemetrys_noise(tmp_path):

@@ -222,6 +222,21 @@ def read_tlog(path: Path) -> list:
     return out
 
 
+def error_3d(s: dict):  # noqa: ANN201 - numpy, imported where used
+    """The 3D distance from the reference of each sample of ``series(flown)``."""
+    import numpy as np
+
+    pos = np.stack([s[f"pos_ned_m_{i}"] for i in range(3)], axis=1)
+    ref = np.stack([s[f"ref_pos_ned_m_{i}"] for i in range(3)], axis=1)
+    return np.linalg.norm(ref - pos, axis=1)
+
+
+def rms(values) -> float:  # noqa: ANN001
+    import numpy as np
+
+    return float(np.sqrt(np.mean(np.asarray(values) ** 2)))
+
+
 def series(flown: Flown) -> dict:
     """The record of a flight (series.csv) as arrays."""
     import numpy as np

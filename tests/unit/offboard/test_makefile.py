@@ -101,6 +101,8 @@ def test_make_test_flies_every_px4_module_on_one_worker_and_the_others_a_file_ea
     scheduler = conftest.pytest_xdist_make_scheduler(pytestconfig, None)
     px4 = ["tests/e2e/test_px4_flight.py::test_a", "tests/e2e/test_px4_parity_wire.py::test_b[api]"]
     assert {scheduler._split_scope(nodeid) for nodeid in px4} == {conftest.PX4_SCOPE}
+    # and the modules flown against a plant on the wall clock, at that worker's priority
+    assert scheduler._split_scope("tests/e2e/test_fly_vehicle_clock.py::test_e") == conftest.PX4_SCOPE
     assert scheduler._split_scope("tests/e2e/test_fly_e2e.py::test_c") == "tests/e2e/test_fly_e2e.py"
     assert (
         scheduler._split_scope("tests/unit/offboard/test_bench_px4sitl.py::test_d") == "tests/unit/offboard/test_bench_px4sitl.py"
@@ -170,6 +172,7 @@ def test_with_one_other_worker_the_px4_worker_goes_on_with_the_rest(tmp_path):
 @pytest.mark.parametrize("worker, module, niceness", [
     ("gw1", "tests/e2e/test_fly_e2e.py", 5),  # another worker: yields to the PX4 one
     ("gw0", "tests/e2e/test_px4_flight.py", 0),  # the PX4 worker keeps its priority
+    ("gw0", "tests/e2e/test_fly_vehicle_clock.py", 0),  # through the wall-clock modules it flies too
     ("", "tests/e2e/test_fly_e2e.py", 0),  # no xdist (one process): nothing to yield to
 ])  # fmt: skip
 def test_the_workers_yield_the_cores_to_the_px4_one(worker, module, niceness):
@@ -239,7 +242,7 @@ def test_the_quick_bench_comes_after_the_other_long_modules_and_before_the_short
         return types.SimpleNamespace(fspath=path, get_closest_marker=lambda mark: mark if mark in marks else None)
 
     items = [item("tests/unit/test_a.py", ()), item("tests/e2e/test_bench_smoke.py", ("slow", "e2e")),
-             item("tests/e2e/test_demo.py", ("e2e",)), item("tests/e2e/test_px4_flight.py", ("e2e",)),
-             item("tests/e2e/test_zzz.py", ("e2e",))]  # fmt: skip
+             item("tests/e2e/test_demo.py", ("e2e",)), item("tests/e2e/test_fly_latency.py", ("e2e",)),
+             item("tests/e2e/test_px4_flight.py", ("e2e",)), item("tests/e2e/test_zzz.py", ("e2e",))]  # fmt: skip
     order = [Path(i.fspath).stem for i in conftest.long_modules_first(items)]  # type: ignore[arg-type]
-    assert order == ["test_px4_flight", "test_demo", "test_zzz", "test_bench_smoke", "test_a"]
+    assert order == ["test_px4_flight", "test_fly_latency", "test_demo", "test_zzz", "test_bench_smoke", "test_a"]
