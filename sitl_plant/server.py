@@ -56,6 +56,13 @@ from sitl_plant.simulation import Model, PaperModel, VehicleSim, make_model
 
 TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied within 4 ms
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers
+#: Real time: how much simulation time a plant that fell behind the wall clock runs at once to
+#: catch up (s); a longer lag is dropped and the simulation's clock slips (an overrun). PX4's SIH
+#: never catches up (each period sleeps what is left of it, or not at all). Half a second of the
+#: wall clock, as here before, was two seconds of the vehicle's at --speed 4: a starved plant ran
+#: 0.7 s of its time in 50 ms of the wall's once, which no client sampling at 20 Hz can follow;
+#: 0.1 s is two of its samples at any speed.
+CATCH_UP_SIM_S = 0.1
 API, GCS = 0, 1
 MAX_DISTANCE_M = 1e7  # beyond this from home the simulation is taken as broken down
 
@@ -959,7 +966,8 @@ def run_realtime(
 
     Each tick (``TICK_S`` of simulation time): receive and handle messages, advance the physics,
     send the streams that are due. When the computer cannot keep up, the simulation runs as fast
-    as it can and the lag is dropped once it exceeds half a second (counted as an overrun).
+    as it can and the lag is dropped once it exceeds ``CATCH_UP_SIM_S`` of simulation time
+    (counted as an overrun): the vehicle's clock slips rather than jumps.
     """
     d = _Driver(plant, link, clock, status)
     stats = RunStats()
@@ -978,7 +986,7 @@ def run_realtime(
             plant.advance(tick_steps)
             stats.periods += 1
             d.send_telemetry()
-            if lag_us > 0.5e6 * speed + tick_us:
+            if lag_us > CATCH_UP_SIM_S * 1e6 + tick_us:
                 stats.overruns += 1
                 wall0, sim0 = clock(), plant.time_us
         else:

@@ -8,7 +8,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl_plant.autopilot import Autopilot
 from sitl_plant.params import plant_params
-from sitl_plant.server import API, KEEPALIVE_S, Plant, PlantConfig, StreamSchedule, run_lockstep, run_realtime
+from sitl_plant.server import API, CATCH_UP_SIM_S, KEEPALIVE_S, TICK_S, Plant, PlantConfig, StreamSchedule, run_lockstep, run_realtime
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers import FakeClock
 
@@ -102,6 +102,32 @@ def test_real_time_drops_lag_when_it_cannot_keep_up():
     stats = run_realtime(plant, link, speed=1.0, stop=lambda: clock.now - start >= 3.0, clock=clock)  # type: ignore[arg-type]
     assert stats.overruns >= 1
     assert plant.time_s == pytest.approx(3.0 * 0.4, abs=0.05)  # as fast as it can: 0.4x
+
+
+def test_a_stalled_real_time_plant_slips_instead_of_running_a_burst():
+    """At --speed 4, a stall of half a second of the wall clock (the process starved): afterwards
+    the plant runs at most CATCH_UP_SIM_S of its time at once, then paces itself again (it ran
+    the whole 2 s it was behind as fast as it could, 0.7 s of it in 50 ms of wall once)."""
+    clock = FakeClock()
+    plant = make_plant(lockstep=False)
+    link = FakeLink(clock)
+    start = clock.now
+    real_advance = plant.advance
+    burst: list[float] = []  # the plant's time at each tick run without the wall clock moving
+
+    def advance(n: int) -> None:
+        if clock.now - start >= 1.0 and not burst:
+            clock.now += 0.5  # stalled for half a second, once
+        real_advance(n)
+        if clock.now - start >= 1.5:
+            burst.append(clock.now)
+
+    plant.advance = advance  # type: ignore[method-assign]
+    stats = run_realtime(plant, link, speed=4.0, stop=lambda: clock.now - start >= 2.0, clock=clock)  # type: ignore[arg-type]
+    at_once = max(burst.count(t) for t in set(burst))  # ticks run at one instant of the wall clock
+    assert at_once * TICK_S <= CATCH_UP_SIM_S + 2 * TICK_S
+    assert stats.overruns == 1
+    assert plant.time_s == pytest.approx(4.0 * 1.5, abs=CATCH_UP_SIM_S + 0.02)  # the half second of wall slipped
 
 
 def test_lockstep_advances_one_period_per_echo_and_drops_stale_answers():
