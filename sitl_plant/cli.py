@@ -202,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"sitl-plant: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C before the run loop takes SIGINT itself (numba's load, the files, the links)
+        print("sitl-plant: interrupted while starting", file=sys.stderr)
+        return 130
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -462,6 +462,35 @@ def test_sigint_exits_cleanly_and_keeps_the_log(start, tmp_path):
     assert heartbeats >= 3
 
 
+def test_ctrl_c_while_starting_is_one_line(tmp_path):
+    """Ctrl-C while the plant still starts, before its run loop takes SIGINT itself: one line and
+    exit 130, no traceback (it printed numba's loader's). The vehicle file is a FIFO, so the plant
+    is caught reading it, past its imports: our end opens once the plant has opened it."""
+    fifo = tmp_path / "vehicle.toml"
+    os.mkfifo(fifo)
+    plant = subprocess.Popen([sys.executable, "-m", "sitl_plant.cli", "--vehicle", str(fifo), "--api-bind", "127.0.0.1:0",
+                              "--api-remote", "none", "--gcs-bind", "none"], cwd=REPO, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    fd = None
+    try:
+        deadline = time.monotonic() + 60
+        while fd is None:
+            try:
+                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)  # ENXIO until a reader has it open
+            except OSError:
+                assert time.monotonic() < deadline and plant.poll() is None, "the plant never opened its vehicle file"
+                time.sleep(0.01)
+        plant.send_signal(signal.SIGINT)  # reading the file (we write nothing)
+        _, err = plant.communicate(timeout=30)
+    finally:
+        if fd is not None:
+            os.close(fd)
+        if plant.poll() is None:
+            plant.kill()
+            plant.communicate()
+    assert plant.returncode == 130 and err.strip() == "sitl-plant: interrupted while starting", err
+
+
 # --- bad input ------------------------------------------------------------------------------------------
 
 
