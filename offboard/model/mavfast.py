@@ -32,14 +32,11 @@ _U64 = struct.Struct("<Q")
 _SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
 
 
-_REVERSE16: list[int] = []  # bit-reversed 16-bit values, built on first use
-
-
 def x25crc(data: bytes) -> int:
-    """CRC-16/MCRF4XX (MAVLink's ``x25crc``) of ``data``, in C."""
-    if not _REVERSE16:
-        _REVERSE16.extend(int(f"{v:016b}"[::-1], 2) for v in range(1 << 16))
-    return _REVERSE16[binascii.crc_hqx(data.translate(_REVERSE8), 0xFFFF)]
+    """CRC-16/MCRF4XX (MAVLink's ``x25crc``) of ``data``, in C (the 16-bit result bit-reversed a
+    byte at a time: a table of all 65 536 took 30 ms of every process's start)."""
+    crc = binascii.crc_hqx(data.translate(_REVERSE8), 0xFFFF)
+    return _REVERSE8[crc & 0xFF] << 8 | _REVERSE8[crc >> 8]
 
 
 class _Packer:
