@@ -57,8 +57,8 @@ from sitl_plant.simulation import Model, PaperModel, VehicleSim, make_model
 TICK_S = 0.004  # real-time granularity: streams up to 250 Hz, setpoints applied within 4 ms
 KEEPALIVE_S = 0.25  # lockstep: wall-clock resend of heartbeat and telemetry while nobody answers
 #: Real time: how much simulation time a plant that fell behind the wall clock runs at once to
-#: catch up (s); a longer lag is dropped and the simulation's clock slips (an overrun). PX4's SIH
-#: never catches up (each period sleeps what is left of it, or not at all). Half a second of the
+#: catch up (s); a longer lag is dropped and the simulation's clock slips (an overrun). PX4 SIH's
+#: lockstep loop never catches up (sih.cpp: each period sleeps what is left of it, or not at all). Half a second of the
 #: wall clock, as here before, was two seconds of the vehicle's at --speed 4: a starved plant ran
 #: 0.7 s of its time in 50 ms of the wall's once, which no client sampling at 20 Hz can follow;
 #: 0.1 s is two of its samples at any speed.
