@@ -26,7 +26,7 @@ PX4_SPEED = 4
 
 @pytest.fixture(scope="module")
 def vehicles(tmp_path_factory):
-    """{"px4": (conn, sysid), "plant": (conn, sysid)}, both ready to arm."""
+    """{"px4": (conn, sysid), "plant": (conn, sysid), "px4_log": PX4's console log}, both ready to arm."""
     with running_px4(tmp_path_factory.mktemp("px4"), speed=PX4_SPEED) as px4:
         conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{px4.api_listen_port}", source_system=255, source_component=190)
         hb = conn.wait_heartbeat(timeout=30)
@@ -35,7 +35,7 @@ def vehicles(tmp_path_factory):
         try:
             quiet_streams(conn, hb.get_srcSystem())
             quiet_streams(plant_conn, 1)
-            yield {"px4": (conn, hb.get_srcSystem()), "plant": (plant_conn, 1)}
+            yield {"px4": (conn, hb.get_srcSystem()), "plant": (plant_conn, 1), "px4_log": px4.log}
         finally:
             stop_process(proc)
             plant_conn.close()
@@ -50,6 +50,22 @@ def on_both(vehicles, fly) -> dict:
     with ThreadPoolExecutor(2) as pool:
         futures = {name: pool.submit(fly, *vehicles[name]) for name in ("px4", "plant")}
         return {name: f.result() for name, f in futures.items()}
+
+
+def px4_console_size(vehicles) -> int:
+    log = vehicles["px4_log"]
+    return log.stat().st_size if log.exists() else 0
+
+
+def px4_console_since(vehicles, offset: int, lines: int = 40) -> str:
+    """The last ``lines`` of what PX4 printed on its console since ``offset`` (bytes)."""
+    log = vehicles["px4_log"]
+    if not log.exists():
+        return f"(no console log at {log})"
+    with log.open("rb") as f:
+        f.seek(offset)
+        text = f.read().decode(errors="replace")
+    return "\n".join(text.splitlines()[-lines:]) or "(nothing)"
 
 
 def mission_current(conn, timeout_s: float = 5.0, until=lambda seq_total: True):
@@ -240,6 +256,7 @@ def test_a_short_mission_reaches_the_same_items_on_both(vehicles, parity_finding
         assert MissionClient(conn, sysid).upload(short_mission(home_of(conn))).ack == 0
         return fly_mission(conn, sysid, timeout_s=60.0)
 
+    console_from = px4_console_size(vehicles)
     flights = on_both(vehicles, fly)
     summary = {}
     for name, f in flights.items():
@@ -258,7 +275,8 @@ def test_a_short_mission_reaches_the_same_items_on_both(vehicles, parity_finding
     parity_finding("mission.short.takeoff_s", f"{what}: take-off item reached (s)", px4["reached s"].get(1), plant["reached s"].get(1))
     parity_finding("mission.short.end_north", f"{what}: lands north of home (m)", px4["end north m"], plant["end north m"])
     parity_finding("mission.short.disarmed_s", f"{what}: arming to disarmed (s)", px4["disarmed s"], plant["disarmed s"])
-    assert px4["reached"] == [1, 2, 3]  # the takeoff (0) and the speed change (1) in one step: 1
+    # PX4 v1.16 sends no STATUSTEXT on this link: why it flew otherwise is in its console
+    assert px4["reached"] == [1, 2, 3], f"PX4 modes {flights['px4'].modes}; its console:\n{px4_console_since(vehicles, console_from)}"  # the takeoff (0) and the speed change (1) in one step: 1
     assert plant["reached"] == px4["reached"]
     assert plant["end north m"] == pytest.approx(px4["end north m"], abs=1.5)
     assert px4["disarmed s"] is not None and plant["disarmed s"] is not None
