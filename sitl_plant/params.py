@@ -167,6 +167,12 @@ def plant_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSp
     return sorted(own + published, key=lambda spec: spec.name)
 
 
+def horizontal_drag_n_s_m(vehicle: VehicleParams) -> float:
+    """The vehicle's linear drag as one number, as PX4 SIH publishes SIH_KDV: the mean of its body
+    x and y values (a tilt axis's drag near hover; the bundled vehicles' drag is isotropic)."""
+    return 0.5 * (vehicle.linear_drag_n_s_m[0] + vehicle.linear_drag_n_s_m[1])
+
+
 def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpec]:
     """The parameters the plant implements."""
     ixx, iyy, izz = vehicle.inertia_kg_m2
@@ -191,6 +197,8 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
         ParamSpec("SIM_THR_MAX", thr_max, read_only=True, unit="N", description="collective thrust at normalised thrust 1"),
         ParamSpec("SIM_TQ_RP_MAX", vehicle.max_roll_pitch_torque_nm, read_only=True, unit="N m", description="roll/pitch torque at normalised 1"),
         ParamSpec("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm, read_only=True, unit="N m", description="yaw torque at normalised 1"),
+        ParamSpec("SIM_KDV", horizontal_drag_n_s_m(vehicle), read_only=True, unit="N s/m",
+                  description="linear drag, horizontal (the vehicle file's linear_drag_n_s_m; PX4 SIH's SIH_KDV)"),
         # commander
         ParamSpec("COM_OF_LOSS_T", 1.0, min=0.0, max=60.0, unit="s", description="offboard-loss timeout"),
         ParamSpec("COM_OBL_RC_ACT", OBL_ACT_POSITION, INT, choices=tuple(range(8)),
@@ -308,3 +316,4 @@ def refresh_derived(table: ParamTable, vehicle: VehicleParams) -> None:
     table.force("SIM_THR_MAX", vehicle.max_thrust_n)
     table.force("SIM_TQ_RP_MAX", vehicle.max_roll_pitch_torque_nm)
     table.force("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm)
+    table.force("SIM_KDV", horizontal_drag_n_s_m(vehicle))

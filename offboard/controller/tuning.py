@@ -37,7 +37,7 @@ AUTOPILOT_PARAMS = (
 )  # fmt: skip
 #: sitl-plant's physical values.
 PLANT_PARAMS = ("SIM_THR_MAX", "SIM_TQ_RP_MAX", "SIM_TQ_Y_MAX", "SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY",
-                "SIM_IZZ", "SIM_KM_KF", "SIM_MOT_TAU")  # fmt: skip
+                "SIM_IZZ", "SIM_KM_KF", "SIM_MOT_TAU", "SIM_KDV")  # fmt: skip
 #: PX4 SIH's (its README: SIH_T_MAX is per rotor, CA_ROTOR_COUNT rotors).
 SIH_PARAMS = ("SIH_MASS", "SIH_T_MAX", "SIH_Q_MAX", "SIH_IXX", "SIH_IYY", "SIH_IZZ", "SIH_L_ROLL", "SIH_L_PITCH",
               "SIH_T_TAU", "SIH_KDV", "CA_ROTOR_COUNT")  # fmt: skip

@@ -108,6 +108,7 @@ VEHICLE_PARAMS = {
     "COM_OF_LOSS_T": "the vehicle's offboard-loss timeout (s)",
     "PAP_TO": "the paper inner loop's To (s)",
     "SIM_MOT_TAU": "motor time constant (s)",
+    "SIM_KDV": "linear drag (N s/m)",
     "SIH_MASS": "PX4 SIH vehicle mass (kg)",
     "SIH_T_MAX": "PX4 SIH thrust of one rotor at full throttle (N)",
 }
@@ -128,7 +129,7 @@ def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_gi
         if family == "SIH":
             optional = [n for n in SIH_PARAMS if n not in required] + optional
         elif family == "SIM":
-            optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", *optional]
+            optional = ["SIM_MASS", "SIM_ARM_LEN", "SIM_IXX", "SIM_IYY", "SIM_IZZ", "SIM_KM_KF", "SIM_KDV", *optional]
     elif choice.mass_from_vehicle:
         required.append(mass)
     if choice.tuned:
@@ -182,7 +183,7 @@ def resolve_controller(
             changes["inertia_kg_m2"] = (float(vehicle["SIM_IXX"]), float(vehicle["SIM_IYY"]), float(vehicle["SIM_IZZ"]))
         if "SIM_KM_KF" in vehicle:
             changes["drag_to_thrust_m"] = float(vehicle["SIM_KM_KF"])
-        if "SIM_KDV" in vehicle:  # PX4 SIH's linear drag (tuning.vehicle_values)
+        if "SIM_KDV" in vehicle:  # the linear drag: sitl-plant's, or PX4 SIH's SIH_KDV (tuning.vehicle_values)
             changes["linear_drag_n_s_m"] = float(vehicle["SIM_KDV"])
     if choice.sample_time_s is not None:
         changes["sample_time_s"] = float(choice.sample_time_s)

@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, load_controller
 from offboard.codec import Scaling
 from offboard.errors import LinkTimeout, LockstepMismatch, UserError
-from offboard.flight import ControllerChoice, Flight, FlightConfig, resolve_controller
+from offboard.flight import ControllerChoice, Flight, FlightConfig, params_to_read, resolve_controller
 from offboard.record import FlightStatus
 from offboard.trajectory.analytic import Line
 from sitl_plant.autopilot import Autopilot, Mode
@@ -440,6 +440,15 @@ def test_without_a_file_the_controller_believes_the_vehicle():
     assert params.drag_to_thrust_m == 0.02 and params.euler_rate_form == "zyx" and params.yaw_aware
     assert params.limits == ActionLimits(0.12 * 20.0, 20.0, math.radians(35.0))
     assert params.gains == PAPER.gains and any("SIM_MASS" in n for n in notes)
+
+
+def test_without_a_file_the_controller_believes_the_vehicles_drag():
+    """sitl-plant's SIM_KDV (PX4 SIH's SIH_KDV) is asked for and believed: px4-sih.toml's 1 N s/m."""
+    _, optional = params_to_read(ControllerChoice(base=PAPER), FlightConfig(), thrust_max_given=False)
+    assert "SIM_KDV" in optional
+    params, _ = resolve_controller(ControllerChoice(base=PAPER), "rigid-body", {**VEHICLE, "SIM_KDV": 1.0}, SC)
+    assert params.linear_drag_n_s_m == 1.0
+    assert resolve_controller(ControllerChoice(base=PAPER), "rigid-body", VEHICLE, SC)[0].linear_drag_n_s_m == 0.0
 
 
 def test_paper_model_defaults():
