@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import subprocess
 import sys
 import tempfile
@@ -43,6 +44,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4  # noqa: E402
+from offboard.controller.design import AxisGains, Design, EstimateErrorSpectra, axis_plants, noise_response, with_gains  # noqa: E402
+from offboard.controller.tuning import design_for_vehicle  # noqa: E402
 from offboard.controller.velocity import ConsistentVelocity, estimate_noise  # noqa: E402
 from offboard.missions import MISSIONS_DIR  # noqa: E402
 
@@ -56,6 +59,8 @@ EARTH_RADIUS_M = 6378137.0
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 HIL_STATE_QUATERNION_ID = 115
 LOCAL_POSITION_NED_ID = 32
+#: Welch segments of the error spectra (``error_spectra``): 256 samples at 20 Hz, 0.078 Hz apart
+SPECTRUM_SEGMENT_S = 12.8
 
 
 @dataclass
@@ -97,6 +102,30 @@ def record_ground_station(port: int, stop: threading.Event, record: GroundStatio
         link.close()
 
 
+def error_spectra(position_error: np.ndarray, velocity_error: np.ndarray, sample_time_s: float,
+                  segment_s: float = SPECTRUM_SEGMENT_S) -> EstimateErrorSpectra:  # fmt: skip
+    """Welch's estimate of one axis's error spectra (``design.EstimateErrorSpectra``) from errors
+    sampled every ``sample_time_s``: Hann windows of ``segment_s`` overlapping by half, each
+    segment's mean removed, one-sided densities per Hz (scipy.signal.welch and csd's scaling and
+    conventions)."""
+    p = np.asarray(position_error, dtype=float)
+    v = np.asarray(velocity_error, dtype=float)
+    n = int(round(segment_s / sample_time_s))
+    if len(p) < n or len(v) != len(p):
+        raise ValueError(f"{len(p)} error samples: too few for one {segment_s:g} s spectrum segment")
+    window = np.hanning(n + 1)[:-1]  # periodic Hann, as scipy's
+    scale = sample_time_s / np.sum(window**2)
+    starts = range(0, len(p) - n + 1, n // 2)
+    fp = np.array([np.fft.rfft(window * (p[k:k + n] - p[k:k + n].mean())) for k in starts])
+    fv = np.array([np.fft.rfft(window * (v[k:k + n] - v[k:k + n].mean())) for k in starts])
+    one_sided = np.full(fp.shape[1], 2.0)
+    one_sided[0] = 1.0
+    if n % 2 == 0:
+        one_sided[-1] = 1.0
+    density = lambda a, b: one_sided * scale * np.mean(np.conj(a) * b, axis=0)  # noqa: E731
+    return EstimateErrorSpectra(np.fft.rfftfreq(n, sample_time_s), density(fp, fp).real, density(fv, fv).real, density(fp, fv))
+
+
 def _unique(rows: list[tuple[float, ...]]) -> np.ndarray:
     a = np.asarray(rows, dtype=float).reshape(-1, 7)
     _, first = np.unique(a[:, 0], return_index=True)
@@ -114,10 +143,12 @@ def _velocity_read(pos: np.ndarray, vel: np.ndarray, t: np.ndarray, time_constan
 
 
 def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_position_s: float, sample_time_s: float,
-            identify: bool = False) -> dict:  # fmt: skip
+            identify: bool = False, design: Design | None = None) -> dict:  # fmt: skip
     """The figures of the module docstring from a flight's ground-station record and its series.csv
     (a structured array with t_s, time_boot_ms and euler_rad_0/1), the law's velocity filter
-    with T = ``velocity_from_position_s`` and ``identify`` as the flight's controller had them."""
+    with T = ``velocity_from_position_s`` and ``identify`` as the flight's controller had them;
+    with the flown ``design``, also the tilt and estimate error its loop makes of the errors
+    recorded (``predicted_noise``)."""
     est, tru = _unique(record.estimates), _unique(record.truths)
     if len(est) < 100 or len(tru) < 100:
         raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
@@ -169,6 +200,30 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
         "hold_velocity_read_error_rms_m_s": rms((read - tvel)[hold]),
         "hold_tilt_max_deg": round(float(tilt.max()), 3) if tilt.size else None,
         "hold_tilt_rms_deg": round(float(np.sqrt(np.mean(tilt**2))), 3) if tilt.size else None,
+        "predicted_noise": None if design is None else predicted_noise(
+            design, pos - tpos, vel - tvel, airborne, identified_s if identify else velocity_from_position_s),
+    }
+
+
+def predicted_noise(design: Design, position_error: np.ndarray, velocity_error: np.ndarray, airborne: np.ndarray,
+                    velocity_from_position_s: float) -> dict:  # fmt: skip
+    """What the flown design's loop makes of the estimator's errors over the airborne flight
+    (``design.noise_response`` on each tilt axis, the spectra by ``error_spectra``): the RMS tilt
+    (north with the pitch loop, east with the roll loop, and the two together as the tilt a hold
+    shows), the part of it the position error alone gives, and the RMS error of the estimate the
+    law holds against its reference."""
+    span = np.flatnonzero(airborne)
+    part = slice(span[0], span[-1] + 1)
+    north_plant, east_plant, _ = axis_plants(design.model, design.sample_time_s)
+    out = [noise_response(plant, axis.gains, design.sample_time_s,
+                          error_spectra(position_error[part, k], velocity_error[part, k], design.sample_time_s),
+                          velocity_from_position_s)
+           for k, (plant, axis) in enumerate(((north_plant, design.north), (east_plant, design.east)))]  # fmt: skip
+    return {
+        "tilt_rms_deg": [round(r.tilt_rms_deg, 3) for r in out],
+        "tilt_rms_both_deg": round(math.hypot(*(r.tilt_rms_deg for r in out)), 3),
+        "tilt_from_position_deg": [round(r.tilt_from_position_deg, 3) for r in out],
+        "estimate_error_rms_m": [round(r.estimate_error_rms_m, 4) for r in out],
     }
 
 
@@ -194,9 +249,23 @@ def fly(folder: Path, speed: float) -> dict:
     series = np.genfromtxt(run / "series.csv", delimiter=",", names=True)
     controller = summary["controller"]
     figures = compare(record, series, float(controller["velocity_from_position_s"]), float(controller["sample_time_s"]),
-                      bool(controller.get("velocity_from_position_identify", False)))
+                      bool(controller.get("velocity_from_position_identify", False)), flown_design(summary, flown.stderr))
     figures["speed"] = speed
     return figures
+
+
+def flown_design(summary: dict, stderr: str) -> Design:
+    """The design ``offboard fly`` flew (its summary's vehicle parameters and gains, and the
+    latency it said it designed for, predicted as the attitude output is by default)."""
+    said = re.search(r"latency (\d+(?:\.\d+)?) ms for the design", stderr)
+    latency_s = float(said.group(1)) / 1000.0 if said else 0.0
+    controller = summary["controller"]
+    design = design_for_vehicle(summary["vehicle_params"], sample_time_s=float(controller["sample_time_s"]),
+                                latency_s=latency_s, predict=True)  # fmt: skip
+    gains = controller["gains"]
+    flown = AxisGains(gains["kx1"], gains["kx2"], float(controller["tilt_lead"]), 0.0,
+                      float(controller["velocity_integral_gain_per_s2"]))  # fmt: skip
+    return with_gains(design, flown, design.vertical)
 
 
 def _axes(values: list[float], unit: str) -> str:
@@ -245,6 +314,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  EKF2 velocity error mean {_axes(f['hold_velocity_error_mean_m_s'], 'm/s')}")
     print(f"  the velocity the law reads: error RMS {_axes(f['hold_velocity_read_error_rms_m_s'], 'm/s')}")
     print(f"  tilt max {f['hold_tilt_max_deg']:.2f} deg, RMS {f['hold_tilt_rms_deg']:.2f} deg")
+    noise = f["predicted_noise"]
+    print("what the flown design's loop makes of the airborne errors above (design.noise_response):")
+    print(f"  tilt RMS north {noise['tilt_rms_deg'][0]:.2f}, east {noise['tilt_rms_deg'][1]:.2f}, both {noise['tilt_rms_both_deg']:.2f} deg "
+          f"(of it the position error alone: {noise['tilt_from_position_deg'][0]:.2f}, {noise['tilt_from_position_deg'][1]:.2f} deg)")
+    print(f"  estimate error RMS north {noise['estimate_error_rms_m'][0]:.3f}, east {noise['estimate_error_rms_m'][1]:.3f} m")
     return 0
 
 

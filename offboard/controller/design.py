@@ -37,8 +37,9 @@ hover, one axis at a time, and designs the law's per-sample gains for it:
 The law's extensions enter the same state space (``law_state_space``): the tilt lead (the
 attitude setpoint led past the measured angle, ``[law] tilt_lead``) and the optional integral
 action. ``design_gains`` searches (k_pos, k_vel) and the lead for the fastest closed loop
-(smallest spectral radius) that keeps stated margins (``MarginSpec``). Everything here is pure
-numpy: no I/O.
+(smallest spectral radius) that keeps stated margins (``MarginSpec``). ``noise_response`` says
+what the closed loop makes of an estimator's errors (the tilt a hold takes on PX4 SIH's EKF2,
+bench/px4_estimator.py). Everything here is pure numpy: no I/O.
 """
 
 from __future__ import annotations
@@ -744,6 +745,101 @@ def analyse_axis(plant: DiscretePlant, gains: AxisGains, sample_time_s: float) -
     gm, pm, dm = _margins(loop[None], w)
     return AxisAnalysis(gains, rho, settle, float(gm[0]), float(pm[0]), float(dm[0]),
                         tracking_lead_s2(plant, gains, to), poles, float(_sensitivity_peak(loop)))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class EstimateErrorSpectra:
+    """What an estimator's errors are, one horizontal axis: one-sided (cross-)spectral densities
+    of the position error n_p (m^2/Hz), the velocity error n_v ((m/s)^2/Hz) and their cross
+    spectrum E[conj(N_p) N_v] (m^2/s/Hz, complex: scipy.signal.csd's convention), at
+    ``frequencies_hz``, as the law samples them (every To, so what lies above its Nyquist
+    frequency is folded in). ``python bench/px4_estimator.py`` measures them for PX4 SIH's EKF2
+    against SIH's truth."""
+
+    frequencies_hz: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    cross: np.ndarray
+
+
+@dataclass(frozen=True)
+class NoiseResponse:
+    """RMS of what an estimator's errors make of one axis (``noise_response``): the tilt the
+    vehicle takes (deg) and the error of the estimate the law holds against its reference (m), with
+    the part of each that the position error and the velocity error alone would give."""
+
+    tilt_rms_deg: float
+    estimate_error_rms_m: float
+    tilt_from_position_deg: float
+    tilt_from_velocity_deg: float
+
+
+def velocity_read_transfer(sample_time_s: float, w: np.ndarray, velocity_from_position_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The error of the velocity the law reads per unit of position error and per unit of velocity
+    error, at ``w`` (rad/s): ``C (1 - z^-1) / To`` and ``1 - C (1 + z^-1) / 2`` with ``C = K / (1 -
+    (1 - K) z^-1)``, ``K = To / (T + To)`` (``offboard.controller.velocity.ConsistentVelocity``
+    with T = ``velocity_from_position_s``; 0: none, the velocity as measured)."""
+    to = sample_time_s
+    z = np.exp(1j * np.asarray(w, dtype=float) * to)
+    k = to / (velocity_from_position_s + to) if velocity_from_position_s > 0.0 else 0.0
+    c = k / (1.0 - (1.0 - k) / z)
+    return c * (1.0 - 1.0 / z) / to, 1.0 - c * (1.0 + 1.0 / z) / 2.0
+
+
+def noise_transfer(plant: DiscretePlant, gains: AxisGains, sample_time_s: float, w: np.ndarray,
+                   velocity_from_position_s: float = 0.0) -> dict[str, np.ndarray]:  # fmt: skip
+    """The closed loop's frequency responses from the estimate's errors to the tilt (rad per m,
+    rad per m/s) and to the estimate's own error against its reference (per m, per m/s), at ``w``
+    (rad/s): keys ``tilt_p``, ``tilt_v``, ``error_p``, ``error_v``.
+
+    The law reads p + n_p and the velocity its filter makes of v + n_v (``[law]
+    velocity_from_position_s`` = T, ``offboard.controller.velocity``; 0: v + n_v as measured)::
+
+        v_read = v + n_v + C(z) ((1 - z^-1) / To n_p - (1 + z^-1) / 2 n_v),  C = K / (1 - (1 - K) z^-1),  K = To / (T + To)
+
+    (the filter hands on the true state unchanged: its correction is the estimates' inconsistency,
+    which their errors alone make). The errors enter where the law reads its input, so with a
+    predicted plant their prediction over the latency is left out (Mx ~ I for a latency far below
+    the loop's time constants: 11 ms on PX4 SITL's loopback). The estimate's error is p + n_p - r.
+    """
+    to = sample_time_s
+    m, _ = closed_loop(plant, gains, to)
+    law = law_state_space(gains, to, drag_per_s=plant.drag_per_s)
+    n = plant.phi.shape[0]
+    size = m.shape[-1]
+    noise_in = np.concatenate([plant.gamma @ law["d"], law["b"]], axis=0)  # (size, 3) per unit of (p, v, tilt) read
+    z = np.exp(1j * np.asarray(w, dtype=float) * to)
+    v_per_p, v_per_v = velocity_read_transfer(to, w, velocity_from_position_s)
+    zero = np.zeros_like(z)
+    read_p = np.stack([np.ones_like(z), v_per_p, zero], axis=-1)  # per unit n_p: the (p, v, tilt) read
+    read_v = np.stack([zero, v_per_v, zero], axis=-1)  # per unit n_v
+    resolvent = z[:, None, None] * np.eye(size)[None] - m[None]
+    x = np.linalg.solve(resolvent, noise_in[None] @ np.stack([read_p, read_v], axis=-1))  # (len(w), size, 2)
+    tilt = np.einsum("i,wij->wj", plant.c[2], x[:, :n])
+    pos = np.einsum("i,wij->wj", plant.c[0], x[:, :n])
+    return {"tilt_p": tilt[:, 0], "tilt_v": tilt[:, 1], "error_p": pos[:, 0] + 1.0, "error_v": pos[:, 1]}
+
+
+def noise_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float, spectra: EstimateErrorSpectra,
+                   velocity_from_position_s: float = 0.0) -> NoiseResponse:  # fmt: skip
+    """The RMS tilt and estimate error that errors of ``spectra`` make of the closed loop
+    (``noise_transfer``): the integral over frequency of |H_p|^2 S_pp + |H_v|^2 S_vv + 2 Re(conj(H_p)
+    H_v S_pv) over frequency, S_pv = E[conj(N_p) N_v]."""
+    f = np.asarray(spectra.frequencies_hz, dtype=float)
+    keep = (f > 0.0) & (f < 0.5 / sample_time_s)
+    f = f[keep]
+    spp, svv, spv = (np.asarray(a)[keep] for a in (spectra.position, spectra.velocity, spectra.cross))
+    h = noise_transfer(plant, gains, sample_time_s, 2.0 * math.pi * f, velocity_from_position_s)
+    df = float(np.mean(np.diff(f))) if len(f) > 1 else 0.0
+
+    def rms(hp: np.ndarray, hv: np.ndarray, with_p: bool = True, with_v: bool = True) -> float:
+        density = (with_p * np.abs(hp) ** 2 * spp + with_v * np.abs(hv) ** 2 * svv
+                   + (with_p and with_v) * 2.0 * np.real(np.conj(hp) * hv * spv))  # fmt: skip
+        return math.sqrt(max(float(np.sum(density)) * df, 0.0))
+
+    return NoiseResponse(math.degrees(rms(h["tilt_p"], h["tilt_v"])), rms(h["error_p"], h["error_v"]),
+                         math.degrees(rms(h["tilt_p"], h["tilt_v"], with_v=False)),
+                         math.degrees(rms(h["tilt_p"], h["tilt_v"], with_p=False)))  # fmt: skip
 
 
 def pd_analysis(plant: DiscretePlant, k_pos_s2: float, k_vel_s: float, sample_time_s: float) -> tuple[float, float, float, float]:

@@ -92,3 +92,48 @@ def test_the_record_identifies_a_time_constant_and_reads_with_it():
     assert ident["velocity_read_error_rms_m_s"][0] < 0.3 / 2
     assert f["velocity_from_position_identify"] is True
     assert f["velocity_read_error_rms_m_s"][0] < 0.3 / 2  # the flight's filter, identifying, removed it too
+
+
+def test_the_error_spectra_hold_the_errors_variance_and_their_phase():
+    """Welch's densities integrate to the variance (Parseval); a velocity error a quarter period
+    behind the position error has a cross spectrum at that line whose phase says so."""
+    from bench.px4_estimator import error_spectra
+
+    rng = np.random.default_rng(7)
+    to = 0.05
+    white = rng.normal(0.0, 0.02, 4000)
+    t = np.arange(4000) * to
+    w = 2 * np.pi * 1.25  # on a bin: 16 cycles a 12.8 s segment
+    line_p, line_v = 0.03 * np.cos(w * t), 0.03 * np.sin(w * t)  # v lags p by 90 deg: V = -j P
+    sp = error_spectra(white, line_v, to)
+    df = sp.frequencies_hz[1] - sp.frequencies_hz[0]
+    assert np.sum(sp.position) * df == pytest.approx(np.var(white), rel=0.05)
+    assert np.sum(sp.velocity) * df == pytest.approx(0.03**2 / 2, rel=0.02)
+    lines = error_spectra(line_p, line_v, to)
+    k = int(np.argmax(lines.position))
+    assert lines.frequencies_hz[k] == pytest.approx(1.25)
+    assert np.angle(lines.cross[k]) == pytest.approx(-np.pi / 2, abs=1e-6)  # E[conj(P) V] of V = -j P
+    with pytest.raises(ValueError, match="too few"):
+        error_spectra(white[:100], white[:100], to)
+
+
+def test_the_flown_designs_loop_is_handed_the_recorded_errors():
+    """A position error of one line (3 cm at 0.5 Hz, on a bin of the spectra) and no velocity
+    error: the predicted north tilt is that line through design.noise_transfer, east none; no
+    design, no prediction."""
+    from offboard.controller.design import axis_plants, noise_transfer
+    from offboard.controller.tuning import design_for_vehicle
+
+    design = design_for_vehicle({"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_IXX": 0.025, "SIH_IYY": 0.025, "SIH_IZZ": 0.03,
+                                 "SIH_L_ROLL": 0.2, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0}, sample_time_s=0.05)  # fmt: skip
+    w = 2 * math.pi * 0.625  # 8 cycles a 12.8 s segment
+    record = _record(lambda s: 0.03 * math.sin(w * s), 0.0, seconds=60.0)
+    f = compare(record, _series(60.0), velocity_from_position_s=0.5, sample_time_s=0.05, design=design)
+    h = noise_transfer(axis_plants(design.model, 0.05)[0], design.north.gains, 0.05, np.array([w]), 0.5)
+    noise = f["predicted_noise"]
+    # the Hann window spreads the line over three bins, and the velocity the record's truth and
+    # estimate share is consistent: within a few per cent of the line's own response
+    assert noise["tilt_rms_deg"][0] == pytest.approx(math.degrees(0.03 / math.sqrt(2) * abs(h["tilt_p"][0])), rel=0.05)
+    assert noise["tilt_rms_deg"][1] < 1e-3 and noise["tilt_rms_both_deg"] == pytest.approx(noise["tilt_rms_deg"][0], rel=1e-3)
+    assert noise["estimate_error_rms_m"][0] == pytest.approx(0.03 / math.sqrt(2) * abs(h["error_p"][0]), rel=0.05)
+    assert compare(record, _series(60.0), 0.5, 0.05)["predicted_noise"] is None
