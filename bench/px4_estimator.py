@@ -213,6 +213,8 @@ def predicted_noise(design: Design, position_error: np.ndarray, velocity_error: 
     shows), the part of it the position error alone gives, and the RMS error of the estimate the
     law holds against its reference."""
     span = np.flatnonzero(airborne)
+    if span.size == 0:
+        raise ValueError("the record has no airborne sample: no spectra of the estimator's errors")
     part = slice(span[0], span[-1] + 1)
     north_plant, east_plant, _ = axis_plants(design.model, design.sample_time_s)
     out = [noise_response(plant, axis.gains, design.sample_time_s,

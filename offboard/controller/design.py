@@ -765,8 +765,8 @@ class EstimateErrorSpectra:
 @dataclass(frozen=True)
 class NoiseResponse:
     """RMS of what an estimator's errors make of one axis (``noise_response``): the tilt the
-    vehicle takes (deg) and the error of the estimate the law holds against its reference (m), with
-    the part of each that the position error and the velocity error alone would give."""
+    vehicle takes (deg) and the error of the estimate the law holds against its reference (m), and
+    the tilt the position error alone and the velocity error alone would give (deg)."""
 
     tilt_rms_deg: float
     estimate_error_rms_m: float
@@ -824,7 +824,8 @@ def noise_response(plant: DiscretePlant, gains: AxisGains, sample_time_s: float,
                    velocity_from_position_s: float = 0.0) -> NoiseResponse:  # fmt: skip
     """The RMS tilt and estimate error that errors of ``spectra`` make of the closed loop
     (``noise_transfer``): the integral over frequency of |H_p|^2 S_pp + |H_v|^2 S_vv + 2 Re(conj(H_p)
-    H_v S_pv) over frequency, S_pv = E[conj(N_p) N_v]."""
+    H_v S_pv), S_pv = E[conj(N_p) N_v] (the bins between 0 Hz and the law's Nyquist frequency, both
+    left out)."""
     f = np.asarray(spectra.frequencies_hz, dtype=float)
     keep = (f > 0.0) & (f < 0.5 / sample_time_s)
     f = f[keep]
