@@ -289,7 +289,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"px4_estimator: {exc}", file=sys.stderr)
             return 1
     if args.json:
-        print(json.dumps(f, allow_nan=False))
+        try:
+            print(json.dumps(f, allow_nan=False))
+        except ValueError as exc:  # a figure not finite: strict JSON has no NaN
+            print(f"px4_estimator: a figure is not a finite number ({exc}): no JSON written", file=sys.stderr)
+            return 1
         return 0
     print(f"PX4 SIH helix at --speed {args.speed:g}, EKF2's LOCAL_POSITION_NED against SIH's truth (HIL_STATE_QUATERNION)")
     print(f"airborne ({f['airborne_samples']} samples): position error RMS {_axes(f['position_error_rms_m'], 'm')}")

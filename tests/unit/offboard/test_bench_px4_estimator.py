@@ -137,3 +137,13 @@ def test_the_flown_designs_loop_is_handed_the_recorded_errors():
     assert noise["tilt_rms_deg"][1] < 1e-3 and noise["tilt_rms_both_deg"] == pytest.approx(noise["tilt_rms_deg"][0], rel=1e-3)
     assert noise["estimate_error_rms_m"][0] == pytest.approx(0.03 / math.sqrt(2) * abs(h["error_p"][0]), rel=0.05)
     assert compare(record, _series(60.0), 0.5, 0.05)["predicted_noise"] is None
+
+
+def test_a_figure_that_is_not_finite_is_one_line_not_json_with_nan(monkeypatch, capsys):
+    import bench.px4_estimator as px4_estimator
+
+    monkeypatch.setattr(px4_estimator, "px4_launcher", lambda: "px4")
+    monkeypatch.setattr(px4_estimator, "fly", lambda folder, speed: {"truth_lag_s": float("nan")})
+    assert px4_estimator.main(["--json"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith("px4_estimator: a figure is not a finite number") and len(err.splitlines()) == 1

@@ -8,7 +8,6 @@ cycle the issue measured), and the designed gains' margins.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 
 import numpy as np
@@ -45,23 +44,14 @@ from offboard.controller.params import ActionLimits
 from offboard.controller.tuning import vehicle_values
 from sitl_plant.params import plant_params
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
-from helpers import SHARED
+from helpers import sih_params
 
-PX4_PARAMS_JSON = SHARED / "px4-sitl" / "params.json"
 TO = 0.05
 
 
 def plant_vehicle_params() -> dict[str, float]:
     table = plant_params(load_vehicle(PAPER_VEHICLE_FILE))
     return {name: table[name] for name in table}
-
-
-def sih_params() -> dict[str, float]:
-    """PX4 SIH's published values (its README), as a vehicle publishes them."""
-    if PX4_PARAMS_JSON.is_file():
-        return {k: float(v["value"]) for k, v in json.loads(PX4_PARAMS_JSON.read_text()).items()}
-    return {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_IXX": 0.025, "SIH_IYY": 0.025, "SIH_IZZ": 0.03, "SIH_L_ROLL": 0.2,
-            "SIH_L_PITCH": 0.2, "SIH_T_TAU": 0.05, "MC_ROLL_P": 6.5, "MC_PITCH_P": 6.5}  # fmt: skip
 
 
 def simulate(a: np.ndarray, b: np.ndarray, inputs: np.ndarray, to: float, latency: float, steps: int = 2000) -> np.ndarray:

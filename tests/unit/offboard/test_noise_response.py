@@ -4,7 +4,6 @@ velocity filter's part against ``ConsistentVelocity`` itself."""
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -21,18 +20,13 @@ from offboard.controller.design import (
 )
 from offboard.controller.tuning import design_for_vehicle
 from offboard.controller.velocity import ConsistentVelocity
-from helpers import SHARED
+from helpers import sih_params
 
 TO = 0.05
-PX4_PARAMS_JSON = SHARED / "px4-sitl" / "params.json"
 
 
 def sih_design():
-    if PX4_PARAMS_JSON.is_file():
-        params = {k: float(v["value"]) for k, v in json.loads(PX4_PARAMS_JSON.read_text()).items()}
-    else:  # PX4 SIH's published values (its README)
-        params = {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_IXX": 0.025, "SIH_IYY": 0.025, "SIH_IZZ": 0.03, "SIH_L_ROLL": 0.2,
-                  "SIH_L_PITCH": 0.2, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0, "MC_ROLL_P": 6.5, "MC_PITCH_P": 6.5}  # fmt: skip
+    params = {**sih_params(), "SIH_KDV": 1.0}  # its drag (params.json has it; the README's list without the file does not)
     design = design_for_vehicle(params, sample_time_s=TO, latency_s=0.011, predict=True)
     return axis_plants(design.model, TO)[0], design.north.gains
 

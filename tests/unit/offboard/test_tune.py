@@ -18,6 +18,7 @@ from offboard.demo import free_udp_ports, stop_process
 from sitl_plant.params import plant_params
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers.flights import ENV, PY
+from helpers import PX4_PARAMS_JSON
 
 
 def plant_values() -> dict[str, float]:
@@ -142,7 +143,6 @@ def test_margin_spec_defaults_are_the_documented_ones():
 
 
 DOC = PAPER_VEHICLE_FILE.parents[2] / "docs" / "controller-design.md"
-PX4_PARAMS_JSON = PAPER_VEHICLE_FILE.parents[3] / "shared" / "px4-sitl" / "params.json"
 
 
 def doc_blocks() -> list[str]:

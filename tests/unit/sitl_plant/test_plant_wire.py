@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import struct
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -15,8 +14,8 @@ from sitl_plant.autopilot import Autopilot
 from sitl_plant.params import INT, plant_params, px4_published
 from sitl_plant.server import API, GCS, STREAMS, Plant, PlantConfig
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
+from helpers import PX4_PARAMS_JSON
 
-PX4_PARAMS_JSON = Path(__file__).resolve().parents[4] / "shared" / "px4-sitl" / "params.json"
 
 #: PX4 v1.16 SITL's message types per link, as a common.xml client names them (measured with
 #: pymavlink's common.xml on the bundled PX4; UNKNOWN_411, CURRENT_EVENT_SEQUENCE, left out: the
