@@ -348,16 +348,18 @@ def land_params() -> tuple[int, tuple[float, ...]]:
 #: The streams ``offboard fly`` samples: asked for at its telemetry rate (a multiple of 1/To).
 SAMPLED_STREAMS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
 #: Streams it reads and leaves at the vehicle's rate: HEARTBEAT (mode, armed), EXTENDED_SYS_STATE
-#: (the landed state that ends the landing), HOME_POSITION (mission alignment, replay).
+#: (the landed state that ends the landing), HOME_POSITION (mission alignment, replay),
+#: SYS_STATUS (sensor health, reported) and ESTIMATOR_STATUS (what the estimate is good for:
+#: ``offboard.flight.guards``).
 KEPT_STREAMS = (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
-                mavlink.MAVLINK_MSG_ID_HOME_POSITION)  # fmt: skip
+                mavlink.MAVLINK_MSG_ID_HOME_POSITION, mavlink.MAVLINK_MSG_ID_SYS_STATUS,
+                mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS)  # fmt: skip
 #: PX4 v1.16's default streams on an onboard link (``configure_streams_to_default``,
 #: MAVLINK_MODE_ONBOARD, as measured on its SITL: docs/parity/wire.md) that ``offboard fly`` never
 #: reads: switched off with MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do. TIMESYNC is
 #: PX4's own requests (tc1 = 0); the answers to ours come from its receiver, not this stream.
 UNREAD_STREAMS = (
     8,  # LINK_NODE_STATUS (PX4's development dialect)
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
     mavlink.MAVLINK_MSG_ID_PING,
     mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE,
@@ -374,7 +376,6 @@ UNREAD_STREAMS = (
     mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR,
     mavlink.MAVLINK_MSG_ID_ALTITUDE,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS,
-    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
     mavlink.MAVLINK_MSG_ID_VIBRATION,
     mavlink.MAVLINK_MSG_ID_ODOMETRY,
     380,  # TIME_ESTIMATE_TO_TARGET (PX4's development dialect)

@@ -34,7 +34,8 @@ class FlightStatus(enum.Enum):
     MODE_CHANGED = "mode_changed"  # someone else took the vehicle out of OFFBOARD
     REJECTED = "rejected"  # a command was refused
     INTERRUPTED = "interrupted"  # Ctrl-C: landed and disarmed on request
-    LOST_TRACK = "lost_track"  # flown to the end, but ended far off the reference (metrics.LOST_TRACK_M)
+    LOST_TRACK = "lost_track"  # far off the reference and not closing in flight, or at the end (metrics.LOST_TRACK_M)
+    ESTIMATE_LOST = "estimate_lost"  # the vehicle's estimator stopped vouching for what the law reads (flight.guards)
     INCOMPLETE = "incomplete"  # replay: the log ends before the mission does (cut short, stopped early)
 
     @property
@@ -49,6 +50,7 @@ class FlightStatus(enum.Enum):
             FlightStatus.REJECTED: 8,
             FlightStatus.LOST_TRACK: 9,
             FlightStatus.INCOMPLETE: 10,
+            FlightStatus.ESTIMATE_LOST: 11,
             FlightStatus.INTERRUPTED: 130,
         }[self]
 

@@ -5,8 +5,9 @@ Against ``sitl-plant`` or a PX4 SITL, exactly as MAVSDK users fly PX4: listen on
 stream setpoints, switch to OFFBOARD, arm, fly, land, disarm. See docs/offboard.md.
 
 Exit code: ``FlightStatus.exit_code`` (0 complete, 3 diverged, 4 NaN command, 5 link lost,
-6 failsafe, 7 mode changed, 8 command rejected, 9 lost track, 130 interrupted); 2 for a bad
-argument or file, no vehicle at all, or a vehicle whose clock runs at another rate than ours.
+6 failsafe, 7 mode changed, 8 command rejected, 9 lost track, 11 estimate lost, 130
+interrupted); 2 for a bad argument or file, no vehicle at all, or a vehicle whose clock runs at
+another rate than ours.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
-from offboard.metrics import check_tracking, format_table, summarize
+from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.model.clihelp import HelpFormatter
 from offboard.model.paths import output_folder
@@ -80,6 +81,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="leave on the vehicle's streams we never read (default: switched off with "
                            "MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do)")
     link.add_argument("--land-timeout", type=float, default=60.0, metavar="S", help="wall-clock limit for the landing")
+    guard = parser.add_argument_group("when the vehicle is handed to its own landing")
+    guard.add_argument("--lost-track-m", type=float, default=LOST_TRACK_M, metavar="M",
+                       help=f"when the 3D error stays above M for {LOST_TRACK_WINDOW_S:g} s and does not shrink (LOST_TRACK, "
+                            f"exit 9; default {LOST_TRACK_M:g}; inf: never)")
+    guard.add_argument("--ignore-estimator", action="store_true",
+                       help="fly on when the vehicle's ESTIMATOR_STATUS stops vouching for its attitude, velocity or "
+                            "position (default: ESTIMATE_LOST, exit 11)")
     ctl = parser.add_argument_group("controller")
     ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
@@ -137,6 +145,8 @@ def _check(args: argparse.Namespace) -> None:
         raise FlyArgumentError(f"--design-latency: must be a latency in [0, 10) s, got {args.design_latency}")
     if args.thrust_min is not None and not (math.isfinite(args.thrust_min) and 0 <= args.thrust_min < 1):
         raise FlyArgumentError(f"--thrust-min: must be a fraction in [0, 1), got {args.thrust_min}")
+    if not args.lost_track_m > 0:  # inf: never; NaN is not > 0
+        raise FlyArgumentError(f"--lost-track-m: must be > 0 (inf: never), got {args.lost_track_m}")
     if args.tilt_max_deg is not None and not (math.isfinite(args.tilt_max_deg) and args.tilt_max_deg > 0):
         raise FlyArgumentError(f"--tilt-max-deg: must be > 0 (90 or more: no limit), got {args.tilt_max_deg}")
     for name in ("sysid", "compid", "target_system"):
@@ -256,6 +266,8 @@ def run(args: argparse.Namespace) -> int:
         land_timeout_s=args.land_timeout,
         telemetry_rate_hz=AUTO_TELEMETRY_RATE if args.telemetry_rate is None else (args.telemetry_rate or None),
         unread_streams_off=not args.keep_streams,
+        lost_track_m=args.lost_track_m,
+        watch_estimator=not args.ignore_estimator,
         target_system=args.target_system,
         connect=args.connect,
     )

@@ -13,6 +13,7 @@ from enum import StrEnum
 from typing import Protocol
 
 from offboard.codec import OUTPUTS, SetpointOutput
+from offboard.metrics import LOST_TRACK_M
 from offboard.model.vehicle import VEHICLE_MODELS, VehicleModel
 from offboard.record import FlightStatus
 from pymavlink.dialects.v20 import common as mavlink
@@ -91,6 +92,12 @@ class FlightConfig:
         Switch off (MAV_CMD_SET_MESSAGE_INTERVAL -1) PX4's default streams we never read
         (``codec.UNREAD_STREAMS``), as PX4's clients do: the vehicle then neither builds nor sends
         them, and we neither parse nor log them.
+    lost_track_m : float
+        In flight: LOST_TRACK when the 3D error stays above this through
+        ``metrics.LOST_TRACK_WINDOW_S`` and does not shrink (``guards.TrackGuard``; inf: never).
+    watch_estimator : bool
+        ESTIMATE_LOST when the vehicle's ESTIMATOR_STATUS stops vouching for what the law reads
+        (``guards.EstimatorGuard``).
     target_system : int or None
         Fly this system id (None: the first autopilot heard).
     connect : str
@@ -112,6 +119,8 @@ class FlightConfig:
     land_timeout_s: float = 60.0
     telemetry_rate_hz: float | str | None = AUTO_TELEMETRY_RATE
     unread_streams_off: bool = True
+    lost_track_m: float = LOST_TRACK_M
+    watch_estimator: bool = True
     target_system: int | None = None
     connect: str = ""
 
@@ -127,6 +136,8 @@ class FlightConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be > 0, got {value}")
+        if not self.lost_track_m > 0:  # inf is allowed: never
+            raise ValueError(f"lost_track_m must be > 0, got {self.lost_track_m}")
         if self.command_attempts < 1 or self.param_attempts < 1 or self.prestream_samples < 1:
             raise ValueError("attempts and prestream_samples must be >= 1")
         rate = self.telemetry_rate_hz

@@ -27,7 +27,9 @@ telemetry timeout and not back within the reconnect timeout, or back after the v
 OFFBOARD; setpoints stop while it is stale and resume if it comes back in OFFBOARD); FAILSAFE or
 MODE_CHANGED (the vehicle left OFFBOARD: we stop commanding at once); REJECTED (a command
 refused or never acknowledged: ``CommandRejected``); NAN_COMMAND and DIVERGED (the output is
-never sent; the vehicle is told to land); INTERRUPTED (Ctrl-C: land, disarm).
+never sent; the vehicle is told to land); LOST_TRACK and ESTIMATE_LOST in flight (``guards``:
+off the reference and not closing, or the vehicle's estimator no longer vouching for what the
+law reads; the vehicle is told to land); INTERRUPTED (Ctrl-C: land, disarm).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
+from offboard.flight.guards import EstimatorGuard, TrackGuard, sensor_health_changes
 from offboard.flight.protocol import VehicleClient
 from offboard.flight.sampler import LoopStats, Sampler
 from offboard.flight.supervisor import Supervisor
@@ -65,7 +68,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
-MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
+MAX_HOME_OFFSET_M = 1000.0
+#: Ends of a guard (``flight.guards``): the vehicle is handed to its own landing.
+GUARD_ENDS = (FlightStatus.LOST_TRACK, FlightStatus.ESTIMATE_LOST)  # a mission's home farther than this from the vehicle's is refused
 
 # --- results -------------------------------------------------------------------------------------
 
@@ -184,6 +189,11 @@ class Flight:
         # the parts: the telemetry's freshness and the vehicle's mode and arming; the samples; the
         # vehicle's protocol and what it has told us
         self.supervisor = Supervisor(self.config, self._say)
+        # the vehicle's flying: on its reference, and its estimator still vouching for the estimate
+        self.track_guard = TrackGuard(self.config.lost_track_m) if math.isfinite(self.config.lost_track_m) else None
+        self.estimator_guard = EstimatorGuard() if self.config.watch_estimator else None
+        self._sensor_health: dict[str, bool] | None = None
+        self._mission_t_s = 0.0  # mission time of the latest sample
         to = choice.sample_time_s if choice.sample_time_s is not None else choice.base.sample_time_s
         self.sampler = Sampler(link, self.config, to, clock, self.supervisor)
         self.client = VehicleClient(link, self.config, clock, self._pump, self._say, self.sampler.boot_ms)
@@ -227,17 +237,23 @@ class Flight:
             self.sampler.mission_done = True  # whatever happens next is not part of the mission's record
             if status in (FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED):
                 self.sampler.source = None  # never send that output again
-            if status in (FlightStatus.COMPLETE, FlightStatus.INTERRUPTED, FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED) or (
-                status is FlightStatus.REJECTED and self.armed_by_us
-            ):
+            elif status in GUARD_ENDS:
+                self.sampler.source = self._level_source  # the law no longer flies it: level, hover thrust
+            if status in (FlightStatus.COMPLETE, FlightStatus.INTERRUPTED, FlightStatus.NAN_COMMAND, FlightStatus.DIVERGED,
+                          *GUARD_ENDS) or (status is FlightStatus.REJECTED and self.armed_by_us):  # fmt: skip
                 land_status, land_detail = self._land_and_disarm()
-                if land_status is not None and status is FlightStatus.COMPLETE:
-                    status, detail = land_status, land_detail
+                if land_status is not None:
+                    if status is FlightStatus.COMPLETE:
+                        status, detail = land_status, land_detail
+                    else:
+                        detail = f"{detail}; then the landing failed: {land_detail}"
         except KeyboardInterrupt:  # a second Ctrl-C: stop waiting at once
             status = FlightStatus.INTERRUPTED
             detail = (detail + "; " if detail else "") + "second interrupt: stopped waiting for the landing"
         if status is FlightStatus.INTERRUPTED and not detail:
             detail = "interrupted by the user"
+        if self.estimator_guard is not None and not self.estimator_guard.heard and self.sampler.mission_started:
+            self._note("the vehicle sent no ESTIMATOR_STATUS during the mission: its estimator was not watched")
         loop = self.sampler.finish()
         identified = getattr(getattr(self.controller, "velocity", None), "noise", None)
         if identified is not None:
@@ -557,6 +573,14 @@ class Flight:
             self._on_telemetry(msg)
         elif kind == "HEARTBEAT":
             self._on_heartbeat(msg)
+        elif kind == "ESTIMATOR_STATUS":
+            self._on_estimator_status(int(msg.flags))
+        elif kind == "SYS_STATUS":
+            self._sensor_health, changes = sensor_health_changes(self._sensor_health, int(msg.onboard_control_sensors_present),
+                                                                 int(msg.onboard_control_sensors_enabled),
+                                                                 int(msg.onboard_control_sensors_health))  # fmt: skip
+            for line in changes:
+                self._note(f"vehicle: {line}")
         else:
             client.handle(msg)
 
@@ -578,8 +602,20 @@ class Flight:
             self.supervisor.telemetry_back(now)
             if self.controller is not None and sampler.mission_started:
                 self.controller.reset()  # its memory is a gap old: restart it from the measured state
+                if self.track_guard is not None:
+                    self.track_guard.reset()
         self._lockstep_sample_if_due()
         sampler.vehicle_clock_sample_if_due()
+
+    def _on_estimator_status(self, flags: int) -> None:
+        """ESTIMATE_LOST when, during the mission, the estimator stops vouching for what the law reads."""
+        guard = self.estimator_guard
+        if guard is None:
+            return
+        why = guard.update(flags)
+        sampler = self.sampler
+        if why and sampler.mission_started and not sampler.mission_done and self.supervisor.expect_armed:
+            raise FlightEnd(FlightStatus.ESTIMATE_LOST, f"at t = {self._mission_t_s:.2f} s {why}: handed to the vehicle's landing")
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         status = self.client.on_heartbeat(msg)
@@ -624,6 +660,14 @@ class Flight:
                                     tuple(float(v) for v in measured.pos_ned_m), math.nan))  # type: ignore[arg-type]
         return self._setpoint_message(codec.hold_setpoint(measured.euler_rad, thrust), measured.time_boot_ms)
 
+    def _level_source(self, measured: MeasuredState) -> mavlink.MAVLink_message:
+        """After a guard ended the mission, until the vehicle's landing takes over: level at the
+        heading flown, hover thrust (what the law's estimate or reference can no longer give)."""
+        assert self.params is not None and self.scaling is not None
+        thrust = self.params.mass_kg * self.params.gravity_m_s2 / self.scaling.thrust_max_n
+        level = np.array([0.0, 0.0, float(measured.euler_rad[2])])
+        return self._setpoint_message(codec.hold_setpoint(level, thrust), measured.time_boot_ms)
+
     def _mission_source(self, measured: MeasuredState) -> mavlink.MAVLink_message | None:
         """One sample of the mission: the same computation as ``run_scenario``'s, from telemetry."""
         assert self.controller is not None and self.params is not None and self.scaling is not None
@@ -632,6 +676,7 @@ class Flight:
         if not sampler.mission_started:
             self._say_start(measured)
         n, t = sampler.mission_sample(now)
+        self._mission_t_s = t
         recording = not sampler.mission_done and n <= sampler.mission_samples
         ref_n, ref_n1 = self.references.pair(t)
         if self.lookahead_s > 0.0:  # the predicted state meets the references of its own time
@@ -647,9 +692,12 @@ class Flight:
                 raise FlightEnd(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
             wall_s = sampler.recorded(now)
             self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms, sample_wall_s=wall_s)
+            err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
             if self._progress is not None:
-                err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]
+            lost = self.track_guard.update(t, err) if self.track_guard is not None else None
+            if lost:
+                raise FlightEnd(FlightStatus.LOST_TRACK, f"{lost}: handed to the vehicle's landing")
         if not command.is_finite():
             sampler.source = None
             raise FlightEnd(FlightStatus.NAN_COMMAND, f"at t = {t:.2f} s the controller's output is not finite (not sent)")

@@ -1,0 +1,129 @@
+"""What a flight watches of the vehicle's flying, as opposed to its link and mode: is it still on
+its reference, and does its estimator still know where it is?
+
+Both end the flight early and hand the vehicle to its own landing (``Flight``), because the law
+flies on the vehicle's estimate and nothing else would: PX4 v1.16 keeps an attitude-driven
+Offboard running with its position estimate gone (a SIH flight whose GPS and barometer stopped at
+take-off drifted 321 m in Offboard for 40 s, docs/controller-design.md), and has no notion of
+a reference to be off.
+
+- ``TrackGuard``: LOST_TRACK in flight, when the 3D error (estimate against reference) has
+  stayed above ``metrics.LOST_TRACK_M`` through the last ``metrics.LOST_TRACK_WINDOW_S`` and did
+  not shrink over it: the vehicle is off and not coming back (blown away, a fly-away). A vehicle
+  far off but closing (a reference step longer than the limit) flies on; where it ends is
+  ``metrics.check_tracking``'s verdict.
+- ``EstimatorGuard``: ESTIMATE_LOST, when the vehicle's ESTIMATOR_STATUS stops vouching for an
+  estimate the law reads (attitude, horizontal and vertical velocity, horizontal position
+  relative to the origin, vertical position). SYS_STATUS's sensor health is reported as it
+  changes (``sensor_health_changes``) but not acted on: the estimator says what a lost sensor
+  costs (a GPS lost under vision-aided flight costs nothing).
+
+Pure: they take numbers and flags, and know nothing of the link.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S
+from pymavlink.dialects.v20 import common as mavlink
+
+#: ESTIMATOR_STATUS flags the law needs, with what each vouches for (MAVLink's words).
+NEEDED_ESTIMATES: dict[int, str] = {
+    mavlink.ESTIMATOR_ATTITUDE: "attitude",
+    mavlink.ESTIMATOR_VELOCITY_HORIZ: "horizontal velocity",
+    mavlink.ESTIMATOR_VELOCITY_VERT: "vertical velocity",
+    mavlink.ESTIMATOR_POS_HORIZ_REL: "horizontal position",
+    mavlink.ESTIMATOR_POS_VERT_ABS: "vertical position",
+}
+#: SYS_STATUS sensors whose health is reported as it changes.
+WATCHED_SENSORS: dict[int, str] = {
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO: "gyro",
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL: "accelerometer",
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG: "magnetometer",
+    mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE: "barometer",
+    mavlink.MAV_SYS_STATUS_SENSOR_GPS: "GPS",
+    mavlink.MAV_SYS_STATUS_AHRS: "AHRS",
+}
+
+
+class TrackGuard:
+    """LOST_TRACK in flight (module docstring).
+
+    Parameters
+    ----------
+    limit_m : float
+        The 3D error above which the vehicle may be lost (inf: never).
+    window_s : float
+        How long it must stay above, without shrinking, to be lost.
+    """
+
+    def __init__(self, limit_m: float = LOST_TRACK_M, window_s: float = LOST_TRACK_WINDOW_S) -> None:
+        if not (limit_m > 0 and window_s > 0):
+            raise ValueError(f"the lost-track limit and window must be > 0, got {limit_m} m, {window_s} s")
+        self.limit_m = limit_m
+        self.window_s = window_s
+        self._above: deque[tuple[float, float]] = deque()  # (t, error) since the error last went above the limit
+
+    def reset(self) -> None:
+        """Forget the history (the controller restarted: its error before is not its doing)."""
+        self._above.clear()
+
+    def update(self, t_s: float, error_m: float) -> str | None:
+        """The error at mission time ``t_s``; why the vehicle is lost, or None.
+
+        A non-finite error (no reference) is no verdict and starts the window again."""
+        if not (math.isfinite(error_m) and error_m > self.limit_m):
+            self._above.clear()
+            return None
+        above = self._above
+        above.append((t_s, error_m))
+        if t_s - above[0][0] < self.window_s - 1e-9:
+            return None
+        while len(above) > 1 and t_s - above[1][0] >= self.window_s - 1e-9:
+            above.popleft()  # above[0]: the latest sample at least a window old
+        t0, e0 = above[0]
+        if error_m < e0:
+            return None  # closing in
+        return (f"at t = {t_s:.2f} s the vehicle was {error_m:.1f} m off the reference, above {self.limit_m:g} m "
+                f"since t = {t0:.2f} s and not closing ({e0:.1f} m then)")  # fmt: skip
+
+
+class EstimatorGuard:
+    """ESTIMATE_LOST (module docstring): the vehicle's ESTIMATOR_STATUS against ``NEEDED_ESTIMATES``.
+
+    Attributes
+    ----------
+    heard : bool
+        Whether an ESTIMATOR_STATUS has come (a vehicle that sends none is not watched).
+    """
+
+    def __init__(self) -> None:
+        self.heard = False
+        self.flags: int | None = None
+
+    def update(self, flags: int) -> str | None:
+        """One ESTIMATOR_STATUS's ``flags``; what it no longer vouches for, or None."""
+        self.heard = True
+        self.flags = int(flags)
+        missing = [name for bit, name in NEEDED_ESTIMATES.items() if not self.flags & bit]
+        if not missing:
+            return None
+        return f"the vehicle's estimator no longer vouches for its {', '.join(missing)} (ESTIMATOR_STATUS flags 0x{self.flags:x})"
+
+
+def sensor_health_changes(previous: dict[str, bool] | None, present: int, enabled: int, health: int) -> tuple[dict[str, bool], list[str]]:
+    """SYS_STATUS's health of ``WATCHED_SENSORS`` (present and enabled ones), and one line per
+    sensor whose health changed since ``previous`` (None: the first SYS_STATUS, which reports the
+    unhealthy ones only)."""
+    now = {name: bool(health & bit) for bit, name in WATCHED_SENSORS.items() if present & bit and enabled & bit}
+    lines = []
+    for name, ok in now.items():
+        was = None if previous is None else previous.get(name)
+        if was is None:
+            if not ok:
+                lines.append(f"{name} unhealthy (SYS_STATUS)")
+        elif was != ok:
+            lines.append(f"{name} {'healthy again' if ok else 'unhealthy'} (SYS_STATUS)")
+    return now, lines
