@@ -160,6 +160,18 @@ class Px4:
     log: Path
     api_listen_port: int  # where PX4 sends its API link: offboard fly --connect udpin:127.0.0.1:PORT
     gcs_listen_port: int = 0  # where PX4 sends its ground-station link
+    instance: int = 0
+    bin_dir: Path | None = None  # PX4's bin/ (its px4-<module> commands)
+
+    def shell(self, module: str, *args: str, timeout_s: float = 10.0) -> str:
+        """Run one of PX4's own commands on this instance (``px4-<module> --instance N args``, as
+        PX4's shell would: ``sensor_gps_sim stop``, ``listener vehicle_status``); returns what it
+        printed. A command that fails raises ``AssertionError`` with its output."""
+        assert self.bin_dir is not None, "this PX4 was not started by running_px4"
+        done = subprocess.run([str(self.bin_dir / f"px4-{module}"), "--instance", str(self.instance), *args],
+                              capture_output=True, text=True, timeout=timeout_s)  # fmt: skip
+        assert done.returncode == 0, f"px4-{module} {' '.join(args)}: exit {done.returncode}\n{done.stdout}{done.stderr}"
+        return done.stdout
 
 
 @contextmanager
@@ -175,8 +187,9 @@ def running_px4(workdir: Path, *, speed: float = 1.0) -> Iterator[Px4]:
         api_bind, api_remote, gcs_bind, gcs_remote = free_udp_ports(4)
         instance = choose_instance(avoid=tried)
         tried.append(instance)
+        runnable = runnable_launcher(launcher)
         started = subprocess.run(
-            [str(runnable_launcher(launcher)), "--api-bind", str(api_bind), "--api-remote", str(api_remote),
+            [str(runnable), "--api-bind", str(api_bind), "--api-remote", str(api_remote),
              "--gcs-bind", str(gcs_bind), "--gcs-remote", str(gcs_remote), "--instance", str(instance),
              "--speed", f"{speed:g}", "--workdir", str(workdir if not failures else workdir / f"retry-{instance}"), "--timeout", "60"],
             capture_output=True, text=True, timeout=90,
@@ -189,7 +202,7 @@ def running_px4(workdir: Path, *, speed: float = 1.0) -> Iterator[Px4]:
         raise AssertionError("PX4 SITL did not start:\n" + "\n".join(failures))
     pid = int(values["PX4_PID"])
     try:
-        yield Px4(pid, Path(values.get("PX4_LOG", workdir / "px4.log")), api_remote, gcs_remote)
+        yield Px4(pid, Path(values.get("PX4_LOG", workdir / "px4.log")), api_remote, gcs_remote, instance, runnable.parent / "bin")
     finally:
         try:
             os.kill(pid, 15)

@@ -45,6 +45,7 @@ WATCHED_SENSORS: dict[int, str] = {
     mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE: "barometer",
     mavlink.MAV_SYS_STATUS_SENSOR_GPS: "GPS",
     mavlink.MAV_SYS_STATUS_AHRS: "AHRS",
+    mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL: "horizontal position control",
 }
 
 
@@ -116,14 +117,18 @@ class EstimatorGuard:
 def sensor_health_changes(previous: dict[str, bool] | None, present: int, enabled: int, health: int) -> tuple[dict[str, bool], list[str]]:
     """SYS_STATUS's health of ``WATCHED_SENSORS`` (present and enabled ones), and one line per
     sensor whose health changed since ``previous`` (None: the first SYS_STATUS, which reports the
-    unhealthy ones only)."""
+    unhealthy ones only). A sensor that stops being reported present is lost too: PX4 v1.16 drops
+    a GPS that stopped (and a magnetometer) from ``present`` and leaves its health bit set
+    (measured, docs/offboard.md)."""
     now = {name: bool(health & bit) for bit, name in WATCHED_SENSORS.items() if present & bit and enabled & bit}
     lines = []
     for name, ok in now.items():
         was = None if previous is None else previous.get(name)
         if was is None:
-            if not ok:
-                lines.append(f"{name} unhealthy (SYS_STATUS)")
+            if not ok or previous is not None:
+                lines.append(f"{name} {'back' if ok else 'unhealthy'} (SYS_STATUS)")
         elif was != ok:
             lines.append(f"{name} {'healthy again' if ok else 'unhealthy'} (SYS_STATUS)")
+    if previous is not None:
+        lines += [f"{name} no longer reported (SYS_STATUS)" for name in previous if name not in now]
     return now, lines

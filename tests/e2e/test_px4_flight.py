@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -95,3 +96,57 @@ def test_the_body_rate_output_flies_the_paper_helix_on_px4s_rate_loop(tmp_path):
     print(f"\nreal PX4, body rates: hold tilt max {tilt[hold].max():.2f} deg, helix 5-11.9 s RMS {helix_rms:.3f} m")
     assert_no_limit_cycle(tilt[hold])
     assert helix_rms < 0.5  # as above: catches a wrong frame, sign or scale (metres)
+
+
+def test_px4_flies_on_in_offboard_without_gps_and_the_offboard_hands_it_to_its_landing(tmp_path):
+    """PX4's answer, written down: with its GPS stopped (``sensor_gps_sim stop``, PX4's own shell:
+    this SIH build never answers MAV_CMD_INJECT_FAILURE), PX4 v1.16 keeps an attitude-driven
+    Offboard running, system status ACTIVE, no failsafe (measured for 40 s by hand, while EKF2's
+    estimate ran ~150 m off). About 5 s after the stop EKF2's ESTIMATOR_STATUS drops its horizontal
+    velocity and position flags (0x37f to 0x365); ``offboard fly`` then ends ESTIMATE_LOST
+    (exit 11) and PX4's Land mode lands the vehicle blind. At --speed 4 (the same in PX4's time)."""
+    from helpers.flights import write_mission
+    from pymavlink import mavutil
+
+    mission = write_mission(tmp_path / "hold.toml", '[[mission.segment]]\ntype = "hold"\nname = "hold"\n'
+                                                    'position = [0, 0, 3]\nyaw = 0\nuntil_s = 120\n')  # fmt: skip
+    run = tmp_path / "run"
+    with running_px4(tmp_path / "px4", speed=4) as px4:
+        with (tmp_path / "fly.stderr").open("w") as err:
+            fly = subprocess.Popen([PY, "-m", "offboard.cli", "fly", str(mission), "--connect", f"udpin:127.0.0.1:{px4.api_listen_port}",
+                                    "--run-dir", str(run), "--no-plots", "--json"], stdout=subprocess.PIPE, stderr=err, text=True, env=ENV)  # fmt: skip
+        try:
+            deadline = time.monotonic() + 120
+            while "mission started" not in (tmp_path / "fly.stderr").read_text() and fly.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(1.0)  # 4 s of PX4's: in the hold
+            stopped_s = time.time()  # the tlog's clock in real time: wall seconds
+            px4.shell("sensor_gps_sim", "stop")
+            fly.communicate(timeout=120)
+        finally:
+            if fly.poll() is None:
+                fly.kill()
+                fly.communicate()
+    stderr = (tmp_path / "fly.stderr").read_text()
+    assert fly.returncode == 11, stderr
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["status"] == "estimate_lost" and "horizontal velocity, horizontal position" in summary["detail"], summary["detail"]
+    assert summary["landed"] and summary["disarmed"]
+    mav = mavutil.mavlink
+    log = mavutil.mavlink_connection(str(run / "flight.tlog"))
+    beats, flags_lost_s, land_s = [], None, None
+    while (m := log.recv_match()) is not None and land_s is None:
+        kind = m.get_type()
+        if m._timestamp < stopped_s:
+            continue
+        if kind == "HEARTBEAT" and m.get_srcSystem() == 1 and m.autopilot == mav.MAV_AUTOPILOT_PX4:
+            beats.append(m)
+        elif kind == "ESTIMATOR_STATUS" and flags_lost_s is None and not m.flags & mav.ESTIMATOR_POS_HORIZ_REL:
+            flags_lost_s = m._timestamp
+        elif kind == "COMMAND_LONG" and m.command == mav.MAV_CMD_NAV_LAND:
+            land_s = m._timestamp
+    assert flags_lost_s is not None and land_s is not None and land_s >= flags_lost_s
+    print(f"\nPX4 without GPS: EKF2's flags dropped {4 * (flags_lost_s - stopped_s):.1f} s of PX4's time after the stop, "
+          f"NAV_LAND {1000 * (land_s - flags_lost_s):.0f} ms of ours later; {len(beats)} heartbeats between")
+    # from the GPS stop to our landing command PX4 stayed in Offboard, ACTIVE: no failsafe of its own
+    assert len(beats) >= 3 and all((b.custom_mode >> 16) & 0xFF == 6 and b.system_status == mav.MAV_STATE_ACTIVE for b in beats)

@@ -102,6 +102,10 @@ def test_sensor_health_is_reported_as_it_changes():
     # a sensor present but not enabled (or absent) is no one's concern; the first message names the unhealthy
     assert sensor_health_changes(None, present, baro, baro)[1] == []
     assert sensor_health_changes(None, present, enabled, baro)[1] == ["GPS unhealthy (SYS_STATUS)"]
+    # PX4 v1.16 drops a GPS that stopped from present and enabled, its health bit left set (measured)
+    health, lines = sensor_health_changes(health, baro, baro, present)
+    assert health == {"barometer": True} and lines == ["GPS no longer reported (SYS_STATUS)"]
+    assert sensor_health_changes(health, present, enabled, present)[1] == ["GPS back (SYS_STATUS)"]
 
 
 def test_the_health_streams_are_read_not_switched_off():
