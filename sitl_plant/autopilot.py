@@ -152,6 +152,17 @@ _NEEDS_MANUAL_INPUT = (Mode.MANUAL, Mode.ALTCTL, Mode.POSCTL, Mode.ACRO, Mode.ST
 #: Modes PX4 arms in (with their requirements met: setpoints for Offboard, sticks for the manual
 #: ones, a mission for Mission); Land, Return and Ready are not among them.
 _ARMABLE = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.OFFBOARD, Mode.AUTO_MISSION, *_NEEDS_MANUAL_INPUT)
+#: EKF2_NOAID_TOUT's default (PX4 v1.16: 5 000 000 us): how long EKF2 dead-reckons after its last
+#: horizontal aiding (the GPS) before it stops vouching for horizontal velocity and position.
+#: Measured on PX4 v1.16 SITL with its GPS stopped (docs/plant.md): the flags dropped 5.1-5.2 s
+#: after, the predicted-position and height-above-ground flags and the GPS's SYS_STATUS presence
+#: about 2 s later (``GPS_DROPPED_S``).
+DEAD_RECKONING_S = 5.0
+GPS_DROPPED_S = 7.0
+#: Modes that need a horizontal position estimate (PX4's mode requirements): without one PX4's
+#: failsafe lands blind (measured in Hold: AUTO.LAND 5.2 s after the GPS stopped, system status
+#: CRITICAL, "Failsafe activated"). Offboard driven by attitude setpoints needs none and flies on.
+_NEEDS_POSITION = (Mode.AUTO_LOITER, Mode.AUTO_TAKEOFF, Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.ORBIT, Mode.AUTO_FOLLOW_TARGET)
 #: Modes whose setpoint the navigator gives (sitl_plant/navigator.py).
 _NAVIGATED = (Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.ORBIT)
 _AUTO = (Mode.AUTO_READY, Mode.AUTO_TAKEOFF, Mode.AUTO_LOITER, Mode.AUTO_MISSION, Mode.AUTO_RTL, Mode.AUTO_LAND)
@@ -352,6 +363,7 @@ class Status:
     failures: frozenset[str]
     prearm_ok: bool
     base_mode: int | None = None
+    gps_lost_s: float | None = None  # how long the GPS has been failed (None: it is not)
 
 
 # --- the state machine ------------------------------------------------------------------------
@@ -404,6 +416,7 @@ class Autopilot:
         self.home_alt_amsl_m = home_alt_amsl_m
         self.home_ned_m = (0.0, 0.0, 0.0)
         self.failures: set[str] = set(failures)
+        self._gps_failed_s: float | None = 0.0 if "gps" in self.failures else None  # when the GPS failed
         self.armed = False
         self.mode = Mode.AUTO_LOITER
         self.failsafe = False
@@ -442,7 +455,17 @@ class Autopilot:
             failures=frozenset(self.failures),
             prearm_ok=not self.failures,
             base_mode=base_mode_flags(self.mode, self.armed, self._m.last_setpoint_s is not None),
+            gps_lost_s=self.gps_lost_s(now),
         )
+
+    def gps_lost_s(self, now_s: float) -> float | None:
+        """How long the GPS has been failed at ``now_s`` (None: it is not)."""
+        return None if self._gps_failed_s is None else max(0.0, now_s - self._gps_failed_s)
+
+    def position_valid(self, now_s: float) -> bool:
+        """Whether the estimator still vouches for the horizontal position (``DEAD_RECKONING_S``)."""
+        lost = self.gps_lost_s(now_s)
+        return lost is None or lost < DEAD_RECKONING_S
 
     def set_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
         """Where the local NED frame's origin is on the globe (for mission items and commands)."""
@@ -571,6 +594,7 @@ class Autopilot:
             m.has_taken_off = True
         texts.extend(self._offboard_loss(now_s))
         texts.extend(self._manual_control_loss(now_s))
+        texts.extend(self._position_loss(now_s))
         if self.armed and self.mode is Mode.AUTO_TAKEOFF and m.has_taken_off:
             target_down = self._takeoff_down_m()
             if self._pos[2] <= target_down + p["NAV_MC_ALT_RAD"]:  # PX4's navigator: within the altitude acceptance
@@ -876,6 +900,17 @@ class Autopilot:
             return [StatusText(MAV_SEVERITY_INFO, "Mission: returning to launch")]
         return []
 
+    def inject_failure(self, unit: str, now_s: float) -> None:
+        """Fail ``unit`` (a ``FAILURE_UNITS`` name) at ``now_s``; a GPS lost starts EKF2's dead reckoning."""
+        if unit == "gps" and unit not in self.failures:
+            self._gps_failed_s = now_s
+        self.failures.add(unit)
+
+    def clear_failure(self, unit: str) -> None:
+        self.failures.discard(unit)
+        if unit == "gps":
+            self._gps_failed_s = None
+
     def _cmd_inject_failure(self, cmd: Command, now_s: float) -> Reply:
         if int(self.params["SYS_FAILURE_EN"]) != 1:
             return Reply(MAV_RESULT_DENIED, (StatusText(MAV_SEVERITY_CRITICAL, "Failure injection disabled (SYS_FAILURE_EN)"),))
@@ -884,9 +919,9 @@ class Autopilot:
         if unit is None or not math.isfinite(kind):
             return Reply(MAV_RESULT_UNSUPPORTED)
         if int(kind) == FAILURE_TYPE_OK:
-            self.failures.discard(unit)
+            self.clear_failure(unit)
             return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO, f"Failure cleared: {unit}"),))
-        self.failures.add(unit)
+        self.inject_failure(unit, now_s)
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_WARNING, f"Failure injected: {unit}"),))
 
     def _cmd_prearm(self, cmd: Command, now_s: float) -> Reply:
@@ -921,6 +956,16 @@ class Autopilot:
             m.fallback_of_offboard = True
             self._enter(OBL_ACTIONS.get(action, Mode.POSCTL), now_s)
         return texts
+
+    def _position_loss(self, now_s: float) -> list[StatusText]:
+        """PX4's mode fallback for a lost position estimate: a mode that needs one lands blind, at
+        once (``_NEEDS_POSITION``); the failsafe stays until a client picks a mode."""
+        if not (self.armed and not self._landed and self.mode in _NEEDS_POSITION and not self.position_valid(now_s)):
+            return []
+        self.failsafe = True
+        self._set_hold_here()
+        self._enter(Mode.AUTO_LAND, now_s)
+        return [StatusText(MAV_SEVERITY_CRITICAL, "Failsafe activated")]
 
     def _manual_control_loss(self, now_s: float) -> list[StatusText]:
         """Sticks gone for COM_RC_LOSS_T in a manual mode: Hold for COM_FAIL_ACT_T, then

@@ -26,6 +26,8 @@ from offboard.model.messages import MAVLinkMessage
 from offboard.model.rotations import rotation_matrix
 from offboard.model.state import VehicleState
 from sitl_plant.autopilot import (
+    DEAD_RECKONING_S,
+    GPS_DROPPED_S,
     ActuatorSetpoint,
     AttitudeSetpoint,
     Command,
@@ -238,12 +240,20 @@ def highres_imu(t_us: int, st: VehicleState, home: Home, gravity_m_s2: float = 9
 
 
 def sys_status(status: Status, *, bad_packets: int = 0) -> MAVLinkMessage:
+    """SYS_STATUS: a failed unit's health bit cleared; a lost GPS also dropped from the present
+    bits ``GPS_DROPPED_S`` after it failed, and the horizontal position control unhealthy once the
+    estimate is gone, as PX4 v1.16 (which leaves the GPS's health bit set: docs/plant.md)."""
     present = 0
     health = 0
     for bit, unit in SENSOR_BITS.items():
         present |= bit
         if unit is None or unit not in status.failures:
             health |= bit
+    lost = status.gps_lost_s
+    if lost is not None and lost >= DEAD_RECKONING_S:
+        health &= ~mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    if lost is not None and lost >= GPS_DROPPED_S:
+        present &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
     if not status.prearm_ok:
         health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
     battery_ok = "battery" not in status.failures
@@ -341,10 +351,30 @@ def ping_request(t_us: int, seq: int) -> MAVLinkMessage:
     return mavlink.MAVLink_ping_message(t_us, seq & 0xFFFFFFFF, 0, 0)
 
 
-def estimator_status(t_us: int, healthy: bool = True) -> MAVLinkMessage:
-    """ESTIMATOR_STATUS of a converged estimator (flags 1023 as PX4's EKF2 sends them; the plant
-    has no estimator: the test ratios are 0, accuracies those of its noise-free GPS)."""
-    flags = 1023 if healthy else mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_VERT | mavlink.ESTIMATOR_POS_VERT_ABS
+#: ESTIMATOR_STATUS flags PX4 v1.16's EKF2 sends on its SITL, converged on GPS (measured): on the
+#: ground 0x3ff, in the air 0x37f (no constant-position mode).
+ESTIMATOR_FLAGS_GROUND = 0x3FF
+ESTIMATOR_FLAGS_AIR = 0x37F
+#: What EKF2 stops vouching for ``DEAD_RECKONING_S`` after its GPS stopped, and ``GPS_DROPPED_S``
+#: after (in the air: 0x365, then 0x025; on the ground then 0x0e5).
+_DEAD_RECKONING_LOST = mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_HORIZ_ABS
+_GPS_DROPPED_LOST = mavlink.ESTIMATOR_PRED_POS_HORIZ_REL | mavlink.ESTIMATOR_PRED_POS_HORIZ_ABS
+
+
+def estimator_flags(on_ground: bool, gps_lost_s: float | None) -> int:
+    """PX4's EKF2 flags (``ESTIMATOR_FLAGS_*``), with what a GPS lost ``gps_lost_s`` ago costs."""
+    flags = ESTIMATOR_FLAGS_GROUND if on_ground else ESTIMATOR_FLAGS_AIR
+    if gps_lost_s is not None and gps_lost_s >= DEAD_RECKONING_S:
+        flags &= ~_DEAD_RECKONING_LOST
+    if gps_lost_s is not None and gps_lost_s >= GPS_DROPPED_S:
+        flags &= ~(_GPS_DROPPED_LOST | (0 if on_ground else mavlink.ESTIMATOR_POS_VERT_AGL))
+    return flags
+
+
+def estimator_status(t_us: int, status: Status) -> MAVLinkMessage:
+    """ESTIMATOR_STATUS as PX4's EKF2 sends it (``estimator_flags``; the plant has no estimator:
+    the test ratios are 0, accuracies those of its noise-free GPS)."""
+    flags = estimator_flags(status.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND, status.gps_lost_s)
     return mavlink.MAVLink_estimator_status_message(t_us, flags, 0.0, 0.0, 0.0, 0.0, 0.0, _NAN, 0.3, 0.3)
 
 

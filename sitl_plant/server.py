@@ -337,7 +337,7 @@ class Plant:
             if self.autopilot.armed or self.counters.breakdowns == 1:
                 self._announce(StatusText(mavlink.MAV_SEVERITY_EMERGENCY, "Simulation broke down (state not finite): motors stopped"))
             self.autopilot.disarm(self.time_s, forced=True)
-            self.autopilot.failures.add("motor")
+            self.autopilot.inject_failure("motor", self.time_s)
         self._truth = self.sim.truth()
         self._measured = None
         ap = self.autopilot
@@ -785,7 +785,7 @@ class Plant:
         if mid == mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR:
             return codec.distance_sensor(t_ms)
         if mid == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
-            return codec.estimator_status(t_us, "gps" not in self.autopilot.failures)
+            return codec.estimator_status(t_us, self.autopilot.status())
         if mid == mavlink.MAVLINK_MSG_ID_VIBRATION:
             return codec.vibration(t_us)
         if mid == mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_SYSTEM:

@@ -54,7 +54,7 @@ def test_a_gps_failed_by_a_ground_station_ends_estimate_lost_and_lands(tmp_path)
     assert flown.status == "estimate_lost" and flown.summary["exit_code"] == 11
     assert "no longer vouches for its horizontal velocity, horizontal position" in flown.summary["detail"]
     assert "offboard fly: ESTIMATE_LOST: at t = " in flown.stderr
-    assert "vehicle: GPS unhealthy (SYS_STATUS)" in flown.stderr
+    assert "vehicle: GPS unhealthy (SYS_STATUS)" in flown.stderr and "vehicle: horizontal position control unhealthy" in flown.stderr
     assert flown.summary["landed"] and flown.summary["disarmed"]
     assert flown.summary["duration_s"] < 590.0  # ended where it happened
     msgs = read_tlog(flown.tlog)

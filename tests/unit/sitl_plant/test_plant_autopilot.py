@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from sitl_plant.autopilot import (
+    DEAD_RECKONING_S,
     FORCE_MAGIC,
+    GPS_DROPPED_S,
     LAND_DETECT_WINDDOWN_S,
     MAV_CMD_COMPONENT_ARM_DISARM,
     MAV_CMD_DO_SET_MODE,
@@ -32,6 +34,7 @@ from sitl_plant.autopilot import (
     OffboardTask,
     PositionTask,
 )
+from sitl_plant.codec import estimator_flags, sys_status
 from sitl_plant.params import plant_params
 from offboard.model.state import VehicleState
 from offboard.model.vehicle import VehicleParams
@@ -445,3 +448,61 @@ def test_offboard_on_the_ground_lands_only_at_the_thrust_floor(ap, thrust, lands
         ap.update(t)
         t += 0.1
     assert ap.armed is not lands  # landed, then disarmed COM_DISARM_LAND later
+
+
+# --- a GPS lost in flight, as PX4 v1.16 SITL answers it (docs/plant.md; tests/e2e/test_px4_flight.py) ----
+
+
+def _holding_at_5_m(ap: Autopilot) -> None:
+    ap.on_command(cmd(MAV_CMD_COMPONENT_ARM_DISARM, 1), 0.0)
+    ap.observe(state(-5.0))
+    ap.update(0.5)
+    assert ap.armed and ap.mode is Mode.AUTO_LOITER
+
+
+def test_a_gps_lost_in_hold_lands_blind_once_ekf2_stops_dead_reckoning(ap):
+    _holding_at_5_m(ap)
+    ap.inject_failure("gps", 1.0)
+    texts = [t for now in np.arange(1.0, 1.0 + DEAD_RECKONING_S - 0.05, 0.1) for t in ap.update(float(now))]
+    assert ap.mode is Mode.AUTO_LOITER and ap.status().system_status == MAV_STATE_ACTIVE and not texts  # dead reckoning
+    texts = ap.update(1.0 + DEAD_RECKONING_S)
+    assert ap.mode is Mode.AUTO_LAND and ap.status().system_status == MAV_STATE_CRITICAL
+    assert [t.text for t in texts] == ["Failsafe activated"]
+
+
+def test_a_gps_lost_in_offboard_flies_on(ap):
+    """PX4 v1.16 keeps an attitude-driven Offboard running without a position estimate."""
+    _flying_offboard(ap)
+    ap.inject_failure("gps", 1.0)
+    for now in np.arange(1.0, 20.0, 0.1):
+        ap.on_setpoint(SETPOINT, float(now))
+        ap.update(float(now))
+    assert ap.mode is Mode.OFFBOARD and ap.status().system_status == MAV_STATE_ACTIVE
+    assert ap.status().gps_lost_s == pytest.approx(19.0, abs=0.11)
+
+
+@pytest.mark.parametrize(
+    "on_ground, lost_s, flags",
+    [(True, None, 0x3FF), (False, None, 0x37F), (False, DEAD_RECKONING_S - 0.1, 0x37F), (False, DEAD_RECKONING_S, 0x365),
+     (False, GPS_DROPPED_S, 0x025), (True, GPS_DROPPED_S, 0x0E5)],
+)  # fmt: skip
+def test_ekf2s_flags_as_px4_sends_them(on_ground, lost_s, flags):
+    """Measured on PX4 v1.16 SITL: 0x3ff on the ground, 0x37f in the air; its GPS stopped in Hold,
+    0x365 5.1 s later, 0x025 7.1 s later, 0x0e5 once landed."""
+    assert estimator_flags(on_ground, lost_s) == flags
+
+
+def test_sys_status_drops_a_lost_gps_as_px4_does(ap):
+    from pymavlink.dialects.v20 import common as mavlink
+
+    gps, xy = mavlink.MAV_SYS_STATUS_SENSOR_GPS, mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    _holding_at_5_m(ap)
+    ap.inject_failure("gps", 1.0)
+    for now, present, xy_ok in ((1.5, True, True), (1.0 + DEAD_RECKONING_S, True, False), (1.0 + GPS_DROPPED_S, False, False)):
+        ap.update(now)
+        msg = sys_status(ap.status())
+        assert bool(msg.onboard_control_sensors_present & gps) is present and not msg.onboard_control_sensors_health & gps
+        assert bool(msg.onboard_control_sensors_health & xy) is xy_ok
+    ap.clear_failure("gps")
+    msg = sys_status(ap.status())
+    assert ap.status().gps_lost_s is None and msg.onboard_control_sensors_present & msg.onboard_control_sensors_health & gps
