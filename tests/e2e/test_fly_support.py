@@ -5,7 +5,6 @@ from __future__ import annotations
 import signal
 import socket
 import subprocess
-import time
 
 import pytest
 
@@ -45,9 +44,11 @@ def test_proxy_forwards_both_ways_and_drops_on_request():
 
 
 def test_stop_process_ends_a_child_that_ignores_sigint():
-    child = subprocess.Popen([PY, "-c", "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)"])
-    time.sleep(0.3)
+    child = subprocess.Popen([PY, "-c", "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
+                                        "time.sleep(60)"], stdout=subprocess.PIPE, text=True)  # fmt: skip
+    assert child.stdout is not None and child.stdout.readline() == "ready\n"  # SIGINT ignored from now on (a fixed wait lost to a loaded host)
     code = stop_process(child, signal.SIGINT, timeout_s=0.5)
+    child.stdout.close()
     assert child.poll() is not None and code == -signal.SIGKILL
 
 
