@@ -94,6 +94,9 @@ class Client:
     attitude_yaw: float = 0.0
     yaw_samples: list[tuple[float, float]] = field(default_factory=list)
     of_loss_t: float = 1.0  # the vehicle's COM_OF_LOSS_T, for the test's arithmetic
+    estimator_flags: list[tuple[float, int]] = field(default_factory=list)  # vehicle time, ESTIMATOR_STATUS flags
+    #: stops the vehicle's GPS (``fly_side_by_side``: PX4's shell, the plant's MAV_CMD_INJECT_FAILURE)
+    fail_gps: Callable[[], None] | None = None
     _next_hb: float = 0.0
     _next_send: float = 0.0
 
@@ -158,6 +161,8 @@ class Client:
             self.samples.append(Sample(self.boot_s, (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)))
         elif kind == "GPS_RAW_INT":
             self.gps_alt.append((self.t_s, msg.alt / 1000.0))
+        elif kind == "ESTIMATOR_STATUS":
+            self.estimator_flags.append((self.t_s, int(msg.flags)))
         elif kind == "ATTITUDE":
             self.boot_s = max(self.boot_s, msg.time_boot_ms / 1000.0)
             self.attitude_yaw = msg.yaw
@@ -305,6 +310,11 @@ def free_port() -> int:
 T = TypeVar("T")
 
 
+def _inject_gps_failure(c: Client) -> None:
+    results = c.command(mavlink.MAV_CMD_INJECT_FAILURE, mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_TYPE_OFF, 0, 0, 0, 0, 0)
+    assert results[-1:] == [mavlink.MAV_RESULT_ACCEPTED], f"MAV_CMD_INJECT_FAILURE: {results}"
+
+
 def fly_side_by_side(folder: Path, speed: float, script: Callable[[Client], T]) -> tuple[T, T]:
     """(PX4's, the plant's): ``script`` run on a real PX4 SITL and on ``sitl-plant``, both at
     ``speed``, at the same time (a thread each). The plant is given PX4's COM_OF_LOSS_T and
@@ -334,10 +344,17 @@ def _fly_side_by_side(folder: Path, speed: float, script: Callable[[Client], T],
             plant_client.connect()
             plant_client.set_param("COM_OF_LOSS_T", loss_t, integer=False)
             plant_client.set_param("COM_RC_LOSS_T", rc_loss_t, integer=False)
+            plant_client.set_param("SYS_FAILURE_EN", 1, integer=True)  # as PX4 SITL publishes it (px4_params.toml)
             got = plant_client.get_param("COM_OF_LOSS_T")
             assert got is not None and abs(got - loss_t) < 1e-6, (got, loss_t)
             for c in (px4_client, plant_client):
                 c.of_loss_t = loss_t
+            # PX4 v1.16's SIH build never answers MAV_CMD_INJECT_FAILURE: its GPS is stopped from its shell
+            def stop_px4_gps() -> None:
+                px4.shell("sensor_gps_sim", "stop")
+
+            px4_client.fail_gps = stop_px4_gps
+            plant_client.fail_gps = lambda: _inject_gps_failure(plant_client)
 
             def run(c: Client) -> T:
                 try:
