@@ -9,6 +9,8 @@ One idea a module, each importing only those above it:
 - ``protocol``: ``VehicleClient``, the vehicle's MAVLink protocol besides the setpoints: finding
   it, heartbeats, commands with retries and ACKs, parameters, TIMESYNC, HOME_POSITION;
 - ``supervisor``: ``Supervisor``, telemetry outages and the vehicle's mode and arming;
+- ``guards``: ``TrackGuard`` and ``EstimatorGuard``, when the vehicle is lost (off its reference
+  and not closing, or its estimator no longer vouching for the estimate): pure rules;
 - ``sampler``: ``Sampler``, when a sample is due (lockstep, our clock, the vehicle's clock), what
   it is made of, and the ``LoopStats``;
 - ``mission``: ``Flight``, which owns one of each and runs the sequence (connect, prepare, stream
