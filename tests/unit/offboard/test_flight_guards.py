@@ -183,3 +183,15 @@ def test_lost_track_in_flight_can_be_switched_off():
     result, _, _ = fly_plant(runaway, config=FlightConfig(lockstep=True, connect="test", lost_track_m=math.inf))
     assert result.status is FlightStatus.COMPLETE  # flown to its end (the end's verdict is metrics.check_tracking's)
     assert result.record["t_s"][-1] == pytest.approx(runaway.duration_s, abs=DT)
+
+
+def test_a_landing_that_fails_after_a_guard_is_said_in_the_detail():
+    """The guard's end stays the status; a NAV_LAND that never gets through is added to its detail."""
+    link = PlantLink(make_plant(), FakeClock())
+    link.drop = lambda msg: msg.get_type() == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_NAV_LAND
+    link.hook = gps_fails_at(2.0)
+    flight = Flight(link, hover(30.0), ControllerChoice(base=PAPER), FlightConfig(lockstep=True, connect="test"), clock=link.clock)
+    result = flight.run()
+    assert result.status is FlightStatus.ESTIMATE_LOST
+    assert "handed to the vehicle's landing; then the landing failed: MAV_CMD_NAV_LAND" in result.detail, result.detail
+    assert not result.landed
