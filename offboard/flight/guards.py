@@ -49,6 +49,15 @@ WATCHED_SENSORS: dict[int, str] = {
 }
 
 
+def missing_estimates(flags: int) -> str | None:
+    """What an ESTIMATOR_STATUS with ``flags`` no longer vouches for of ``NEEDED_ESTIMATES``, in
+    words (None: everything the law reads)."""
+    missing = [name for bit, name in NEEDED_ESTIMATES.items() if not flags & bit]
+    if not missing:
+        return None
+    return f"the vehicle's estimator no longer vouches for its {', '.join(missing)} (ESTIMATOR_STATUS flags 0x{flags:x})"
+
+
 class TrackGuard:
     """LOST_TRACK in flight (module docstring).
 
@@ -108,10 +117,7 @@ class EstimatorGuard:
         """One ESTIMATOR_STATUS's ``flags``; what it no longer vouches for, or None."""
         self.heard = True
         self.flags = int(flags)
-        missing = [name for bit, name in NEEDED_ESTIMATES.items() if not self.flags & bit]
-        if not missing:
-            return None
-        return f"the vehicle's estimator no longer vouches for its {', '.join(missing)} (ESTIMATOR_STATUS flags 0x{self.flags:x})"
+        return missing_estimates(self.flags)
 
 
 def sensor_health_changes(previous: dict[str, bool] | None, present: int, enabled: int, health: int) -> tuple[dict[str, bool], list[str]]:

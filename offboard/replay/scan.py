@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
+from offboard.flight.guards import NEEDED_ESTIMATES, missing_estimates, sensor_health_changes
 from offboard.missions.geo import mission_offset_ned
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
@@ -137,7 +138,7 @@ class Event:
     """Something that happened at a time: a mode change, arming, a failsafe, a STATUSTEXT."""
 
     time_s: float  # tlog time, Unix seconds
-    kind: str  # "mode", "armed", "disarmed", "status", "failsafe", "text"
+    kind: str  # "mode", "armed", "disarmed", "status", "failsafe", "text", "estimator", "health"
     text: str
     system: int = 0
 
@@ -169,6 +170,8 @@ class LogScan:
     home_positions: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (n, lat deg, lon deg, alt m, x, y, z)
     events: list[Event] = field(default_factory=list)
     _status: dict[int, codec.VehicleStatus] = field(default_factory=dict)  # sysid -> latest heartbeat
+    _estimates: dict[int, tuple[str, ...]] = field(default_factory=dict)  # sysid -> what its estimator no longer vouches for
+    _health: dict[int, dict[str, bool]] = field(default_factory=dict)  # sysid -> sensor -> healthy (SYS_STATUS)
     _text_chunks: dict[tuple[int, int], list[str]] = field(default_factory=dict)
 
     def add(self, t_s: float, msg: MAVLinkMessage) -> None:
@@ -235,6 +238,24 @@ class LogScan:
         # as CRITICAL too: a refused command is not the vehicle failing safe
         failsafe = "failsafe" in text.lower() or (severity <= MAV_SEVERITY_CRITICAL and "denied" not in text.lower())
         self.events.append(Event(t_s, "failsafe" if failsafe else "text", f"[{label}] {text}", src[0]))
+
+    def _estimator_status(self, t_s: float, src: tuple[int, int], msg) -> None:
+        """An event when the estimator stops (or starts again) vouching for what the law reads
+        (``offboard.flight.guards``: what ``offboard fly`` ends ESTIMATE_LOST on)."""
+        flags = int(msg.flags)
+        missing = missing_estimates(flags)
+        lost = tuple(name for bit, name in NEEDED_ESTIMATES.items() if not flags & bit)
+        if lost != self._estimates.get(src[0], ()):
+            text = missing or f"the vehicle's estimator vouches again for every estimate the law reads (ESTIMATOR_STATUS flags 0x{flags:x})"
+            self.events.append(Event(t_s, "estimator", text, src[0]))
+        self._estimates[src[0]] = lost
+
+    def _sys_status(self, t_s: float, src: tuple[int, int], msg) -> None:
+        """An event per sensor whose SYS_STATUS health changes (as ``offboard fly`` reports them)."""
+        health, lines = sensor_health_changes(self._health.get(src[0]), int(msg.onboard_control_sensors_present),
+                                              int(msg.onboard_control_sensors_enabled), int(msg.onboard_control_sensors_health))  # fmt: skip
+        self._health[src[0]] = health
+        self.events.extend(Event(t_s, "health", line, src[0]) for line in lines)
 
     def _attitude(self, t_s: float, src: tuple[int, int], msg) -> None:
         self.attitude.setdefault(src[0], []).append(
@@ -322,6 +343,8 @@ _HANDLERS: dict[str, Callable[[LogScan, float, tuple[int, int], object], None]] 
     "COMMAND_LONG": LogScan._command,
     "COMMAND_INT": LogScan._command,
     "COMMAND_ACK": LogScan._command_ack,
+    "ESTIMATOR_STATUS": LogScan._estimator_status,
+    "SYS_STATUS": LogScan._sys_status,
 }
 
 

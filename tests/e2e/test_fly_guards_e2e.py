@@ -5,15 +5,17 @@ at the mission's end, and the tlog says what the vehicle said and what we asked.
 
 from __future__ import annotations
 
+import json
 import re
 import struct
+import subprocess
 import time
 
 import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from helpers.flights import error_3d, fly, hover_mission, read_tlog, series
+from helpers.flights import ENV, PY, error_3d, fly, hover_mission, read_tlog, series
 from offboard.metrics import LOST_TRACK_M
 from offboard.model.vehicle import PAPER_VEHICLE_FILE
 
@@ -61,6 +63,14 @@ def test_a_gps_failed_by_a_ground_station_ends_estimate_lost_and_lands(tmp_path)
     flags = [m.flags for m in msgs if m.get_type() == "ESTIMATOR_STATUS"]
     assert flags[0] & mav.ESTIMATOR_POS_HORIZ_REL and not flags[-1] & mav.ESTIMATOR_POS_HORIZ_REL  # in the log, both
     assert [m for m in msgs if m.get_type() == "COMMAND_LONG" and m.command == mav.MAV_CMD_NAV_LAND]
+    # the replay tells the same story from the log alone, in the order it happened
+    replay = subprocess.run([PY, "-m", "offboard.cli", "replay", str(flown.tlog), "--no-plots", "--json", "--run-dir",
+                             str(tmp_path / "replay")], capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert replay.returncode == 0, replay.stderr
+    events = [(e["kind"], e["text"]) for e in json.loads(replay.stdout)["log_report"]["events"] if e["kind"] in ("health", "estimator")]
+    assert events[:3] == [("health", "GPS unhealthy (SYS_STATUS)"), ("health", "horizontal position control unhealthy (SYS_STATUS)"),
+                          ("estimator", "the vehicle's estimator no longer vouches for its horizontal velocity, horizontal position "
+                                        "(ESTIMATOR_STATUS flags 0x365)")]  # fmt: skip
 
 
 def test_a_wind_the_vehicle_cannot_beat_ends_lost_track_in_flight(tmp_path):

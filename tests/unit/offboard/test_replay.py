@@ -23,6 +23,7 @@ from offboard.cli import main
 from offboard.errors import LogFormatError
 from offboard.replay import (
     LoggedMessage,
+    LogScan,
     SeqCounter,
     TlogReader,
     build_record,
@@ -415,3 +416,24 @@ def test_a_burst_of_one_message_has_no_rate_and_says_so_with_a_dash():
     assert row.split()[2:] == ["24", "-", "0.000", "-"] and "nan" not in text.lower()
     assert "50.00" in next(line for line in text.splitlines() if "ATTITUDE" in line)
     assert "NaN" not in dumps(report.to_dict())
+
+
+def test_the_estimators_state_and_sensor_health_are_events():
+    """What offboard fly ends ESTIMATE_LOST on, and the SYS_STATUS health it reports, told from the log
+    alone: an event when the set of estimates the estimator no longer vouches for changes (not when
+    only the flags do), and one per sensor whose health changes (a GPS dropped from present, as PX4)."""
+    gps = mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    packer, parser = mavlink.MAVLink(None, srcSystem=1, srcComponent=1), mavlink.MAVLink(None)
+    scan = LogScan()
+    messages = [(t, mavlink.MAVLink_estimator_status_message(int(t * 1e6), flags, 0, 0, 0, 0, 0, 0, 0.3, 0.3))
+                for t, flags in ((1.0, 0x37F), (2.0, 0x37F), (3.0, 0x365), (4.0, 0x025), (5.0, 0x37F))]
+    messages += [(t, mavlink.MAVLink_sys_status_message(present, present, gps | 1, 0, 16200, -1, 100, 0, 0, 0, 0, 0, 0))
+                 for t, present in ((1.5, gps | 1), (3.5, 1))]  # fmt: skip
+    for t, msg in sorted(messages, key=lambda m: m[0]):
+        scan.add(t, parser.parse_buffer(msg.pack(packer))[0])
+    events = [(e.time_s, e.kind, e.text) for e in scan.events]
+    assert events == [
+        (3.0, "estimator", "the vehicle's estimator no longer vouches for its horizontal velocity, horizontal position (ESTIMATOR_STATUS flags 0x365)"),
+        (3.5, "health", "GPS no longer reported (SYS_STATUS)"),
+        (5.0, "estimator", "the vehicle's estimator vouches again for every estimate the law reads (ESTIMATOR_STATUS flags 0x37f)"),
+    ]  # fmt: skip
