@@ -285,7 +285,10 @@ def run(args: argparse.Namespace) -> int:
             "controller_choice": "file" if from_file else ("tuned" if choice.tuned else "paper"),
             "controller_kind": kind,
             "output": args.output, "model": args.model, "lockstep": args.lockstep, "clock": args.clock,
-            "connect": args.connect}  # fmt: skip
+            "connect": args.connect,
+            # the guards (docs/offboard.md, "In flight"): null, never
+            "lost_track_m": args.lost_track_m if math.isfinite(args.lost_track_m) else None,
+            "watch_estimator": not args.ignore_estimator}  # fmt: skip
     started = time.monotonic()
     try:
         return _fly(args, mission, choice, config, meta, run_dir, tlog, log_clock, console, started)

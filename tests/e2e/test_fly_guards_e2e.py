@@ -54,6 +54,7 @@ def test_a_gps_failed_by_a_ground_station_ends_estimate_lost_and_lands(tmp_path)
     assert results == {"param": "SYS_FAILURE_EN", "ack": mav.MAV_RESULT_ACCEPTED}
     assert flown.returncode == 11, flown.stderr
     assert flown.status == "estimate_lost" and flown.summary["exit_code"] == 11
+    assert flown.summary["lost_track_m"] == LOST_TRACK_M and flown.summary["watch_estimator"] is True
     assert "no longer vouches for its horizontal velocity, horizontal position" in flown.summary["detail"]
     assert "offboard fly: ESTIMATE_LOST: at t = " in flown.stderr
     assert "vehicle: GPS unhealthy (SYS_STATUS)" in flown.stderr and "vehicle: horizontal position control unhealthy" in flown.stderr
@@ -91,3 +92,15 @@ def test_a_wind_the_vehicle_cannot_beat_ends_lost_track_in_flight(tmp_path):
     quoted = re.search(r"is handed over ([0-9.]+) s into a hover, ([0-9.]+) m downwind", doc)
     flown_figures = re.search(r"at t = ([0-9.]+) s the vehicle was ([0-9.]+) m off", flown.summary["detail"])
     assert quoted and flown_figures and quoted.groups() == flown_figures.groups()
+
+
+def test_with_the_guard_off_the_same_wind_is_flown_to_its_end(tmp_path):
+    """``--lost-track-m inf``: flown to the mission's end, whose verdict is still lost_track (metrics.check_tracking);
+    the summary says the guards were off (null: never, strict JSON)."""
+    flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 2.0, 20.0),
+                plant_args=("--vehicle", str(PX4_SIH_VEHICLE), "--wind", "constant:15,0,0"),
+                fly_args=("--lost-track-m", "inf", "--ignore-estimator"))  # fmt: skip
+    assert flown.returncode == 9, flown.stderr
+    assert flown.summary["detail"].startswith("flown to its end but")
+    assert flown.summary["lost_track_m"] is None and flown.summary["watch_estimator"] is False
+    assert series(flown)["t_s"][-1] == pytest.approx(20.0, abs=0.06)
