@@ -67,17 +67,7 @@ def _airborne_in_offboard(c: Client, ground_down_m: float) -> None:
         c.setpoint = None
         c.set_mode(AUTO_LOITER)
         c.pump(0.3)
-        # after a fall or a landing the ACK can miss the 2 s a try waits on a loaded machine: retry,
-        # as MAVSDK does (a refusal still fails the test)
-        results: list[int] = []
-        for _ in range(4):
-            results = c.arm()
-            if results:
-                break
-            c.pump(1.0)
-        assert results[-1:] == [mavlink.MAV_RESULT_ACCEPTED], f"arming: {results}"
-        c.command(mavlink.MAV_CMD_NAV_TAKEOFF, NAN, 0, 0, NAN, NAN, NAN, NAN, settle_s=0.0)
-        assert c.wait(lambda: c.mode == AUTO_LOITER and c.down_m < ground_down_m - 1.5, 30.0, SPEED), "no takeoff"
+        c.take_off(ground_down_m, SPEED)
     c.setpoint = (0.0, 0.0, ground_down_m - HEIGHT_M)
     c.pump(0.3)
     # PX4 answers TEMPORARILY_REJECTED while its offboard signal is not yet fresh; on a loaded

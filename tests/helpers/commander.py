@@ -221,6 +221,21 @@ class Client:
     def arm(self, arm: bool = True) -> list[int]:
         return self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1 if arm else 0, settle_s=0.1)
 
+    def take_off(self, ground_down_m: float, speed: float, sim_s: float = 30.0) -> None:
+        """Arm and NAV_TAKEOFF to the vehicle's take-off height, until Hold holds it 1.5 m or more
+        above ``ground_down_m`` (at most ``sim_s`` of the vehicle's time). After boot, a fall or a
+        landing the arm's ACK can miss the 2 s a try waits on a loaded machine: retried, as MAVSDK
+        does (a refusal still fails)."""
+        results: list[int] = []
+        for _ in range(4):
+            results = self.arm()
+            if results:
+                break
+            self.pump(1.0)
+        assert results[-1:] == [mavlink.MAV_RESULT_ACCEPTED], f"arming: {results}"
+        self.command(mavlink.MAV_CMD_NAV_TAKEOFF, math.nan, 0, 0, math.nan, math.nan, math.nan, math.nan, settle_s=0.0)
+        assert self.wait(lambda: self.mode == AUTO_LOITER and self.down_m < ground_down_m - 1.5, sim_s, speed), "no takeoff"
+
     def set_param(self, name: str, value: float, integer: bool) -> None:
         c = self.conn
         if integer:
