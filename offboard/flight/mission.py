@@ -68,9 +68,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
 FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
-MAX_HOME_OFFSET_M = 1000.0
+MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 #: Ends of a guard (``flight.guards``): the vehicle is handed to its own landing.
-GUARD_ENDS = (FlightStatus.LOST_TRACK, FlightStatus.ESTIMATE_LOST)  # a mission's home farther than this from the vehicle's is refused
+GUARD_ENDS = (FlightStatus.LOST_TRACK, FlightStatus.ESTIMATE_LOST)
 
 # --- results -------------------------------------------------------------------------------------
 
@@ -576,11 +576,7 @@ class Flight:
         elif kind == "ESTIMATOR_STATUS":
             self._on_estimator_status(int(msg.flags))
         elif kind == "SYS_STATUS":
-            self._sensor_health, changes = sensor_health_changes(self._sensor_health, int(msg.onboard_control_sensors_present),
-                                                                 int(msg.onboard_control_sensors_enabled),
-                                                                 int(msg.onboard_control_sensors_health))  # fmt: skip
-            for line in changes:
-                self._note(f"vehicle: {line}")
+            self._on_sys_status(msg)
         else:
             client.handle(msg)
 
@@ -616,6 +612,14 @@ class Flight:
         sampler = self.sampler
         if why and sampler.mission_started and not sampler.mission_done and self.supervisor.expect_armed:
             raise FlightEnd(FlightStatus.ESTIMATE_LOST, f"at t = {self._mission_t_s:.2f} s {why}: handed to the vehicle's landing")
+
+    def _on_sys_status(self, msg: mavlink.MAVLink_message) -> None:
+        """The sensors' health as it changes: said and noted (the estimator decides what it costs)."""
+        self._sensor_health, changes = sensor_health_changes(self._sensor_health, int(msg.onboard_control_sensors_present),
+                                                             int(msg.onboard_control_sensors_enabled),
+                                                             int(msg.onboard_control_sensors_health))  # fmt: skip
+        for line in changes:
+            self._note(f"vehicle: {line}")
 
     def _on_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         status = self.client.on_heartbeat(msg)
