@@ -557,6 +557,8 @@ class Autopilot:
             return self.offboard_signal_ok(now_s)
         if mode in _NEEDS_MANUAL_INPUT:
             return self.manual_input_ok(now_s)
+        if mode in _NEEDS_POSITION and not self.position_valid(now_s):
+            return False  # PX4 v1.16 after its GPS stopped: Hold refused, Land kept (measured)
         if mode is Mode.AUTO_MISSION:
             return bool(self.navigator.items)  # PX4 1.16 in the air: refused without a valid mission
         return mode not in (Mode.AUTO_READY, Mode.ORBIT)  # Orbit is entered by MAV_CMD_DO_ORBIT

@@ -32,6 +32,7 @@ class GpsLoss:
     failsafe_after_s: float
     heartbeat: tuple[int, tuple[int, int], int]
     mode_before_failsafe: tuple[int, int]
+    hold_asked: tuple[list[int], tuple[int, int]]  # Hold asked for after the failsafe: its ACKs, the mode then
 
 
 def lose_gps_in_hold(c: Client) -> GpsLoss:
@@ -54,7 +55,10 @@ def lose_gps_in_hold(c: Client) -> GpsLoss:
     c.wait_sim(1.0)
     lost = next(((t, f) for t, f in c.estimator_flags if t >= t_stop and not f & mavlink.ESTIMATOR_POS_HORIZ_REL), None)
     assert lost is not None, f"the estimator still vouches for the position: {c.estimator_flags[-3:]}"
-    return GpsLoss(flags_before, lost[1], lost[0] - t_stop, t_fs - t_stop, heartbeat_state(c), mode_before)
+    heartbeat = heartbeat_state(c)
+    acks = c.set_mode(AUTO_LOITER)
+    c.wait_sim(0.5)
+    return GpsLoss(flags_before, lost[1], lost[0] - t_stop, t_fs - t_stop, heartbeat, mode_before, (acks, c.mode))
 
 
 @pytest.fixture(scope="module")
@@ -82,3 +86,11 @@ def test_hold_lands_blind_as_px4s(runs):
     assert px4.heartbeat[1:] == (AUTO_LAND, mavlink.MAV_STATE_CRITICAL)
     assert plant.heartbeat == px4.heartbeat
     assert abs(plant.failsafe_after_s - px4.failsafe_after_s) < 1.5, (plant.failsafe_after_s, px4.failsafe_after_s)
+
+
+def test_hold_is_refused_without_a_position(runs):
+    """Hold asked for after the failsafe: the receiver's ACCEPTED, the commander's TEMPORARILY_REJECTED
+    (PX4's two acks), and the vehicle keeps landing."""
+    px4, plant = runs
+    assert px4.hold_asked == ([mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_TEMPORARILY_REJECTED], AUTO_LAND)
+    assert plant.hold_asked == px4.hold_asked

@@ -468,6 +468,9 @@ def test_a_gps_lost_in_hold_lands_blind_once_ekf2_stops_dead_reckoning(ap):
     texts = ap.update(1.0 + DEAD_RECKONING_S)
     assert ap.mode is Mode.AUTO_LAND and ap.status().system_status == MAV_STATE_CRITICAL
     assert [t.text for t in texts] == ["Failsafe activated"]
+    # Hold needs the position: refused, the vehicle keeps landing (PX4 v1.16, measured)
+    assert ap.on_command(cmd(MAV_CMD_DO_SET_MODE, 1, 4, 3), 1.0 + DEAD_RECKONING_S).result == MAV_RESULT_TEMPORARILY_REJECTED
+    assert ap.mode is Mode.AUTO_LAND
 
 
 def test_a_gps_lost_in_offboard_flies_on(ap):
