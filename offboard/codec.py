@@ -349,11 +349,14 @@ def land_params() -> tuple[int, tuple[float, ...]]:
 SAMPLED_STREAMS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
 #: Streams it reads and leaves at the vehicle's rate: HEARTBEAT (mode, armed), EXTENDED_SYS_STATE
 #: (the landed state that ends the landing), HOME_POSITION (mission alignment, replay),
-#: SYS_STATUS (sensor health, reported) and ESTIMATOR_STATUS (what the estimate is good for:
-#: ``offboard.flight.guards``).
+#: SYS_STATUS (sensor health, reported); and ESTIMATOR_STATUS (what the estimate is good for:
+#: ``offboard.flight.guards``), asked for at ``ESTIMATOR_STATUS_RATE_HZ`` with the sampled ones.
 KEPT_STREAMS = (mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
                 mavlink.MAVLINK_MSG_ID_HOME_POSITION, mavlink.MAVLINK_MSG_ID_SYS_STATUS,
                 mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS)  # fmt: skip
+#: ESTIMATOR_STATUS's rate (Hz): PX4 v1.16 sends it at 1 Hz on an onboard link, which left up to a
+#: second between EKF2 giving up on the position and the flight knowing it (measured: 0.9 s).
+ESTIMATOR_STATUS_RATE_HZ = 5.0
 #: PX4 v1.16's default streams on an onboard link (``configure_streams_to_default``,
 #: MAVLINK_MODE_ONBOARD, as measured on its SITL: docs/parity/wire.md) that ``offboard fly`` never
 #: reads: switched off with MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do. TIMESYNC is

@@ -364,7 +364,8 @@ class Flight:
 
     def _configure_streams(self) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL: the streams we never read off (-1), then ATTITUDE and
-        LOCAL_POSITION_NED at the telemetry rate.
+        LOCAL_POSITION_NED at the telemetry rate, and ESTIMATOR_STATUS at
+        ``codec.ESTIMATOR_STATUS_RATE_HZ`` when it is watched (not with the vehicle's rates kept).
 
         All go out at once (one round trip, as MAVSDK keeps several in flight: a COMMAND_ACK names
         the command, not its stream); when an ACK is missing or not ACCEPTED, each is sent again
@@ -376,6 +377,8 @@ class Flight:
         wanted: list[tuple[int, float | None]] = [(mid, None) for mid in codec.UNREAD_STREAMS] if cfg.unread_streams_off else []
         if rate_hz is not None:
             wanted += [(mid, rate_hz) for mid in codec.SAMPLED_STREAMS]
+            if cfg.watch_estimator:
+                wanted.append((mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS, codec.ESTIMATOR_STATUS_RATE_HZ))
         if not wanted:
             return
         burst = [codec.message_interval_params(mid, rate) for mid, rate in wanted]

@@ -44,7 +44,9 @@ def test_lockstep_flight_switches_off_the_unread_streams_and_samples_at_its_rate
         offs = {int(m.param1) for m in commands if m.param2 == codec.INTERVAL_OFF_US}
         assert offs == set(codec.UNREAD_STREAMS)
         rates = {int(m.param1): m.param2 for m in commands if m.param2 > 0}
-        assert rates == {mid: 50_000.0 for mid in codec.SAMPLED_STREAMS}  # 1/To, To = 50 ms
+        # 1/To, To = 50 ms; the estimator's state at 5 Hz (offboard.flight.guards)
+        assert rates == {**{mid: 50_000.0 for mid in codec.SAMPLED_STREAMS}, mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000.0}
+        assert after["ESTIMATOR_STATUS"] >= 10  # 5 Hz of the vehicle's time, through the hover and the landing
     assert "SET_MESSAGE_INTERVAL refused" not in flown.stderr
 
 
@@ -64,4 +66,5 @@ def test_real_time_flight_switches_them_off_too(tmp_path):
     assert set(after) & UNREAD == set(), after
     assert {"ATTITUDE_QUATERNION", "HIGHRES_IMU"} <= set(before)
     # real time: the smallest multiple of the 20 Hz sample rate at or above 100 Hz
-    assert {int(m.param1): m.param2 for m in commands if m.param2 > 0} == {mid: 10_000.0 for mid in codec.SAMPLED_STREAMS}
+    assert {int(m.param1): m.param2 for m in commands if m.param2 > 0} == {**{mid: 10_000.0 for mid in codec.SAMPLED_STREAMS},
+                                                                            mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000.0}
