@@ -4,8 +4,8 @@ its reference, and does its estimator still know where it is?
 Both end the flight early and hand the vehicle to its own landing (``Flight``), because the law
 flies on the vehicle's estimate and nothing else would: PX4 v1.16 keeps an attitude-driven
 Offboard running with its position estimate gone (a SIH flight whose GPS and barometer stopped at
-take-off drifted 321 m in Offboard for 40 s, docs/controller-design.md), and has no notion of
-a reference to be off.
+take-off flew 321 m RMS off by SIH's truth, in Offboard to the mission's end:
+docs/controller-design.md), and has no notion of a reference to be off.
 
 - ``TrackGuard``: LOST_TRACK in flight, when the 3D error (estimate against reference) has
   stayed above ``metrics.LOST_TRACK_M`` through the last ``metrics.LOST_TRACK_WINDOW_S`` and did
@@ -49,10 +49,14 @@ WATCHED_SENSORS: dict[int, str] = {
 }
 
 
+def lost_estimates(flags: int) -> tuple[str, ...]:
+    """The ``NEEDED_ESTIMATES`` an ESTIMATOR_STATUS with ``flags`` no longer vouches for."""
+    return tuple(name for bit, name in NEEDED_ESTIMATES.items() if not flags & bit)
+
+
 def missing_estimates(flags: int) -> str | None:
-    """What an ESTIMATOR_STATUS with ``flags`` no longer vouches for of ``NEEDED_ESTIMATES``, in
-    words (None: everything the law reads)."""
-    missing = [name for bit, name in NEEDED_ESTIMATES.items() if not flags & bit]
+    """``lost_estimates`` in words (None: the estimator vouches for everything the law reads)."""
+    missing = lost_estimates(flags)
     if not missing:
         return None
     return f"the vehicle's estimator no longer vouches for its {', '.join(missing)} (ESTIMATOR_STATUS flags 0x{flags:x})"
@@ -111,13 +115,11 @@ class EstimatorGuard:
 
     def __init__(self) -> None:
         self.heard = False
-        self.flags: int | None = None
 
     def update(self, flags: int) -> str | None:
         """One ESTIMATOR_STATUS's ``flags``; what it no longer vouches for, or None."""
         self.heard = True
-        self.flags = int(flags)
-        return missing_estimates(self.flags)
+        return missing_estimates(int(flags))
 
 
 def sensor_health_changes(previous: dict[str, bool] | None, present: int, enabled: int, health: int) -> tuple[dict[str, bool], list[str]]:

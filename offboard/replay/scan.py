@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
-from offboard.flight.guards import NEEDED_ESTIMATES, missing_estimates, sensor_health_changes
+from offboard.flight.guards import lost_estimates, missing_estimates, sensor_health_changes
 from offboard.missions.geo import mission_offset_ned
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
@@ -243,10 +243,9 @@ class LogScan:
         """An event when the estimator stops (or starts again) vouching for what the law reads
         (``offboard.flight.guards``: what ``offboard fly`` ends ESTIMATE_LOST on)."""
         flags = int(msg.flags)
-        missing = missing_estimates(flags)
-        lost = tuple(name for bit, name in NEEDED_ESTIMATES.items() if not flags & bit)
+        lost = lost_estimates(flags)
         if lost != self._estimates.get(src[0], ()):
-            text = missing or f"the vehicle's estimator vouches again for every estimate the law reads (ESTIMATOR_STATUS flags 0x{flags:x})"
+            text = missing_estimates(flags) or f"the vehicle's estimator vouches again for every estimate the law reads (ESTIMATOR_STATUS flags 0x{flags:x})"
             self.events.append(Event(t_s, "estimator", text, src[0]))
         self._estimates[src[0]] = lost
 
