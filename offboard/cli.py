@@ -65,7 +65,12 @@ def _remember_parsers(parser: argparse.ArgumentParser) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(only=words[0] if words and not words[0].startswith("-") else None)
+    command = words[0] if words and not words[0].startswith("-") else None
+    try:
+        parser = build_parser(only=command)  # imports the command's modules: numpy and the rest, a second or so
+    except KeyboardInterrupt:
+        print(f"offboard{'' if command is None else ' ' + command}: interrupted while starting", file=sys.stderr)
+        return 130
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         getattr(args, "_usage_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")

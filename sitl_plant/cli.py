@@ -13,22 +13,26 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
-from sitl_plant.codec import Home
-from offboard.model.clihelp import HelpFormatter, add_version
-from offboard.model.errors import UserError
-from sitl_plant.inner_loops import InnerLoops
-from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
-from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, parse_impairment
-from offboard.model.tlog import TlogWriter
-from sitl_plant.link import Endpoint, Link, parse_address
-from sitl_plant.params import plant_params
-from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
-from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
-from sitl_plant.server import Plant, PlantConfig, RunStats, run_lockstep, run_realtime
-from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
-from sitl_plant.dynamics.wind import WindField, wind_from_spec
-from offboard.model.vehicle import VEHICLE_MODELS
+try:  # a third of a second of imports (numpy and the plant), before main() can catch a Ctrl-C
+    from sitl_plant.autopilot import FAILURE_UNITS, Autopilot
+    from sitl_plant.codec import Home
+    from offboard.model.clihelp import HelpFormatter, add_version
+    from offboard.model.errors import UserError
+    from sitl_plant.inner_loops import InnerLoops
+    from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
+    from sitl_plant.impairment import Impairment, ImpairmentError, ImpairmentSpec, parse_impairment
+    from offboard.model.tlog import TlogWriter
+    from sitl_plant.link import Endpoint, Link, parse_address
+    from sitl_plant.params import plant_params
+    from offboard.model.tlog import LOCKSTEP_EPOCH_S, wall_clock_us
+    from offboard.model.vehicle import DEFAULT_VEHICLE_FILE, load_vehicle
+    from sitl_plant.server import Plant, PlantConfig, RunStats, run_lockstep, run_realtime
+    from sitl_plant.dynamics.sensors import CleanSensors, SensorModel, sensors_from_spec
+    from sitl_plant.dynamics.wind import WindField, wind_from_spec
+    from offboard.model.vehicle import VEHICLE_MODELS
+except KeyboardInterrupt:
+    print("sitl-plant: interrupted while starting", file=sys.stderr)
+    sys.exit(130)
 
 API_BIND_PORT, API_REMOTE_PORT = 14580, 14540  # PX4 SITL's offboard link
 GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550  # PX4 SITL's ground-station link

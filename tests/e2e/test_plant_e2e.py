@@ -491,6 +491,43 @@ def test_ctrl_c_while_starting_is_one_line(tmp_path):
     assert plant.returncode == 130 and err.strip() == "sitl-plant: interrupted while starting", err
 
 
+#: Runs a module as ``python -m`` does, with a Ctrl-C arriving while it imports the module named
+#: by argv[1] (the SIGINT is sent to the process as that import starts, as a user's Ctrl-C is).
+_CTRL_C_DURING_IMPORT = """
+import importlib.abc, os, runpy, signal, sys
+importing = sys.argv[1]
+class CtrlC(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == importing:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, CtrlC())
+module = sys.argv[2]
+sys.argv = [module, *sys.argv[3:]]
+runpy.run_module(module, run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize(
+    ("importing", "command", "line"),
+    [
+        ("sitl_plant.navigator", ["sitl_plant.cli", "--api-bind", "127.0.0.1:0", "--api-remote", "none", "--gcs-bind", "none"],
+         "sitl-plant: interrupted while starting"),
+        ("offboard.flight.mission", ["offboard.cli", "fly", "missions/paper-helix.toml", "--connect", "udpin:127.0.0.1:0"],
+         "offboard fly: interrupted while starting"),
+    ],
+    ids=["sitl-plant", "offboard-fly"],
+)  # fmt: skip
+def test_ctrl_c_while_the_program_loads_is_one_line(importing, command, line):
+    """Ctrl-C in the program's first third of a second, while Python imports its modules (before
+    any handler of ours runs): one line and exit 130, no traceback (both printed Python's
+    KeyboardInterrupt traceback)."""
+    done = subprocess.run([sys.executable, "-c", _CTRL_C_DURING_IMPORT, importing, *command], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert done.returncode == 130 and done.stderr.strip() == line, done.stderr
+
+
 # --- bad input ------------------------------------------------------------------------------------------
 
 
