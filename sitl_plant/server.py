@@ -326,7 +326,7 @@ class Plant:
         try:
             with np.errstate(all="ignore"):
                 sim.step(n_steps)
-            broken = not (np.all(np.isfinite(sim.x)) and np.max(np.abs(self.model_position(sim.x))) < MAX_DISTANCE_M)
+            broken = not self._sound(sim.x)
         except (ArithmeticError, np.linalg.LinAlgError, ValueError):
             broken = True
         if broken:
@@ -346,6 +346,13 @@ class Plant:
             self._announce(text)
         self._mission_tick()
         self._apply_task()
+
+    def _sound(self, x: np.ndarray) -> bool:
+        """Whether a state is one the simulation goes on from: every entry finite and the position
+        within ``MAX_DISTANCE_M`` of home. On plain floats: numpy's reductions over these 17
+        numbers took 10 us of every lockstep period."""
+        values = x.tolist()
+        return all(map(math.isfinite, values)) and max(abs(values[i]) for i in self._position_index) < MAX_DISTANCE_M
 
     def model_position(self, x: np.ndarray) -> np.ndarray:
         """Position entries of the model's state (either model keeps them first or interleaved)."""

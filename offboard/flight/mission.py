@@ -740,6 +740,6 @@ class Flight:
 
 def _diverged(measured: MeasuredState) -> str:
     """Why the measured state means the flight is lost ('' if it is not); as run_scenario."""
-    values = np.concatenate([measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, measured.body_rate_frd_rad_s])
-    finite = bool(np.all(np.isfinite(values)))
+    vectors = (measured.pos_ned_m, measured.vel_ned_m_s, measured.euler_rad, measured.body_rate_frd_rad_s)
+    finite = all(math.isfinite(v) for vector in vectors for v in np.asarray(vector, dtype=float).tolist())  # floats: 5x numpy's on 12 numbers
     return lost_reason(finite, float(measured.euler_rad[0]), float(measured.euler_rad[1]), measured.pos_ned_m, "measured")
