@@ -60,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--inner-loop", choices=InnerLoops.KINDS, default="px4", help="how attitude setpoints are flown: PX4's attitude/rate controllers, or the paper's tau_tilde with eq. 16")
     sim.add_argument("--wind", metavar="SPEC", default="none", help="wind: none | constant:N,E,D | dryden:SPEED[,dir=DEG,...] | gust:t=S,amp=M_S,dur=S, joined with '+'")
     sim.add_argument("--noise", metavar="SPEC", default="clean", help="sensor model for the telemetry: clean | paper[:FRACTION] | imu[:pos=M,vel=M_S,att=RAD,rate=RAD_S,acc=M_S2]")
-    sim.add_argument("--seed", type=int, default=0, help="seed of wind and sensor noise")
+    sim.add_argument("--seed", type=int, default=0, help="seed of wind, sensor noise and a lost GPS's dead reckoning")
     sim.add_argument("--home", metavar="LAT,LON,ALT", default="47.397742,8.545594,488.0", help="origin of the local frame: degrees, degrees, metres AMSL")
     sim.add_argument("--physics-dt", metavar="S", type=float, default=0.001, help="RK4 step, seconds")
     sim.add_argument("--unhealthy", metavar="UNITS", default="", help=f"simulated sensor failures that block arming, comma-separated: {', '.join(FAILURE_UNITS.values())}")
@@ -240,6 +240,7 @@ def _run(args: argparse.Namespace) -> int:
         lockstep_period_s=args.lockstep_period,
         home=home,
         sysid=args.sysid,
+        seed=args.seed,
         start_epoch_s=LOCKSTEP_EPOCH_S if args.lockstep else time.time(),
         log_path=args.log,
         ftp_root=_ftp_root(args),

@@ -198,6 +198,32 @@ def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessa
     )
 
 
+def hil_state_quaternion(truth: VehicleState, home: Home) -> MAVLinkMessage:
+    """The simulator's ground truth, as PX4 SITL sends it on request (its
+    ``vehicle_*_groundtruth`` topics, HIL_STATE_QUATERNION.hpp): time_usec 0, airspeeds 0, and the
+    acceleration in whole m/s^2 where MAVLink says mG (PX4 copies the float into the int16)."""
+    lat, lon, alt = ned_to_geodetic(truth.pos_ned_m, home)
+    q, w, v, a = truth.quat_wxyz, truth.body_rate_frd_rad_s, truth.vel_ned_m_s, truth.acc_ned_m_s2
+    return mavlink.MAVLink_hil_state_quaternion_message(
+        0,
+        [float(q[0]), float(q[1]), float(q[2]), float(q[3])],
+        float(w[0]),
+        float(w[1]),
+        float(w[2]),
+        _clip32(lat * 1e7),
+        _clip32(lon * 1e7),
+        _clip32(alt * 1000.0),
+        _clip16(v[0] * 100.0),
+        _clip16(v[1] * 100.0),
+        _clip16(v[2] * 100.0),
+        0,
+        0,
+        _clip16(math.trunc(float(a[0]))),
+        _clip16(math.trunc(float(a[1]))),
+        _clip16(math.trunc(float(a[2]))),
+    )
+
+
 def ground_course(st: VehicleState, *, unknown_cdeg: int) -> tuple[float, int]:
     """(ground speed m/s, course over ground in cdeg 0..35999); ``unknown_cdeg`` below 0.1 m/s."""
     v = st.vel_ned_m_s

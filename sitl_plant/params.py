@@ -173,6 +173,13 @@ def horizontal_drag_n_s_m(vehicle: VehicleParams) -> float:
     return 0.5 * (vehicle.linear_drag_n_s_m[0] + vehicle.linear_drag_n_s_m[1])
 
 
+#: SIM_DR_ACC_ERR's default, m/s^2: PX4 v1.16 SIH's EKF2, its GPS stopped in an Offboard hold
+#: flown on the estimate (``python bench/px4_dead_reckoning.py``), reported a position 2.6-4.2 m
+#: from SIH's truth 4 s later and 3.9-5.9 m 5 s later in four flights: 1/2 b t^2 at b = 0.31-0.52
+#: (docs/plant.md). In Hold it was 0.7-0.9 m at 4.5 s (tests/e2e/test_px4_parity_gps_loss.py).
+DEAD_RECKONING_ACCEL_ERROR_M_S2 = 0.4
+
+
 def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpec]:
     """The parameters the plant implements."""
     ixx, iyy, izz = vehicle.inertia_kg_m2
@@ -199,6 +206,8 @@ def _own_param_specs(vehicle: VehicleParams, *, sysid: int = 1) -> list[ParamSpe
         ParamSpec("SIM_TQ_Y_MAX", vehicle.max_yaw_torque_nm, read_only=True, unit="N m", description="yaw torque at normalised 1"),
         ParamSpec("SIM_KDV", horizontal_drag_n_s_m(vehicle), read_only=True, unit="N s/m",
                   description="linear drag, horizontal (the vehicle file's linear_drag_n_s_m; PX4 SIH's SIH_KDV)"),
+        ParamSpec("SIM_DR_ACC_ERR", DEAD_RECKONING_ACCEL_ERROR_M_S2, min=0.0, max=10.0, unit="m/s^2",
+                  description="a GPS lost: the horizontal acceleration error the reported position is dead-reckoned with (0: none)"),
         # commander
         ParamSpec("COM_OF_LOSS_T", 1.0, min=0.0, max=60.0, unit="s", description="offboard-loss timeout"),
         ParamSpec("COM_OBL_RC_ACT", OBL_ACT_POSITION, INT, choices=tuple(range(8)),

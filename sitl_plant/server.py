@@ -43,7 +43,7 @@ from sitl_plant.autopilot import (
 from sitl_plant.codec import Home, Refused, mavlink
 from sitl_plant.dynamics.integrate import steps_per_period
 from sitl_plant.dynamics.rigid_body import rotor_speeds_for
-from sitl_plant.dynamics.sensors import SensorModel
+from sitl_plant.dynamics.sensors import DeadReckoning, SensorModel
 from sitl_plant.dynamics.wind import WindField
 from sitl_plant.ftp import FtpFormatError, FtpServer
 from sitl_plant.inner_loops import InnerLoops
@@ -124,6 +124,8 @@ STREAMS: dict[int, tuple[str, float, float]] = dict(sorted({
     436: ("CURRENT_MODE", 0.5, 0.5),  # development.xml
     mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_LOCATION: ("OPEN_DRONE_ID_LOCATION", 1.0, 1.0),
     mavlink.MAVLINK_MSG_ID_OPEN_DRONE_ID_SYSTEM: ("OPEN_DRONE_ID_SYSTEM", 1.0, 1.0),
+    # the simulator's truth, on request only (SET_MESSAGE_INTERVAL), as PX4 SITL
+    mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: ("HIL_STATE_QUATERNION", 0.0, 0.0),
 }.items()))
 #: Sent every lockstep period on the API link whatever their interval: the lockstep contract.
 LOCKSTEP_STREAMS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
@@ -202,6 +204,7 @@ class PlantConfig:
     #: whether the links sign (--signing-key): without, SETUP_SIGNING is ignored, as PX4 v1.16
     #: (which has no signing) ignores it
     signing: bool = False
+    seed: int = 0  # --seed: what the plant draws at random (a lost GPS's dead-reckoning error)
 
 
 #: A setpoint stamped this little before the newest of its sender is a reordered or duplicated
@@ -286,6 +289,9 @@ class Plant:
         self._heartbeat_status: Status | None = None  # the status the latest heartbeat reported
         self._truth = self.sim.truth()
         self._measured: VehicleState | None = None
+        #: the estimate's error while the GPS is lost (None: it is not), drawn as it is lost
+        self._dead_reckoning: DeadReckoning | None = None
+        self._rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x6A5]))
         self._rigid = not isinstance(model, PaperModel)
         self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]
         self.autopilot.observe(self._truth)
@@ -340,12 +346,24 @@ class Plant:
             self.autopilot.inject_failure("motor", self.time_s)
         self._truth = self.sim.truth()
         self._measured = None
+        self._dead_reckon(n_steps * self.dt_us * 1e-6)
         ap = self.autopilot
         ap.observe(self._truth)
         for text in ap.update(self.time_s):
             self._announce(text)
         self._mission_tick()
         self._apply_task()
+
+    def _dead_reckon(self, period_s: float) -> None:
+        """The estimate's error while the GPS is lost, over the period just flown (from the loss
+        when it came within it); the GPS back, EKF2 resets its position to it."""
+        lost_s = self.autopilot.gps_lost_s(self.time_s)
+        if lost_s is None:
+            self._dead_reckoning = None
+            return
+        if self._dead_reckoning is None:
+            self._dead_reckoning = DeadReckoning.drawn(self.params["SIM_DR_ACC_ERR"], self._rng)
+        self._dead_reckoning.advance(min(lost_s, period_s), at_rest=self._truth.on_ground)
 
     def _sound(self, x: np.ndarray) -> bool:
         """Whether a state is one the simulation goes on from: every entry finite and the position
@@ -705,7 +723,10 @@ class Plant:
         """The sensor model's measurement of the current truth (once per telemetry sample)."""
         if self._measured is None:
             truth = self._truth
-            self._measured = truth if self.sensors is None else self.sensors.measure(truth)
+            measured = truth if self.sensors is None else self.sensors.measure(truth)
+            if self._dead_reckoning is not None:
+                measured = self._dead_reckoning.measure(measured)
+            self._measured = measured
         return self._measured
 
     def status_changed(self) -> bool:
@@ -736,6 +757,8 @@ class Plant:
             status = self.autopilot.status()
             self._heartbeat_status = status
             return codec.heartbeat(status)
+        if mid == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
+            return codec.hil_state_quaternion(self._truth, self.config.home)
         if mid in _STATE_STREAMS:
             st = self.measured()
             if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:

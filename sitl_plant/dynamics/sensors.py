@@ -10,6 +10,10 @@ sample with the true state, and ``reset()`` to start a new run with the same see
 - ``ImuNoise``: ordinary white noise on position, velocity, attitude, rates and acceleration,
   the size of a GPS/EKF estimate's sample-to-sample jitter.
 
+``DeadReckoning`` is not one of them: it is what the plant's estimate becomes once its GPS is
+lost (``advance(dt_s, at_rest)`` as time passes, ``measure(state)``), on top of whichever
+model measures.
+
 Two ways in: a command-line spec (``sensors_from_spec("paper:0.05", seed)``) and a TOML
 table (``sensors_from_table``). See ``docs/model.md``.
 """
@@ -36,6 +40,7 @@ __all__ = [
     "CleanSensors",
     "PaperAccelNoise",
     "ImuNoise",
+    "DeadReckoning",
     "IMU_DEFAULTS",
     "sensors_from_spec",
     "sensors_from_table",
@@ -216,6 +221,52 @@ class ImuNoise:
             f"ImuNoise(pos_std_m={self.pos_std_m}, vel_std_m_s={self.vel_std_m_s}, att_std_rad={self.att_std_rad}, "
             f"rate_std_rad_s={self.rate_std_rad_s}, acc_std_m_s2={self.acc_std_m_s2}, seed={self.seed})"
         )
+
+
+class DeadReckoning:
+    """The horizontal estimate of an estimator that lost its position aid (the GPS).
+
+    Without the GPS an estimator like PX4's EKF2 integrates the accelerometer alone and no
+    longer learns its error: a constant horizontal acceleration error ``b`` (north, east) puts the
+    estimate ``b t`` off in velocity and ``1/2 b t^2`` in position, ``t`` seconds after the loss.
+    At rest on the ground the velocity error is zero and the position error stays where it is
+    (EKF2 fuses a zero velocity when the vehicle is at rest). The vertical estimate keeps its
+    aid (the barometer) and the attitude its own (the gyro and the gravity vector): both stay as
+    measured. ``drawn`` takes the error's direction at random (a bias has none preferred) and
+    its size from ``SIM_DR_ACC_ERR``.
+    """
+
+    def __init__(self, accel_error_ne_m_s2: tuple[float, float]) -> None:
+        north, east = (float(v) for v in accel_error_ne_m_s2)
+        if not (math.isfinite(north) and math.isfinite(east)):
+            raise ValueError(f"the acceleration error must be finite, got {accel_error_ne_m_s2}")
+        self.accel_error_ne_m_s2 = (north, east)
+        self._accel = np.array([north, east, 0.0])
+        self.pos_error_ned_m = np.zeros(3)
+        self.vel_error_ned_m_s = np.zeros(3)
+
+    @classmethod
+    def drawn(cls, magnitude_m_s2: float, rng: np.random.Generator) -> DeadReckoning:
+        """An error of ``magnitude_m_s2`` in a direction drawn uniformly from ``rng``."""
+        heading = float(rng.uniform(0.0, 2.0 * math.pi))
+        return cls((magnitude_m_s2 * math.cos(heading), magnitude_m_s2 * math.sin(heading)))
+
+    def advance(self, dt_s: float, at_rest: bool) -> None:
+        """``dt_s`` seconds more of dead reckoning: the errors grow exactly as a constant ``b``
+        makes them in the air; at rest on the ground the velocity error is zero and the position
+        error stays."""
+        if at_rest:
+            self.vel_error_ned_m_s = np.zeros(3)
+        elif dt_s > 0.0:
+            self.pos_error_ned_m = self.pos_error_ned_m + self.vel_error_ned_m_s * dt_s + 0.5 * self._accel * dt_s * dt_s
+            self.vel_error_ned_m_s = self.vel_error_ned_m_s + self._accel * dt_s
+
+    def measure(self, state: VehicleState) -> VehicleState:
+        """``state`` as the estimator reports it now."""
+        return replace(state, pos_ned_m=state.pos_ned_m + self.pos_error_ned_m, vel_ned_m_s=state.vel_ned_m_s + self.vel_error_ned_m_s)
+
+    def __repr__(self) -> str:
+        return f"DeadReckoning(accel_error_ne_m_s2={self.accel_error_ne_m_s2})"
 
 
 # --- the command-line spec and the TOML table ----------------------------------------------------

@@ -95,6 +95,8 @@ class Client:
     yaw_samples: list[tuple[float, float]] = field(default_factory=list)
     of_loss_t: float = 1.0  # the vehicle's COM_OF_LOSS_T, for the test's arithmetic
     estimator_flags: list[tuple[float, int]] = field(default_factory=list)  # vehicle time, ESTIMATOR_STATUS flags
+    #: the simulator's truth (HIL_STATE_QUATERNION, on request): vehicle time, lat, lon (deg), alt AMSL (m)
+    truths: list[tuple[float, float, float, float]] = field(default_factory=list)
     #: stops the vehicle's GPS (``fly_side_by_side``: PX4's shell, the plant's MAV_CMD_INJECT_FAILURE)
     fail_gps: Callable[[], None] | None = None
     _next_hb: float = 0.0
@@ -163,6 +165,8 @@ class Client:
             self.gps_alt.append((self.t_s, msg.alt / 1000.0))
         elif kind == "ESTIMATOR_STATUS":
             self.estimator_flags.append((self.t_s, int(msg.flags)))
+        elif kind == "HIL_STATE_QUATERNION":  # no time of its own (PX4 sends 0): the estimate's before it
+            self.truths.append((self.t_s, msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0))
         elif kind == "ATTITUDE":
             self.boot_s = max(self.boot_s, msg.time_boot_ms / 1000.0)
             self.attitude_yaw = msg.yaw

@@ -152,16 +152,36 @@ def test_an_estimate_lost_in_flight_hands_the_vehicle_to_its_landing():
     # dropped from present 2 s later
     assert result.notes[:3] == ["vehicle: GPS unhealthy (SYS_STATUS)", "vehicle: horizontal position control unhealthy (SYS_STATUS)",
                                 "vehicle: GPS no longer reported (SYS_STATUS)"]  # fmt: skip
-    # from the end of the mission to the landing: level at the heading flown, hover thrust
+    # from the end of the mission to the landing: level at the heading flown, hover thrust (the law,
+    # following EKF2's dead reckoning, had the vehicle tilted)
     land_at = next(i for i, m in enumerate(link.sent) if m.get_type() == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_NAV_LAND)
-    after = [m for m in link.sent[:land_at] if m.get_type() == "SET_ATTITUDE_TARGET"][-1:]
-    assert after and after[0].q[1] == pytest.approx(0.0, abs=1e-9) and after[0].q[2] == pytest.approx(0.0, abs=1e-9)
+    last_law = [m for m in link.sent[:land_at] if m.get_type() == "SET_ATTITUDE_TARGET"][-1]
+    level = [m for m in link.sent[land_at:] if m.get_type() == "SET_ATTITUDE_TARGET"][0]
+    assert abs(last_law.q[1]) + abs(last_law.q[2]) > 1e-3
+    assert level.q[1] == pytest.approx(0.0, abs=1e-9) and level.q[2] == pytest.approx(0.0, abs=1e-9)
+    assert level.thrust == pytest.approx(0.25, abs=0.01)  # the paper's quad hovers at 0.25
 
 
 def test_ignore_estimator_flies_on():
-    result, _, _ = fly_plant(hover(10.0), gps_fails_at(1.0), FlightConfig(lockstep=True, connect="test", watch_estimator=False))
+    """... on the dead-reckoned estimate, as on PX4 (flown so, its estimate ran 21 m from the truth
+    in 10 s, and the vehicle 20 m the other way): the flight's record holds the reference while
+    the vehicle itself leaves it, the opposite way to the estimate's drift."""
+    flown: list[tuple[np.ndarray, np.ndarray]] = []  # (truth, report) while the offboard flies it
+
+    def hook(lk: PlantLink) -> None:
+        gps_fails_at(1.0)(lk)
+        if lk.plant.autopilot.mode is Mode.OFFBOARD and lk.plant.autopilot.armed:
+            flown.append((lk.plant.sim.truth().pos_ned_m.copy(), lk.plant.measured().pos_ned_m.copy()))
+
+    result, _, _ = fly_plant(hover(10.0), hook, FlightConfig(lockstep=True, connect="test", watch_estimator=False))
     assert result.status is FlightStatus.COMPLETE, result.detail
     assert "vehicle: GPS no longer reported (SYS_STATUS)" in result.notes  # still said
+    t, err = result.record["t_s"], np.linalg.norm(result.record.error_ned_m, axis=1)
+    assert np.max(err[t > 5.0]) < 0.1  # the estimate held on the reference (from the start's transient on)
+    truth, report = flown[-1]
+    drift = (report - truth)[:2]  # about 15 m in the 8.5 s from the loss to the mission's end
+    assert np.linalg.norm(drift) > 5.0
+    assert np.linalg.norm(truth[:2] + drift) < 0.1 * np.linalg.norm(drift)  # the vehicle went where the estimate did not (the reference: x = y = 0)
 
 
 def test_a_reference_running_away_is_lost_track_in_flight():

@@ -25,11 +25,11 @@ def wire(msg):
     return _PARSER.parse_buffer(msg.pack(_SENDER))[0]
 
 
-def make_plant(model="rigid-body", inner_loop="px4", period_s=0.02, vehicle=None) -> Plant:
+def make_plant(model="rigid-body", inner_loop="px4", period_s=0.02, vehicle=None, seed=0) -> Plant:
     vehicle = vehicle or load_vehicle(PAPER_VEHICLE_FILE)
     params = plant_params(vehicle)
     params.set("MPC_TKO_SPEED", 3.0)  # quicker take-offs keep the tests short
-    config = PlantConfig(model=model, inner_loop=inner_loop, lockstep=True, lockstep_period_s=period_s)
+    config = PlantConfig(model=model, inner_loop=inner_loop, lockstep=True, lockstep_period_s=period_s, seed=seed)
     return Plant(config, vehicle, params, Autopilot(params, home_alt_amsl_m=config.home.alt_m))
 
 
@@ -268,3 +268,97 @@ def test_offboard_position_and_velocity_setpoints(model):
     st = plant.sim.truth()
     assert st.vel_ned_m_s[1] == pytest.approx(1.0, abs=0.15)
     assert st.pos_ned_m[1] - start[1] > 2.0
+
+
+def _reported(plant: Plant) -> tuple[np.ndarray, np.ndarray]:
+    """LOCAL_POSITION_NED's position and velocity as the plant sends them now."""
+    (msg,) = [m for m in plant.telemetry(API, force=(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,)) if m.get_type() == "LOCAL_POSITION_NED"]
+    return np.array([msg.x, msg.y, msg.z]), np.array([msg.vx, msg.vy, msg.vz])
+
+
+def test_a_lost_gps_dead_reckons_the_reported_position_away_from_the_truth():
+    """Without its GPS PX4's EKF2 integrates the accelerometer alone: its position ran 21 m from
+    SIH's truth in 10 s (docs/plant.md). The plant's report drifts by 1/2 b t^2 (b = SIM_DR_ACC_ERR,
+    horizontal, in a seeded direction), its velocity by b t, the height not at all, while the
+    vehicle itself holds; the GPS back, the report is the truth again."""
+    plant = make_plant()
+    take_off_and_switch_to_offboard(plant)
+    b = plant.params["SIM_DR_ACC_ERR"]
+    assert b == pytest.approx(0.4)
+    plant.params.set("SYS_FAILURE_EN", 1)
+    each = lambda: attitude_target(plant, thrust=hover_thrust(plant))  # noqa: E731
+    run(plant, 1.0, each)
+    assert np.allclose(_reported(plant)[0], plant.sim.truth().pos_ned_m, atol=1e-3)
+    assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 1) == mavlink.MAV_RESULT_ACCEPTED
+    lost_at = plant.time_s
+    run(plant, 10.0, each)
+    t = plant.time_s - lost_at
+    pos, vel = _reported(plant)
+    truth = plant.sim.truth()
+    drift, speed = pos - truth.pos_ned_m, vel - truth.vel_ned_m_s
+    assert np.hypot(drift[0], drift[1]) == pytest.approx(0.5 * b * t * t, rel=1e-6)  # 20 m in 10 s
+    assert np.hypot(speed[0], speed[1]) == pytest.approx(b * t, rel=1e-6)
+    assert drift[2] == pytest.approx(0.0, abs=1e-9) and speed[2] == pytest.approx(0.0, abs=1e-9)
+    assert math.atan2(speed[1], speed[0]) == pytest.approx(math.atan2(drift[1], drift[0]))  # one direction
+    assert np.hypot(truth.pos_ned_m[0], truth.pos_ned_m[1]) < 0.5  # the vehicle held where it was
+    assert plant.autopilot.mode is Mode.OFFBOARD
+    assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 0) == mavlink.MAV_RESULT_ACCEPTED
+    run(plant, 0.1, each)
+    assert np.allclose(_reported(plant)[0], plant.sim.truth().pos_ned_m, atol=1e-3)
+
+
+def test_the_dead_reckoning_error_is_drawn_from_the_seed_stops_at_rest_and_is_off_at_zero():
+    def drift(seed: int, b: float | None = None, land: bool = False) -> np.ndarray:
+        plant = make_plant(seed=seed)
+        take_off_and_switch_to_offboard(plant)
+        if b is not None:
+            plant.params.set("SIM_DR_ACC_ERR", b)
+        plant.params.set("SYS_FAILURE_EN", 1)
+        assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 1) == mavlink.MAV_RESULT_ACCEPTED
+        run(plant, 2.0, lambda: attitude_target(plant, thrust=hover_thrust(plant)))
+        if land:  # on the ground at rest: EKF2 fuses a zero velocity, the position error stays
+            assert command(plant, mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED
+            for _ in range(40):
+                run(plant, 0.5)
+                if plant.sim.on_ground:
+                    break
+            assert plant.sim.on_ground
+            before = _reported(plant)[0] - plant.sim.truth().pos_ned_m
+            run(plant, 2.0)
+            after = _reported(plant)[0] - plant.sim.truth().pos_ned_m
+            assert np.allclose(after, before, atol=1e-9) and np.allclose(_reported(plant)[1], plant.sim.truth().vel_ned_m_s)
+            return after
+        return _reported(plant)[0] - plant.sim.truth().pos_ned_m
+
+    assert np.array_equal(drift(3), drift(3))
+    assert not np.allclose(drift(3), drift(4))
+    assert np.hypot(*drift(3)[:2]) == pytest.approx(0.5 * 0.4 * 2.0**2, rel=1e-6)
+    assert np.array_equal(drift(3, b=0.0), np.zeros(3))
+    assert np.hypot(*drift(3, land=True)[:2]) > 0.8  # what it drifted until it came to rest
+
+
+def test_the_truth_is_sent_on_request_as_px4_sitl_sends_simulator_truth():
+    """HIL_STATE_QUATERNION: off until asked for (as PX4 SITL), then the simulator's truth, not the
+    estimate (here 20 m away, dead-reckoned), with PX4's quirks: time_usec 0, whole m/s^2."""
+    from sitl_plant.codec import ned_to_geodetic
+
+    plant = make_plant()
+    take_off_and_switch_to_offboard(plant)
+    hil = mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION
+    each = lambda: attitude_target(plant, thrust=hover_thrust(plant))  # noqa: E731
+    run(plant, 1.0, each)
+    assert all(m.get_type() != "HIL_STATE_QUATERNION" for m in plant.telemetry(API))
+    assert command(plant, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, hil, 20000) == mavlink.MAV_RESULT_ACCEPTED
+    plant.params.set("SYS_FAILURE_EN", 1)
+    assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 1) == mavlink.MAV_RESULT_ACCEPTED
+    run(plant, 10.0, each)
+    sent = {m.get_type(): m for m in plant.telemetry(API, force=(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, hil))}
+    truth, msg = plant.sim.truth(), sent["HIL_STATE_QUATERNION"]
+    lat, lon, alt = ned_to_geodetic(truth.pos_ned_m, plant.config.home)
+    assert abs(msg.lat - lat * 1e7) <= 1 and abs(msg.lon - lon * 1e7) <= 1 and abs(msg.alt - alt * 1000.0) <= 1
+    assert msg.time_usec == 0 and msg.ind_airspeed == 0 and msg.true_airspeed == 0
+    assert list(msg.attitude_quaternion) == pytest.approx(list(truth.quat_wxyz), abs=1e-6)
+    assert (msg.vx, msg.vy, msg.vz) == pytest.approx(tuple(100.0 * truth.vel_ned_m_s), abs=1.0)
+    assert msg.zacc == math.trunc(float(truth.acc_ned_m_s2[2]))
+    estimate = sent["LOCAL_POSITION_NED"]
+    assert math.hypot(estimate.x - truth.pos_ned_m[0], estimate.y - truth.pos_ned_m[1]) > 15.0

@@ -1,0 +1,125 @@
+"""How far PX4 SIH's estimate runs from the truth once its GPS stops (sitl-plant's SIM_DR_ACC_ERR).
+
+``offboard fly --ignore-estimator`` holds 5 m on a real PX4 SITL (the offboard flies on as
+long as the mission lasts, as a client that does not read ESTIMATOR_STATUS would), the GPS is
+stopped from PX4's shell (``sensor_gps_sim stop``: this SIH build never answers
+MAV_CMD_INJECT_FAILURE) 10 s into the hold, and a second client on PX4's ground-station link
+records LOCAL_POSITION_NED beside HIL_STATE_QUATERNION (SIH's truth; ``bench/px4_estimator.py``'s
+recorder). Printed: the horizontal distance of the estimate from the truth at a few times after the
+stop (less the mean offset of the 5 s before, where the frames' origins differ), with the b of
+1/2 b t^2 each implies, and where the vehicle itself went.
+
+    python bench/px4_dead_reckoning.py [--speed F]
+
+Needs a PX4 SITL (``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl``); says so in one line without.
+The stop is timed from the last estimate recorded before PX4's shell is called (the call itself
+takes a few tenths of a second of wall time: at ``--speed 4`` up to a second or so of PX4's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.px4_estimator import EARTH_RADIUS_M, GroundStationRecord, _unique, record_ground_station  # noqa: E402
+from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4  # noqa: E402
+
+HOLD_S = 70.0  # the mission: a hold at 5 m this long
+STOP_AFTER_S = 10.0  # vehicle seconds into the hold when the GPS is stopped
+REPORT_AT_S = (2.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 40.0)
+
+
+def fly(folder: Path, speed: float) -> tuple[GroundStationRecord, float]:
+    """One hold on a fresh PX4 SITL, its GPS stopped: the ground-station record and the stop's time (boot s)."""
+    mission = folder / "hold.toml"
+    mission.write_text('[mission]\nname = "hold"\nframe = "paper-zup"\nangle_unit = "rad"\nstart = [0, 0, 0]\nstart_yaw = 0\n\n'
+                       f'[[mission.segment]]\ntype = "hold"\nname = "hold"\nposition = [0, 0, 5]\nyaw = 0\nuntil_s = {HOLD_S:g}\n')  # fmt: skip
+    record, stop = GroundStationRecord(), threading.Event()
+    stderr = folder / "fly.stderr"
+    with running_px4(folder / "px4", speed=speed) as px4:
+        recorder = threading.Thread(target=record_ground_station, args=(px4.gcs_listen_port, stop, record), daemon=True)
+        recorder.start()
+        with stderr.open("w") as err:
+            fly = subprocess.Popen([sys.executable, "-m", "offboard.cli", "fly", str(mission), "--connect",
+                                    f"udpin:127.0.0.1:{px4.api_listen_port}", "--run-dir", str(folder / "run"), "--no-plots",
+                                    "--ignore-estimator", "--lost-track-m", "inf", *(["--clock", "vehicle"] if speed != 1.0 else [])],
+                                   stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)  # fmt: skip
+        try:
+            deadline = time.monotonic() + 120.0
+            while "mission started" not in stderr.read_text() and fly.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if fly.poll() is not None or not record.estimates:
+                raise RuntimeError(f"the flight did not start: {stderr.read_text().strip().splitlines()[-1:]}")
+            time.sleep(STOP_AFTER_S / speed)
+            stopped_at = record.estimates[-1][0]
+            px4.shell("sensor_gps_sim", "stop")
+            fly.wait(timeout=HOLD_S / speed * 4 + 60)
+        finally:
+            if fly.poll() is None:
+                fly.kill()
+                fly.wait()
+            stop.set()
+            recorder.join(timeout=5)
+    return record, stopped_at
+
+
+def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
+    """Estimate minus truth (horizontal, m) at ``REPORT_AT_S`` after the stop, the b it implies,
+    the truth's distance from where it was at the stop."""
+    est, tru = _unique(record.estimates), _unique(record.truths)
+    if len(est) < 100 or len(tru) < 100:
+        raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
+    lat0, lon0 = tru[0, 1], tru[0, 2]
+    north = np.radians(tru[:, 1] - lat0) * EARTH_RADIUS_M
+    east = np.radians(tru[:, 2] - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+    t = est[:, 0]
+    truth = np.stack([np.interp(t, tru[:, 0], north), np.interp(t, tru[:, 0], east)], axis=1)
+    error = est[:, 1:3] - truth
+    before = (t > stopped_at - 5.0) & (t <= stopped_at)
+    error -= error[before].mean(axis=0)
+    at_stop = truth[np.searchsorted(t, stopped_at)]
+    rows = []
+    for after in REPORT_AT_S:
+        i = int(np.searchsorted(t, stopped_at + after))
+        if i >= len(t):
+            break
+        d = float(np.hypot(*error[i]))
+        rows.append({"after_s": after, "estimate_error_m": d, "b_m_s2": 2.0 * d / after**2,
+                     "vehicle_moved_m": float(np.hypot(*(truth[i] - at_stop)))})  # fmt: skip
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
+    args = parser.parse_args(argv)
+    if px4_launcher() is None:
+        print(f"px4_dead_reckoning: {SKIP_REASON}", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="px4-dead-reckoning-") as tmp:
+        try:
+            rows = drift(*fly(Path(tmp), args.speed))
+        except (RuntimeError, ValueError, AssertionError) as exc:
+            print(f"px4_dead_reckoning: {str(exc).splitlines()[0]}", file=sys.stderr)
+            return 1
+    print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold flown on the estimate:")
+    print("after the stop | estimate from the truth | b of 1/2 b t^2 | the vehicle moved")
+    for r in rows:
+        print(f"{r['after_s']:11.0f} s | {r['estimate_error_m']:19.2f} m | {r['b_m_s2']:9.2f} m/s^2 | {r['vehicle_moved_m']:13.2f} m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
