@@ -239,6 +239,7 @@ class VehicleSim:
             self.time_s = self.steps * dt
 
     def truth_position_ned(self) -> np.ndarray:
+        """The true position now, NED, m."""
         return self.model.vehicle_state(self.x, self.time_s, self._last_xdot).pos_ned_m
 
     def truth(self) -> VehicleState:

@@ -69,6 +69,7 @@ class AttitudeTarget:
 
     @property
     def yaw_rate_ff_rad_s(self) -> float:
+        """The yaw-rate feed-forward that goes with the attitude: the desired body rate about z, rad/s."""
         return self.body_rate_frd_rad_s[2]
 
     def command(self, torque_nm: Vec3 | None = None) -> Command:

@@ -50,15 +50,29 @@ class StateEstimate(Protocol):
     """
 
     @property
-    def pos_ned_m(self) -> np.ndarray: ...
+    def pos_ned_m(self) -> np.ndarray:
+        """Position, NED, m."""
+        ...
+
     @property
-    def vel_ned_m_s(self) -> np.ndarray: ...
+    def vel_ned_m_s(self) -> np.ndarray:
+        """Velocity, NED, m/s."""
+        ...
+
     @property
-    def euler_rad(self) -> np.ndarray: ...  # roll, pitch, yaw (ZYX)
+    def euler_rad(self) -> np.ndarray:
+        """Roll, pitch, yaw (ZYX), rad."""
+        ...
+
     @property
-    def body_rate_frd_rad_s(self) -> np.ndarray: ...  # p, q, r
+    def body_rate_frd_rad_s(self) -> np.ndarray:
+        """Body rates p, q, r (FRD), rad/s."""
+        ...
+
     @property
-    def quat_wxyz(self) -> np.ndarray: ...  # body FRD -> NED
+    def quat_wxyz(self) -> np.ndarray:
+        """Attitude quaternion (w, x, y, z), body FRD to NED."""
+        ...
 
 
 @dataclass(frozen=True)

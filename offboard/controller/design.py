@@ -415,6 +415,9 @@ class AxisGains:
     velocity_integral_per_s2: float | np.ndarray = 0.0
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(k_pos, k_vel, lead, integral, velocity integral) as float arrays broadcast to one shape (a batch of
+        candidate gains, or scalars as 0-d arrays).
+        """
         return tuple(np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
                                           (self.k_pos, self.k_vel, self.lead, self.integral_per_s,
                                            self.velocity_integral_per_s2))))  # type: ignore[return-value]
@@ -626,6 +629,7 @@ class AxisAnalysis:
     sensitivity_peak: float = 1.0
 
     def meets(self, spec: MarginSpec) -> bool:
+        """Whether the loop is stable (every pole inside the unit circle) and keeps every margin of ``spec``."""
         return (self.spectral_radius < 1.0 and self.gain_margin >= spec.gain_margin
                 and self.phase_margin_deg >= spec.phase_margin_deg and self.delay_margin_s >= spec.delay_margin_s
                 and self.sensitivity_peak <= spec.sensitivity_peak)  # fmt: skip
@@ -883,10 +887,12 @@ class Design:
 
     @property
     def horizontal(self) -> AxisGains:
+        """The gains of the horizontal axes (north's; east's are the same)."""
         return self.north.gains
 
     @property
     def vertical(self) -> AxisGains:
+        """The gains of the vertical axis."""
         return self.up.gains
 
 

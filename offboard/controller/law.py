@@ -400,13 +400,16 @@ class ControlOutput:
 
     @property
     def thrust_n(self) -> float:
+        """u, the collective thrust, N (eq. 39, or its vertical row with the tilt bounded)."""
         return self.law.thrust_n
 
     @property
     def tau_tilde(self) -> tuple[float, float, float]:
+        """tau~, the Euler-angle accelerations of eq. 40-42, rad/s^2."""
         return self.law.tau_tilde
 
     def is_finite(self) -> bool:
+        """Whether every output (u, tau~, the angle and rate references, the torques) is a finite number."""
         values = (self.law.thrust_n, *self.law.tau_tilde, self.law.roll_ref_rad, self.law.pitch_ref_rad,
                   *self.law.euler_rate_ref_rad_s, *self.torques_nm)
         return all(math.isfinite(v) for v in values)

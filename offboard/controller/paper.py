@@ -117,6 +117,7 @@ class PaperController:
         self.predictor = predictor
 
     def reset(self) -> None:
+        """Forget every past sample: the law's memory, the velocity filter and the prediction's history."""
         self.law.reset()
         if self.velocity is not None:
             self.velocity.reset()
@@ -124,6 +125,10 @@ class PaperController:
             self.predictor.reset()
 
     def step(self, state: StateEstimate, ref_n: Reference, ref_n1: Reference) -> Command:
+        """One sample: the velocity read (``velocity_from_position_s``), the state carried over the latency
+        (``predictor``), the law (eq. 28-42) on the paper-frame state and the led references, then eq. 16
+        and the setpoint attitude (``paper_command``).
+        """
         p = self.params
         vel = None
         if self.velocity is not None:

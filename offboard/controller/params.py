@@ -91,6 +91,7 @@ class ActionLimits:
 
     @property
     def any(self) -> bool:
+        """Whether any limit is set."""
         return any(getattr(self, name) is not None for name in ("thrust_min_n", "thrust_max_n", "tilt_max_rad", *SPEED_LIMITS))
 
 
@@ -223,6 +224,7 @@ class ControllerParams:
         object.__setattr__(self, "euler_rate_form", EulerRateForm(self.euler_rate_form))  # a caller's word: its enum
 
     def with_changes(self, **changes: Any) -> ControllerParams:
+        """A copy with the named fields changed (checked as a new one is)."""
         return replace(self, **changes)
 
 

@@ -16,6 +16,7 @@ Quat = tuple[float, float, float, float]
 
 
 def qmul(a: Quat, b: Quat) -> Quat:
+    """The Hamilton product ``a b`` (``b`` applied first)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
     return (
@@ -27,10 +28,12 @@ def qmul(a: Quat, b: Quat) -> Quat:
 
 
 def qinv(q: Quat) -> Quat:
+    """The inverse of a unit quaternion: its conjugate."""
     return (q[0], -q[1], -q[2], -q[3])
 
 
 def qnormalize(q: Quat) -> Quat:
+    """``q`` scaled to unit norm."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
@@ -58,6 +61,9 @@ def quat_between(src: Vec3, dst: Vec3) -> Quat:
 
 
 def quat_from_dcm(r: list[list[float]]) -> Quat:
+    """The unit quaternion of a rotation matrix (rows of ``r``), by the largest of its diagonal terms
+    (Shepperd's method, as PX4's matrix library).
+    """
     tr = r[0][0] + r[1][1] + r[2][2]
     if tr > 0:
         s = math.sqrt(tr + 1.0) * 2.0
@@ -73,6 +79,7 @@ def quat_from_dcm(r: list[list[float]]) -> Quat:
 
 
 def quat_from_euler(roll: float, pitch: float, yaw: float) -> Quat:
+    """The quaternion of ZYX Euler angles (rad): ``Rz(yaw) Ry(pitch) Rx(roll)``, body FRD to NED."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
     cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
     cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)

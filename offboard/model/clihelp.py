@@ -28,4 +28,5 @@ def program_version(prog: str) -> str:
 
 
 def add_version(parser: argparse.ArgumentParser, prog: str) -> None:
+    """Give ``parser`` a ``--version`` option printing ``program_version(prog)``."""
     parser.add_argument("--version", action="version", version=program_version(prog))

@@ -68,6 +68,7 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """The conjugate (w, -x, -y, -z): the inverse rotation of a unit quaternion."""
     return np.array([q[0], -q[1], -q[2], -q[3]])
 
 

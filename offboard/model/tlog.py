@@ -47,15 +47,18 @@ class TlogWriter:
         self.records = 0
 
     def write(self, time_us: int, packet: bytes | bytearray) -> None:
+        """One record: the 8-byte big-endian stamp (microseconds since the Unix epoch), then the packet."""
         if self._fh is not None:
             self._fh.write(_TLOG_STAMP.pack(time_us) + packet)
             self.records += 1
 
     def flush(self) -> None:
+        """Hand what is written so far to the operating system."""
         if self._fh is not None:
             self._fh.flush()
 
     def close(self) -> None:
+        """Flush and close the file (further writes are dropped)."""
         if self._fh is not None:
             self._fh.flush()
             self._fh.close()

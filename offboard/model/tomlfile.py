@@ -44,15 +44,21 @@ class Fields:
         self._used: set[str] = set()
 
     def where(self, key: str) -> str:
+        """``source: prefix.key``, how messages name a field."""
         return f"{self.source}: {self.prefix}{key}"
 
     def error(self, key: str, message: str) -> ParameterFileError:
+        """The one-line error about ``key`` (to raise)."""
         return ParameterFileError(f"{self.where(key)}: {message}")
 
     def has(self, key: str) -> bool:
+        """Whether the table has ``key`` (without marking it used)."""
         return key in self.table
 
     def raw(self, key: str, default: Any = ...) -> Any:
+        """The value of ``key`` as TOML gave it, marked used; ``default`` when absent (none: an error that
+        names the nearest unused key, a likely typo).
+        """
         self._used.add(key)
         if key not in self.table:
             if default is ...:
@@ -62,6 +68,7 @@ class Fields:
         return self.table[key]
 
     def sub(self, key: str, *, optional: bool = False) -> Fields:
+        """The sub-table ``key`` as ``Fields`` (``optional``: an empty one when absent)."""
         value = self.raw(key, {} if optional else ...)
         if not isinstance(value, Mapping):
             raise self.error(key, f"expected a table, got {type(value).__name__}")
@@ -77,6 +84,7 @@ class Fields:
         lt: float | None = None,
         le: float | None = None,
     ) -> float:
+        """A finite number (an int is taken as a float; a boolean is not a number), within the bounds given."""
         value = self.raw(key, default)
         return self._check_number(key, value, gt=gt, ge=ge, lt=lt, le=le)
 
@@ -100,6 +108,7 @@ class Fields:
         return value
 
     def vector(self, key: str, length: int, default: Any = ..., **bounds: float | None) -> tuple[float, ...]:
+        """``length`` finite numbers, each within the bounds (``number``'s)."""
         value = self.raw(key, default)
         if not isinstance(value, (list, tuple)) or len(value) != length:
             got = f"{len(value)}" if isinstance(value, (list, tuple)) else repr(value)
@@ -107,6 +116,7 @@ class Fields:
         return tuple(self._check_number(f"{key}[{i}]", v, **bounds) for i, v in enumerate(value))
 
     def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None) -> str:
+        """A string, one of ``choices`` when they are given."""
         value = self.raw(key, default)
         if not isinstance(value, str):
             raise self.error(key, f"expected a string, got {value!r}")
@@ -115,6 +125,7 @@ class Fields:
         return value
 
     def boolean(self, key: str, default: Any = ...) -> bool:
+        """true or false (TOML's booleans only)."""
         value = self.raw(key, default)
         if not isinstance(value, bool):
             raise self.error(key, f"expected true or false, got {value!r}")

@@ -114,6 +114,7 @@ class VehicleParams:
 
     @property
     def max_rotor_thrust_n(self) -> float:
+        """One rotor's thrust at top speed, k w_max^2, N."""
         return self.thrust_coeff_n_s2 * self.rotor_speed_max_rad_s**2
 
     @property
@@ -132,7 +133,7 @@ class VehicleParams:
         return 2.0 * self.drag_to_thrust_m * self.max_rotor_thrust_n
 
     def with_changes(self, **changes: Any) -> VehicleParams:
-
+        """A copy with the named fields changed (checked as a new one is)."""
         return replace(self, **changes)
 
 

@@ -60,10 +60,12 @@ class Hold(Segment):
 
     @property
     def pos_ned_m(self) -> np.ndarray:
+        """The position held, NED, m."""
         return self._ref.pos_ned_m
 
     @property
     def yaw_rad(self) -> float:
+        """The heading held, rad."""
         return self._ref.yaw_rad
 
     def _evaluate(self, t_s: float) -> Reference:

@@ -113,6 +113,7 @@ def vec3(value: ArrayLike, name: str) -> np.ndarray:
 
 
 def finite(value: float, name: str) -> float:
+    """``value`` as a float; a ValueError naming ``name`` unless it is finite."""
     value = float(value)
     if not math.isfinite(value):
         raise ValueError(f"{name} must be finite, got {value}")
@@ -120,6 +121,7 @@ def finite(value: float, name: str) -> float:
 
 
 def positive(value: float, name: str) -> float:
+    """``value`` as a float; a ValueError naming ``name`` unless it is finite and > 0."""
     value = finite(value, name)
     if value <= 0.0:
         raise ValueError(f"{name} must be > 0, got {value:g}")

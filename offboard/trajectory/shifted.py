@@ -27,12 +27,15 @@ class ShiftedTrajectory:
 
     @property
     def duration_s(self) -> float:
+        """The shifted trajectory's duration (unchanged), s."""
         return self.trajectory.duration_s
 
     def phases(self) -> list[Phase]:
+        """The shifted trajectory's phases (unchanged)."""
         return self.trajectory.phases()
 
     def reference(self, t_s: float) -> Reference:
+        """The reference at ``t_s``, its position moved by the offset."""
         r = self.trajectory.reference(t_s)
         return Reference(r.pos_ned_m + np.asarray(self.offset_ned_m), r.vel_ned_m_s, r.acc_ned_m_s2, r.yaw_rad, r.yaw_rate_rad_s)
 

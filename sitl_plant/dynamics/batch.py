@@ -918,6 +918,7 @@ class FastRigidBodySim(VehicleSim):
 
     @property
     def model(self) -> Model:
+        """The vehicle model stepped (a ``RigidBodyModel``)."""
         return self._model
 
     @model.setter
@@ -981,6 +982,7 @@ class FastRigidBodySim(VehicleSim):
         self.time_s = self.steps * self.physics_dt_s
 
     def truth_position_ned(self) -> np.ndarray:
+        """The true position now, NED, m (a copy)."""
         return self.x[0:3].copy()
 
     def truth(self) -> VehicleState:

@@ -352,6 +352,9 @@ class RigidBodyModel:
         return self._cmd
 
     def derivative(self, x: np.ndarray, thrust_n: float, torque_nm: np.ndarray, wind_ned_m_s: np.ndarray) -> np.ndarray:
+        """dx/dt (``rigid_body.derivative``) with the rotor speeds that give ``thrust_n`` and ``torque_nm``
+        (mixed, clipped to the rotors' range) commanded.
+        """
         return derivative(x, self.rotor_speed_command(thrust_n, torque_nm), wind_ned_m_s, self.params)
 
     def normalize(self, x: np.ndarray) -> np.ndarray:

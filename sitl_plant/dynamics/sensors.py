@@ -70,10 +70,11 @@ class CleanSensors:
     """Perfect measurements: ``measure`` returns the truth."""
 
     def measure(self, truth: VehicleState) -> VehicleState:
+        """The truth itself."""
         return truth
 
     def reset(self) -> None:
-        pass
+        """Nothing to forget."""
 
     def __repr__(self) -> str:
         return "CleanSensors()"
@@ -114,6 +115,7 @@ class PaperAccelNoise:
         self.reset()
 
     def reset(self) -> None:
+        """Back to the seed's first draw, with no integrated error."""
         self._rng = np.random.default_rng(np.random.SeedSequence(self.seed))
         self._previous: VehicleState | None = None
         self._vel_error = np.zeros(3)
@@ -125,6 +127,9 @@ class PaperAccelNoise:
         return np.random.default_rng(np.random.SeedSequence(self.seed)).standard_normal((samples, 3))
 
     def measure(self, truth: VehicleState) -> VehicleState:
+        """The truth with this sample's acceleration noise (``fraction`` of the mean acceleration since the
+        last sample, a draw per axis), and the velocity and position errors it integrates to (trapezoidal).
+        """
         previous, self._previous = self._previous, truth
         if previous is None or not truth.time_s > previous.time_s:
             self._vel_error = np.zeros(3)
@@ -191,9 +196,11 @@ class ImuNoise:
         self.reset()
 
     def reset(self) -> None:
+        """Back to the seed's first draw."""
         self._rng = np.random.default_rng(np.random.SeedSequence(self.seed))
 
     def measure(self, truth: VehicleState) -> VehicleState:
+        """The truth with one draw of each noise (class docstring)."""
         noise = self._rng.standard_normal((5, 3))
         rotation = self.att_std_rad * noise[2]
         angle = float(np.linalg.norm(rotation))

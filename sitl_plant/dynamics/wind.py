@@ -93,9 +93,11 @@ class ConstantWind:
         object.__setattr__(self, "velocity_ned_m_s", v)
 
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
+        """The constant velocity, NED, m/s."""
         return np.array(self.velocity_ned_m_s)
 
     def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        """The constant velocity at each of ``times_s``: (n, 3)."""
         return np.tile(np.array(self.velocity_ned_m_s), (len(times_s), 1))
 
 
@@ -152,6 +154,7 @@ class GustWind:
     gusts: tuple[Gust, ...]
 
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
+        """The gusts' sum at ``time_s`` (horizontal; the same everywhere), NED, m/s."""
         total = np.zeros(3)
         for gust in self.gusts:
             speed = gust.speed(time_s)
@@ -160,6 +163,7 @@ class GustWind:
         return total
 
     def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        """``velocity_ned`` at each of ``times_s``: (n, 3)."""
         total = np.zeros((len(times_s), 3))
         for gust in self.gusts:
             speed = gust.speeds(times_s)
@@ -377,6 +381,7 @@ class DrydenTurbulence:
         return self._now + (position - index) * self._delta
 
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
+        """The mean wind plus the turbulence at ``time_s`` (``turbulence_ned``; the same everywhere), NED, m/s."""
         return self._mean + self.turbulence_ned(time_s)
 
     def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
@@ -410,12 +415,14 @@ class CompositeWind:
     parts: tuple[WindField, ...]
 
     def velocity_ned(self, time_s: float, pos_ned_m: np.ndarray) -> np.ndarray:
+        """The sum of the parts' velocities, NED, m/s."""
         total = np.zeros(3)
         for part in self.parts:
             total += part.velocity_ned(time_s, pos_ned_m)
         return total
 
     def velocity_ned_many(self, times_s: np.ndarray) -> np.ndarray:
+        """The sum of the parts' ``velocity_ned_many`` (each part must have one): (n, 3)."""
         total = np.zeros((len(times_s), 3))
         for part in self.parts:
             total += part.velocity_ned_many(times_s)  # type: ignore[attr-defined]
