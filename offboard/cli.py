@@ -64,6 +64,9 @@ def _remember_parsers(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``offboard COMMAND ...``: the command's exit code; 2 with one line for a user's error, 130 when
+    interrupted.
+    """
     words = list(sys.argv[1:] if argv is None else argv)
     command = words[0] if words and not words[0].startswith("-") else None
     try:

@@ -39,9 +39,11 @@ class ClockRate:
 
     @property
     def real_time(self) -> bool:
+        """Whether the vehicle's clock runs at ours, within ``RATE_TOLERANCE``."""
         return 1.0 / (1.0 + RATE_TOLERANCE) <= self.rate <= 1.0 + RATE_TOLERANCE
 
     def describe(self) -> str:
+        """The measurement in one line (the rate, over which spans of both clocks)."""
         return (f"the vehicle's clock runs at {self.rate:.2f}x ours (its time_boot_ms advanced "
                 f"{self.vehicle_span_s:.2f} s in {self.span_s:.2f} s of our clock)")  # fmt: skip
 
@@ -53,6 +55,7 @@ class ClockRateMeter:
         self._pairs: list[tuple[float, float]] = []
 
     def add(self, wall_s: float, time_boot_ms: int) -> None:
+        """One pair: our clock (s) when a message stamped ``time_boot_ms`` arrived."""
         self._pairs.append((wall_s, time_boot_ms / 1000.0))
 
     @property

@@ -421,10 +421,12 @@ class VehicleStatus:
 
     @property
     def offboard(self) -> bool:
+        """Whether the vehicle is in PX4's Offboard mode."""
         return self.custom_mode_enabled and self.main_mode == PX4_MAIN_MODE_OFFBOARD
 
     @property
     def landing(self) -> bool:
+        """Whether the vehicle is in PX4's Land mode (AUTO.LAND)."""
         return self.custom_mode_enabled and self.main_mode == PX4_MAIN_MODE_AUTO and self.sub_mode == PX4_SUB_MODE_AUTO_LAND
 
     @property
@@ -434,6 +436,7 @@ class VehicleStatus:
 
     @property
     def mode_name(self) -> str:
+        """PX4's name of the mode, for messages ("non-PX4 mode" without PX4's custom mode)."""
         return px4_mode_name(self.main_mode, self.sub_mode) if self.custom_mode_enabled else "non-PX4 mode"
 
 

@@ -66,6 +66,7 @@ def stop_process(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: fl
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """``python -m offboard.demo``'s options."""
     parser = argparse.ArgumentParser(
         prog="python -m offboard.demo",
         description="Fly the paper's helix over MAVLink: sitl-plant and offboard fly as two processes.",
@@ -80,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``make demo``: the plant and ``offboard fly`` on the paper helix, as two processes; the run folder's
+    path and verdict; the flight's exit code.
+    """
     args = build_parser().parse_args(argv)
     run_dir: Path = args.run_dir or Path("runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
     try:

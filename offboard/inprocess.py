@@ -87,9 +87,10 @@ class PaperInnerLoop:
         self._inertia = np.diag(self.believed_inertia_kg_m2)
 
     def bind(self, sim: VehicleSim) -> None:
-        pass
+        """Nothing to bind: eq. 16 needs only the command and the believed inertia."""
 
     def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        """u and tau~ held, eq. 16 applied at every physics step (``EulerAccelActuation``)."""
         tau_tilde = require(command, "euler_accel_rad_s2", self.controller)
         return EulerAccelActuation(command.thrust_n, np.array(tau_tilde), self._inertia, self.euler_rate_form)
 
@@ -101,9 +102,10 @@ class HeldTorque:
     controller: str = "paper"
 
     def bind(self, sim: VehicleSim) -> None:
-        pass
+        """Nothing to bind: the torque is the sample's."""
 
     def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        """u and the eq. 16 torque of the sample, as the model's torque input, held until the next sample."""
         tau = np.array(require(command, "generalized_torque_nm", self.controller))
         return HeldActuation(command.thrust_n, sim.model.torque_from_generalized(sim.x, tau))
 
@@ -116,11 +118,12 @@ class Px4AttitudeLoop:
     loop: Px4Loop | None = None
 
     def bind(self, sim: VehicleSim) -> None:
-
+        """A fresh PX4 loop on this simulation's model and physics step, flying (not landed)."""
         self.loop = Px4Loop(plant_params(self.vehicle), sim.model, sim.physics_dt_s)
         self.loop.landed = False
 
     def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        """The PX4 loop, handed the command's attitude, thrust and yaw-rate feed-forward."""
         assert self.loop is not None, "bind() first"
         self.loop.fly_attitude(command.attitude_wxyz, command.thrust_n, command.yaw_rate_ff_rad_s)
         return self.loop
@@ -129,7 +132,9 @@ class Px4AttitudeLoop:
 class HasAttitudeLaw(Protocol):
     name: str
 
-    def actuation(self) -> Actuation: ...
+    def actuation(self) -> Actuation:
+        """The controller's own attitude law, run at every physics step."""
+        ...
 
 
 @dataclass
@@ -139,9 +144,10 @@ class ControllerAttitudeLaw:
     controller: HasAttitudeLaw
 
     def bind(self, sim: VehicleSim) -> None:
-        pass
+        """Nothing to bind: the controller's law reads the state it is handed."""
 
     def actuation(self, command: Command, sim: VehicleSim) -> Actuation:
+        """The controller's own attitude law (``controller.actuation()``)."""
         return self.controller.actuation()
 
 
@@ -193,6 +199,7 @@ class FlightResult:
 
     @property
     def status(self) -> FlightStatus:
+        """How the flight ended (the record's status)."""
         return self.record.status
 
 
@@ -378,6 +385,7 @@ class Scenario:
 
     @property
     def flight_duration_s(self) -> float:
+        """How long the flight lasts: ``duration_s``, or the trajectory's."""
         return self.trajectory.duration_s if self.duration_s is None else self.duration_s
 
 

@@ -76,6 +76,7 @@ class LinkStats:
     received_by_type: dict[str, int] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
+        """The link's counters for summary.json."""
         return {
             "sent": self.sent,
             "received": self.received,
@@ -189,14 +190,17 @@ class MavLink:
 
     @property
     def sysid(self) -> int:
+        """Our MAVLink system id."""
         return int(self._packer.srcSystem)
 
     @property
     def compid(self) -> int:
+        """Our MAVLink component id."""
         return int(self._packer.srcComponent)
 
     @property
     def local_address(self) -> tuple[str, int] | None:
+        """The (host, port) our UDP socket is bound to (None: not a UDP link)."""
         port = getattr(self.conn, "port", None)
         try:
             return port.getsockname() if port is not None else None
@@ -409,6 +413,7 @@ class MavLink:
     # -- the end -----------------------------------------------------------------------------------
 
     def flush(self) -> None:
+        """Hand the tlog's records so far to the operating system."""
         if self._tlog is not None:
             self._tlog.flush()
 

@@ -78,9 +78,11 @@ class Summary:
     settled: AxisStats | None = None  # 3D error once settled after every step (None: never settled)
 
     def to_dict(self) -> dict:
+        """The summary for summary.json, with its one-line verdict."""
         return {**asdict(self), "verdict": verdict(self)}
 
     def phase(self, name: str) -> PhaseStats:
+        """The statistics of the phase named ``name`` (KeyError: none is)."""
         for p in self.phases:
             if p.name == name:
                 return p

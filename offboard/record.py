@@ -40,6 +40,7 @@ class FlightStatus(enum.Enum):
 
     @property
     def exit_code(self) -> int:
+        """The process exit code of this status (0 complete; docs/offboard.md lists them)."""
         return {
             FlightStatus.COMPLETE: 0,
             FlightStatus.DIVERGED: 3,
@@ -75,11 +76,19 @@ class StateSample(Protocol):
     flight, a re-run) or the simulator's truth (``run_scenario``)."""
 
     @property
-    def pos_ned_m(self) -> np.ndarray: ...
+    def pos_ned_m(self) -> np.ndarray:
+        """Position, NED, m."""
+        ...
+
     @property
-    def vel_ned_m_s(self) -> np.ndarray: ...
+    def vel_ned_m_s(self) -> np.ndarray:
+        """Velocity, NED, m/s."""
+        ...
+
     @property
-    def euler_rad(self) -> np.ndarray: ...
+    def euler_rad(self) -> np.ndarray:
+        """Roll, pitch, yaw (ZYX), rad."""
+        ...
 
 
 _NAN3 = (float("nan"),) * 3

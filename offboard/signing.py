@@ -134,10 +134,12 @@ class Verdict(StrEnum):
 
     @property
     def accepted(self) -> bool:
+        """Whether a frame with this verdict is handled (signed with the key, or unsigned and allowed)."""
         return self in (Verdict.SIGNED, Verdict.UNSIGNED_ALLOWED)
 
 
 def is_signed(frame: bytes | bytearray) -> bool:
+    """Whether ``frame`` is a MAVLink 2 frame with the signed flag."""
     return len(frame) > 2 and frame[0] == MAVLINK2_STX and bool(frame[2] & IFLAG_SIGNED)
 
 
@@ -158,6 +160,7 @@ class SignatureCheck:
     counts: dict[str, int] = field(default_factory=lambda: {v.value: 0 for v in Verdict})
 
     def check(self, frame: bytes | bytearray, msg_id: int, sysid: int, compid: int) -> Verdict:
+        """The verdict on one incoming frame (module docstring for the rules), counted."""
         verdict = self._verdict(bytes(frame), msg_id, sysid, compid)
         self.counts[verdict.value] += 1
         return verdict
@@ -182,6 +185,7 @@ class SignatureCheck:
 
     @property
     def refused(self) -> int:
+        """How many frames were refused so far."""
         return sum(n for v, n in self.counts.items() if not Verdict(v).accepted)
 
 

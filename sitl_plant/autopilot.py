@@ -133,6 +133,7 @@ class Mode(Enum):
 
     @property
     def label(self) -> str:
+        """PX4's name of the mode (QGroundControl's words: Hold, Offboard, ...)."""
         return M.mode_name(*self.value)
 
     @classmethod
@@ -144,6 +145,7 @@ class Mode(Enum):
 
     @classmethod
     def from_custom_mode(cls, custom_mode: int) -> Mode | None:
+        """The mode of a HEARTBEAT's ``custom_mode`` (PX4's main mode in bits 16-23, sub mode in 24-31)."""
         return cls.from_custom(*M.main_sub(custom_mode))
 
 
@@ -232,6 +234,7 @@ class AttitudeSetpoint:
 
     @property
     def flies_attitude(self) -> bool:
+        """Whether the setpoint gives an attitude (PX4 then flies it and ignores the rates)."""
         return self.q_wxyz is not None
 
     @property
@@ -436,6 +439,9 @@ class Autopilot:
     # -- status ----------------------------------------------------------------------------------
 
     def status(self) -> Status:
+        """The status the heartbeat and the status streams report now (mode, arming, system status,
+        failures, sensor health, landed state, a lost GPS's age).
+        """
         now = self._now
         if self._m.terminated:
             system_status = MAV_STATE_FLIGHT_TERMINATION
@@ -476,6 +482,7 @@ class Autopilot:
         return Frame(self.origin[0], self.origin[1], self.origin[2], self.home_ned_m)
 
     def landed_state(self) -> int:
+        """EXTENDED_SYS_STATE's landed state: on the ground, taking off, landing or in the air."""
         if self._landed:
             return MAV_LANDED_STATE_ON_GROUND
         if self.armed and self.mode is Mode.AUTO_TAKEOFF:
@@ -496,6 +503,7 @@ class Autopilot:
 
     @property
     def last_setpoint(self) -> Setpoint | None:
+        """The offboard setpoint heard last (None: none yet)."""
         return self._m.last_setpoint
 
     # -- events ----------------------------------------------------------------------------------
@@ -780,6 +788,9 @@ class Autopilot:
         return self.disarm(now_s, forced=forced)
 
     def arm(self, now_s: float, *, forced: bool = False) -> Reply:
+        """Arm, unless a pre-arm check fails (``forced``: without them, as MAV_CMD_COMPONENT_ARM_DISARM's
+        magic number 21196).
+        """
         self._now = max(self._now, now_s)
         if self.armed:
             return Reply(MAV_RESULT_ACCEPTED)
@@ -805,6 +816,7 @@ class Autopilot:
         return Reply(MAV_RESULT_ACCEPTED, (StatusText(MAV_SEVERITY_INFO, "Armed by external command"),))
 
     def disarm(self, now_s: float, *, forced: bool = False) -> Reply:
+        """Disarm, on the ground only unless ``forced`` (then in the air too: the motors stop)."""
         if not self.armed:
             return Reply(MAV_RESULT_ACCEPTED)
         if not forced and not self._landed:
@@ -909,6 +921,7 @@ class Autopilot:
         self.failures.add(unit)
 
     def clear_failure(self, unit: str) -> None:
+        """Make ``unit`` (a ``FAILURE_UNITS`` name) work again; a GPS back ends the dead reckoning."""
         self.failures.discard(unit)
         if unit == "gps":
             self._gps_failed_s = None

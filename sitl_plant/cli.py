@@ -45,6 +45,7 @@ class ArgumentError(UserError, ValueError):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """``sitl-plant``'s options (``--help`` lists them by group)."""
     parser = argparse.ArgumentParser(
         prog="sitl-plant",
         description="A simulated PX4-style quadrotor autopilot speaking MAVLink 2 over UDP. "
@@ -200,6 +201,9 @@ class _StatusLine:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``sitl-plant``: run until interrupted; 0, or 2 with one line for a bad option or file, 130 when
+    interrupted while starting.
+    """
     args = build_parser().parse_args(argv)
     try:
         return _run(args)

@@ -154,6 +154,9 @@ def pressure_hpa(alt_amsl_m: float) -> float:
 
 
 def heartbeat(status: Status) -> MAVLinkMessage:
+    """HEARTBEAT of a PX4 quadrotor: the autopilot's base mode flags (or ones built from the mode and
+    arming), PX4's custom mode, the system status.
+    """
     base = status.base_mode  # the autopilot's, as PX4 sends it (autopilot.base_mode_flags)
     if base is None:
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
@@ -167,21 +170,27 @@ def heartbeat(status: Status) -> MAVLinkMessage:
 
 
 def attitude(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    """ATTITUDE: ZYX roll, pitch, yaw (rad) and body rates (FRD, rad/s) of ``st``, stamped ``t_ms``."""
     e, w = st.euler_rad, st.body_rate_frd_rad_s
     return mavlink.MAVLink_attitude_message(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
 
 
 def attitude_quaternion(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    """ATTITUDE_QUATERNION: q (w, x, y, z) body FRD to NED and body rates of ``st``; no repr_offset_q."""
     q, w = st.quat_wxyz, st.body_rate_frd_rad_s
     return mavlink.MAVLink_attitude_quaternion_message(t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2], (0.0, 0.0, 0.0, 0.0))
 
 
 def local_position_ned(t_ms: int, st: VehicleState) -> MAVLinkMessage:
+    """LOCAL_POSITION_NED: position (m) and velocity (m/s) of ``st``, NED from home."""
     p, v = st.pos_ned_m, st.vel_ned_m_s
     return mavlink.MAVLink_local_position_ned_message(t_ms, p[0], p[1], p[2], v[0], v[1], v[2])
 
 
 def global_position_int(t_ms: int, st: VehicleState, home: Home) -> MAVLinkMessage:
+    """GLOBAL_POSITION_INT: ``st``'s position about ``home`` (degE7, alt AMSL and relative in mm), its
+    velocity (cm/s) and heading (cdeg).
+    """
     lat, lon, alt = ned_to_geodetic(st.pos_ned_m, home)
     v = st.vel_ned_m_s
     hdg = _clip32(math.degrees(st.euler_rad[2]) * 100.0) % 36000
@@ -289,10 +298,12 @@ def sys_status(status: Status, *, bad_packets: int = 0) -> MAVLinkMessage:
 
 
 def extended_sys_state(status: Status) -> MAVLinkMessage:
+    """EXTENDED_SYS_STATE: the landed state (no VTOL state)."""
     return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, status.landed_state)
 
 
 def home_position(t_us: int, home: Home, home_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MAVLinkMessage:
+    """HOME_POSITION: home at ``home_ned_m`` from the local origin ``home``, geodetic and local."""
     lat, lon, alt = ned_to_geodetic(np.asarray(home_ned_m), home)
     return mavlink.MAVLink_home_position_message(
         _clip32(lat * 1e7), _clip32(lon * 1e7), _clip32(alt * 1000.0),
@@ -301,6 +312,7 @@ def home_position(t_us: int, home: Home, home_ned_m: tuple[float, float, float] 
 
 
 def battery_status(status: Status) -> MAVLinkMessage:
+    """BATTERY_STATUS of a 4S pack: 4.05 V a cell and 100 %, or flat with the ``battery`` failure."""
     ok = "battery" not in status.failures
     cell_mv = 4050 if ok else 3300
     voltages = [cell_mv] * 4 + [65535] * 6
@@ -310,6 +322,7 @@ def battery_status(status: Status) -> MAVLinkMessage:
 
 
 def attitude_target(t_ms: int, q_wxyz: tuple[float, float, float, float], rates: tuple[float, float, float], thrust_norm: float) -> MAVLinkMessage:
+    """ATTITUDE_TARGET: the attitude, body rates and normalised thrust being flown."""
     return mavlink.MAVLink_attitude_target_message(t_ms, 0, q_wxyz, rates[0], rates[1], rates[2], thrust_norm)
 
 
@@ -454,6 +467,7 @@ class DialectMessage(MAVLinkMessage):
             setattr(self, name_, value)
 
     def pack(self, mav: MAVLink, force_mavlink1: bool = False) -> bytes:
+        """The frame, as pymavlink packs its own messages (sequence, ids and signing from ``mav``)."""
         payload = self._layout.pack(*(getattr(self, f) for f in self._fieldnames))
         return self._pack(mav, self.crc_extra, payload, force_mavlink1=force_mavlink1)
 
@@ -482,6 +496,7 @@ def current_mode(custom_mode: int, intended_custom_mode: int) -> MAVLinkMessage:
 
 
 def system_time(unix_us: int, t_ms: int) -> MAVLinkMessage:
+    """SYSTEM_TIME: Unix time (us) and time since boot (ms, wrapped to 32 bits)."""
     return mavlink.MAVLink_system_time_message(unix_us, t_ms & 0xFFFFFFFF)
 
 
@@ -499,6 +514,7 @@ def statustext(severity: int, text: str, chunk_id: int = 0) -> list[MAVLinkMessa
 
 
 def command_ack(command: int, result: int, target_system: int, target_component: int) -> MAVLinkMessage:
+    """COMMAND_ACK of ``command`` with ``result`` (a MAV_RESULT), to the sender."""
     return mavlink.MAVLink_command_ack_message(command, result, 0, 0, target_system, target_component)
 
 
@@ -540,10 +556,12 @@ def autopilot_version(sysid: int) -> MAVLinkMessage:
 
 
 def timesync_reply(now_ns: int, ts1: int) -> MAVLinkMessage:
+    """TIMESYNC answering a request: tc1 = our time now (ns), ts1 = the request's."""
     return mavlink.MAVLink_timesync_message(now_ns, ts1)
 
 
 def message_interval(message_id: int, interval_us: int) -> MAVLinkMessage:
+    """MESSAGE_INTERVAL: a stream's interval (us; -1 off)."""
     return mavlink.MAVLink_message_interval_message(message_id, interval_us)
 
 

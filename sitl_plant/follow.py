@@ -88,9 +88,11 @@ class TargetEstimator:
 
     @property
     def valid(self) -> bool:
+        """Whether the estimate's position, velocity and acceleration are all finite."""
         return _finite(self.pos) and _finite(self.vel) and _finite(self.acc)
 
     def stale(self, now_s: float) -> bool:
+        """Whether no report came in the last ``STALE_TIMEOUT_S`` (or none ever)."""
         return self.last_report_s is None or now_s - self.last_report_s >= STALE_TIMEOUT_S
 
     def report(self, now_s: float, pos_ned_m: Vec3, vel_ned_m_s: Vec3) -> None:
@@ -186,6 +188,7 @@ class FollowTarget:
         self.last_s = now_s
 
     def report(self, now_s: float, pos_ned_m: Vec3, vel_ned_m_s: Vec3) -> None:
+        """A FOLLOW_TARGET received at ``now_s``, handed to the target estimator."""
         self.estimator.report(now_s, pos_ned_m, vel_ned_m_s)
 
     def step(self, now_s: float, pos_ned_m: Vec3) -> FollowSetpoint | None:

@@ -98,6 +98,9 @@ class FtpPayload:
 
     @classmethod
     def unpack(cls, payload: bytes | bytearray | list[int]) -> FtpPayload:
+        """The FTP header and data of a FILE_TRANSFER_PROTOCOL payload; ``FtpFormatError`` when shorter than
+        the header.
+        """
         raw = bytes(payload)
         if len(raw) < HEADER.size:
             raise FtpFormatError(f"FTP payload of {len(raw)} bytes, shorter than its {HEADER.size}-byte header")

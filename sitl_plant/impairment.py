@@ -56,6 +56,7 @@ class ImpairmentSpec:
 
     @property
     def active(self) -> bool:
+        """Whether the spec impairs anything (some value above 0)."""
         return any(getattr(self, f.name) > 0 for f in fields(self))
 
     def as_option(self) -> str:
@@ -64,6 +65,7 @@ class ImpairmentSpec:
         return ",".join(f"{f.name}={_number(getattr(self, f.name))}" for f in fields(self) if getattr(self, f.name)) or "loss=0"
 
     def describe(self) -> str:
+        """In words: "loss 20 %, delay 50+-20 ms, ..." ("none")."""
         parts = [f"loss {self.loss:g} %"] if self.loss else []
         if self.delay or self.jitter:
             parts.append(f"delay {self.delay:g}+-{self.jitter:g} ms")
@@ -111,6 +113,7 @@ class ImpairmentCounts:
     corrupted: int = 0
 
     def describe(self) -> str:
+        """What was done to the datagrams so far, in one line."""
         return (f"{self.datagrams} datagrams: {self.dropped} dropped, {self.duplicated} duplicated, "
                 f"{self.reordered} not delayed, {self.corrupted} corrupted")  # fmt: skip
 
@@ -162,10 +165,12 @@ class DelayLine:
         self._n = 0
 
     def push(self, release_s: float, data: bytes, tag: object = None) -> None:
+        """Hold ``data`` (with ``tag``, say its address) until ``release_s``; equal times keep their order."""
         heapq.heappush(self._heap, (release_s, self._n, data, tag))
         self._n += 1
 
     def due(self, now_s: float) -> list[tuple[bytes, object]]:
+        """The (data, tag) pairs released by ``now_s``, in release order, taken out."""
         out = []
         while self._heap and self._heap[0][0] <= now_s:
             _, _, data, tag = heapq.heappop(self._heap)
@@ -173,6 +178,7 @@ class DelayLine:
         return out
 
     def next_release_s(self) -> float | None:
+        """When the next held datagram is due (None: none is held)."""
         return self._heap[0][0] if self._heap else None
 
     def __len__(self) -> int:

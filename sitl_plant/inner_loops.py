@@ -164,6 +164,7 @@ class Px4Loop:
         self._form = model_euler_form(model)
 
     def reload(self) -> None:
+        """Read the gains and limits again from the parameters (MC_*, MPC_*: after a PARAM_SET)."""
         p = self.params
         roll_p, pitch_p, yaw_p = p["MC_ROLL_P"], p["MC_PITCH_P"], p["MC_YAW_P"]
         self._yaw_w = min(max(yaw_p / roll_p, 0.0), 1.0) if roll_p > 0 else 0.0
@@ -192,17 +193,22 @@ class Px4Loop:
     # -- targets ---------------------------------------------------------------------------------
 
     def fly_attitude(self, q_wxyz: Quat, thrust_n: float, yaw_rate_ff: float = 0.0) -> None:
+        """Fly this attitude (body FRD to NED) and thrust (N), the yaw rate feed-forward added (rad/s)."""
         self._mode = "attitude"
         self._q_sp = q_wxyz
         self._yaw_ff = yaw_rate_ff
         self._thrust_n = thrust_n
 
     def fly_rates(self, rates_frd_rad_s: Vec3, thrust_n: float) -> None:
+        """Fly these body rates (FRD, rad/s) and thrust (N)."""
         self._mode = "rates"
         self._rates_sp = rates_frd_rad_s
         self._thrust_n = thrust_n
 
     def fly_position(self, task: PositionTask) -> None:
+        """Fly a position task with the position and velocity loops (their integrators start from zero
+        when the loop was not already flying one).
+        """
         if self._mode != "position":
             self._vel_int = [0.0, 0.0, 0.0]
             self._pos_count = 0
@@ -486,6 +492,7 @@ class InnerLoops:
         self.failures = 0
 
     def bind(self, model: Model) -> None:
+        """Attach both loops to a (possibly rebuilt) model."""
         self.model = model
         self.px4.bind(model)
 

@@ -138,9 +138,11 @@ class Endpoint:
 
     @property
     def local_address(self) -> tuple[str, int]:
+        """The (host, port) the endpoint's socket is bound to."""
         return self.sock.getsockname()
 
     def close(self) -> None:
+        """Close the socket."""
         self.sock.close()
 
     def pack(self, messages: list[mavlink.MAVLink_message]) -> list[bytes]:
@@ -184,6 +186,7 @@ class Endpoint:
         return datagrams
 
     def send_datagram(self, data: bytes) -> None:
+        """Send one datagram to the remote (none known: dropped), through the outgoing impairment if any."""
         if self.remote is None:
             return
         if self.impair_out is not None:
@@ -407,6 +410,7 @@ class Link:
                 endpoint.send_datagram(packet)
 
     def flush(self) -> None:
+        """Hand the tlog's records so far to the operating system."""
         if self.tlog is not None:
             self.tlog.flush()
 

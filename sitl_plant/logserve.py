@@ -106,4 +106,5 @@ class LogServer:
 
     @property
     def downloading(self) -> bool:
+        """Whether a LOG_REQUEST_DATA transfer is running."""
         return self._download is not None

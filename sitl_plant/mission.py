@@ -133,10 +133,12 @@ class MissionItem:
 
     @property
     def is_global(self) -> bool:
+        """Whether the item's position is geodetic (any frame but MAV_FRAME_MISSION)."""
         return self.frame != FRAME_MISSION
 
     @property
     def relative_alt(self) -> bool:
+        """Whether its altitude is above home (the RELATIVE_ALT frames) rather than AMSL."""
         return self.frame in (FRAME_GLOBAL_RELATIVE_ALT, FRAME_GLOBAL_RELATIVE_ALT_INT)
 
     def lat_lon_deg(self) -> tuple[float, float]:
@@ -209,6 +211,7 @@ class MissionManager:
 
     @property
     def mission(self) -> list[MissionItem]:
+        """The mission list's items (MAV_MISSION_TYPE_MISSION)."""
         return self.lists[MAV_MISSION_TYPE_MISSION]
 
     def mission_current(self) -> tuple[int, int, int, int]:

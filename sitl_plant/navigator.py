@@ -267,12 +267,14 @@ class Navigator:
         self._run = _Run()
 
     def set_current(self, seq: int) -> None:
+        """Go on from mission item ``seq`` (MISSION_SET_CURRENT; out of range: ignored), from its start."""
         if 0 <= seq < len(self.items):
             self.current_seq = seq
             self.finished = False
             self._run = _Run()
 
     def observe(self, pos_ned_m: tuple[float, float, float], yaw_rad: float, landed: bool) -> None:
+        """Where the vehicle is now (NED, m), its heading and whether it has landed."""
         self._pos = (float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2]))
         self._yaw = yaw_rad
         self._landed = landed
@@ -291,11 +293,15 @@ class Navigator:
             self._cruise = None
 
     def stop(self) -> None:
+        """End the activity (mission, return, reposition, orbit): nothing is navigated."""
         self._activity = ""
         self._orbit = None
         self._goto = None
 
     def reposition(self, target: tuple[float, float, float], speed_m_s: float, yaw_rad: float | None, now_s: float, *, from_ground: bool = False) -> None:
+        """Fly to ``target`` (NED, m) at ``speed_m_s`` and hold there, at heading ``yaw_rad`` when one is
+        given (MAV_CMD_DO_REPOSITION; ``from_ground``: climbing from the ground at the take-off speed).
+        """
         cruise = self._cruise
         self.start("reposition", now_s)
         self._cruise = cruise  # a DO_CHANGE_SPEED before it holds
@@ -320,6 +326,7 @@ class Navigator:
 
     @property
     def activity(self) -> str:
+        """What is navigated: "mission", "rtl", "reposition", "orbit", ... or "" (nothing)."""
         return self._activity
 
     # -- time ------------------------------------------------------------------------------------
@@ -558,6 +565,7 @@ class Navigator:
 
     @property
     def landing(self) -> bool:
+        """Whether a mission or a return is in its landing."""
         return self._activity in ("mission", "rtl") and self._run.phase == "land"
 
     # -- reposition, orbit -----------------------------------------------------------------------

@@ -103,12 +103,15 @@ class ParamTable:
         return iter(self._names)
 
     def spec(self, name: str) -> ParamSpec:
+        """The specification of ``name`` (its default, kind, range, unit, meaning)."""
         return self._specs[name]
 
     def index(self, name: str) -> int:
+        """``name``'s position in the list PARAM_VALUE numbers (param_index)."""
         return self._index[name]
 
     def name_at(self, index: int) -> str | None:
+        """The name at ``index`` (PARAM_REQUEST_READ by index), None out of range."""
         return self._names[index] if 0 <= index < len(self._names) else None
 
     def set(self, name: str, value: float) -> SetOutcome:

@@ -167,6 +167,7 @@ class StreamSchedule:
         return True
 
     def due(self, now_us: int) -> list[int]:
+        """The streams due at ``now_us``, each then scheduled one interval on (from now, when it fell behind)."""
         out = []
         for mid, interval in self.interval_us.items():
             if interval <= 0:
@@ -304,14 +305,17 @@ class Plant:
 
     @property
     def time_us(self) -> int:
+        """Simulation time, microseconds: whole physics steps."""
         return self.sim.steps * self.dt_us
 
     @property
     def time_ms(self) -> int:
+        """Simulation time, whole milliseconds (the streams' time_boot_ms)."""
         return self.time_us // 1000
 
     @property
     def time_s(self) -> float:
+        """Simulation time, s."""
         return self.time_us * 1e-6
 
     def epoch_us(self) -> int:
@@ -871,6 +875,7 @@ class Plant:
         return tuple(float(v) for v in self._truth.quat_wxyz), (0.0, 0.0, 0.0), 0.0  # type: ignore[return-value]
 
     def status_line(self) -> str:
+        """One line for the terminal: time, mode, arming, failsafe, where the vehicle is."""
         st = self.autopilot.status()
         p = self._truth.pos_ned_m
         arm = "ARMED" if st.armed else "disarmed"

@@ -38,11 +38,17 @@ class Model(Protocol):
     params: VehicleParams
     state_size: int
 
-    def initial_state(self, pos_ned_m: np.ndarray, yaw_rad: float) -> np.ndarray: ...
+    def initial_state(self, pos_ned_m: np.ndarray, yaw_rad: float) -> np.ndarray:
+        """The state at rest at ``pos_ned_m`` (NED, m), heading ``yaw_rad``, level."""
+        ...
 
-    def derivative(self, x: np.ndarray, thrust_n: float, torque_nm: np.ndarray, wind_ned_m_s: np.ndarray) -> np.ndarray: ...
+    def derivative(self, x: np.ndarray, thrust_n: float, torque_nm: np.ndarray, wind_ned_m_s: np.ndarray) -> np.ndarray:
+        """dx/dt at ``x`` with the thrust (N), this model's torque input (N m) and the air's velocity (NED, m/s)."""
+        ...
 
-    def vehicle_state(self, x: np.ndarray, time_s: float, xdot: np.ndarray) -> VehicleState: ...
+    def vehicle_state(self, x: np.ndarray, time_s: float, xdot: np.ndarray) -> VehicleState:
+        """The ``VehicleState`` (NED/FRD) of ``x`` at ``time_s``; the acceleration from ``xdot``."""
+        ...
 
     def euler(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(eta, eta_dot): the Euler angles and their rates, for eq. 16."""
@@ -72,26 +78,36 @@ class PaperModel:
         self._form = params.euler_rate_form
 
     def initial_state(self, pos_ned_m: np.ndarray, yaw_rad: float) -> np.ndarray:
+        """At rest at ``pos_ned_m`` (NED, m; the paper's frame is z up), yaw ``yaw_rad``, level."""
         x = np.zeros(self.state_size)
         x[paper_model.POSITION] = [pos_ned_m[0], pos_ned_m[1], -pos_ned_m[2]]
         x[10] = yaw_rad
         return x
 
     def derivative(self, x: np.ndarray, thrust_n: float, torque_nm: np.ndarray, wind_ned_m_s: np.ndarray) -> np.ndarray:
+        """Eq. 13 and 18 (``paper_model.derivative``) with u = ``thrust_n`` and the generalised torque ``torque_nm``; the paper's
+        model has no drag, so the wind does not enter.
+        """
         # The paper's model has no aerodynamic drag, so the air's velocity does not enter.
         p = self.params
         return paper_model.derivative(x, thrust_n, torque_nm, p.mass_kg, self._inertia, p.gravity_m_s2, self._form)
 
     def euler(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(eta, eta_dot), the state's own angles and angle rates."""
         return x[paper_model.ANGLES], x[paper_model.ANGLE_RATES]
 
     def torque_from_generalized(self, x: np.ndarray, tau_generalized: np.ndarray) -> np.ndarray:
+        """The generalised torque itself: eq. 13 takes it as its input."""
         return tau_generalized
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
+        """``x`` unchanged: Euler angles need no projection."""
         return x  # Euler angles need no projection
 
     def ground_contact(self, x: np.ndarray) -> tuple[np.ndarray, bool]:
+        """At or below the ground moving down: on the ground, the vertical and horizontal speeds zero (no
+        bounce, no sliding).
+        """
         if x[4] > 0.0 or (x[4] == 0.0 and x[5] > 0.0):
             return x, False
         x = x.copy()
@@ -100,6 +116,7 @@ class PaperModel:
         return x, True
 
     def vehicle_state(self, x: np.ndarray, time_s: float, xdot: np.ndarray) -> VehicleState:
+        """The state in NED/FRD: the paper's z-up position and speeds turned, body rates by W_eta, the ZYX quaternion."""
         eta, eta_dot = self.euler(x)
         return VehicleState(
             time_s=time_s,

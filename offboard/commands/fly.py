@@ -45,6 +45,7 @@ class FlyArgumentError(UserError, ValueError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard fly`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "fly",
         help="fly a mission over MAVLink (sitl-plant, PX4 SITL) with the paper's controller",
@@ -229,6 +230,7 @@ class _Interrupts:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``offboard fly``: fly the mission; the flight status's exit code (``FlightStatus``)."""
     from offboard.missions import load_mission
 
     _check(args)

@@ -41,6 +41,7 @@ def _positive_seconds(text: str) -> float:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard mission`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "mission",
         help="show, check or convert a mission file (.toml, .plan, QGC WPL 110)",

@@ -38,6 +38,7 @@ class ReplayArgumentError(UserError, ValueError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard replay`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "replay",
         help="report, re-run or re-stream a flight from its MAVLink log (.tlog)",
@@ -188,6 +189,9 @@ def _mission_offset(mission, scan, vehicle: int | None, summary: dict | None) ->
 
 
 def run(args: argparse.Namespace) -> int:
+    """``offboard replay``: report, re-run or re-stream the log; 0, or 1 when a re-run of the flight's own
+    controller does not reproduce it.
+    """
     from offboard.replay import TlogReader, scan_log
 
     _check(args)

@@ -18,6 +18,7 @@ from offboard.model.paths import output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard simulate`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "simulate",
         help="fly a scenario file in-process (controller + simulated vehicle) and report it",
@@ -37,6 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``offboard simulate``: fly the scenario in-process and report it; the flight status's exit code."""
     scenario = load_scenario(args.scenario)
     overrides = {k: v for k, v in (("drive", args.drive), ("model", args.model)) if v is not None}
     if overrides:

@@ -18,6 +18,7 @@ class MissingDependency(UserError, ImportError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard sweep`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "sweep",
         help="fly a sweep file: thousands of flights with drawn parameters, on Dask; Parquet rows and a report",
@@ -75,6 +76,7 @@ def _progress(name: str, every_s: float):  # noqa: ANN202
 
 
 def run(args: argparse.Namespace) -> int:
+    """``offboard sweep``: fly the sweep, write its Parquet rows, report and plots."""
     from offboard.sweep.spec import PARAMETERS, load_sweep
 
     if args.list_parameters:

@@ -52,6 +52,7 @@ class TuneArgumentError(UserError, ValueError):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``offboard tune`` and its options to the top-level parser."""
     parser = subparsers.add_parser(
         "tune",
         help="design the law's gains for a vehicle's inner loop and write a controller file",
@@ -204,6 +205,7 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``offboard tune``: design (or search) the gains for the vehicle and write the controller file."""
     from offboard.flight import ControllerChoice, resolve_controller
 
     _check(args)

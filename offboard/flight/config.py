@@ -37,9 +37,13 @@ class SampleClock(StrEnum):
 class Link(Protocol):
     """What a flight needs of a MAVLink link (``offboard.link.MavLink`` or a test double)."""
 
-    def send(self, msg: mavlink.MAVLink_message) -> None: ...
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Send one message to the vehicle (and log it)."""
+        ...
 
-    def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None: ...
+    def recv(self, timeout_s: float) -> mavlink.MAVLink_message | None:
+        """The next message from the link within ``timeout_s`` (None: none came)."""
+        ...
 
     def pending(self) -> bool:
         """Whether a message already waits (without blocking)."""

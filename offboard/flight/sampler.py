@@ -77,6 +77,9 @@ class LoopStats:
         return self.periods.build()["period_s"]
 
     def to_dict(self, sample_time_s: float) -> dict:
+        """The loop's figures for summary.json (samples, rate, period jitter against ``sample_time_s``,
+        overruns, missed samples).
+        """
         periods = self.periods_s
         jitter = np.abs(periods - sample_time_s) if len(periods) else np.zeros(1)
         return {

@@ -81,6 +81,7 @@ def command_name(command: int) -> str:
 
 
 def frame_name(frame: int) -> str:
+    """MAVLink's name of a MAV_FRAME value ("frame N" for one it does not know)."""
     entry = _MAV.enums["MAV_FRAME"].get(frame)
     return entry.name if entry is not None else f"frame {frame}"
 
@@ -145,6 +146,7 @@ class ItemMission:
 
     @property
     def is_global(self) -> bool:
+        """Whether the mission's home is geodetic (a global frame)."""
         return self.home.frame in GLOBAL_FRAMES
 
     @property

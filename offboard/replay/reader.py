@@ -62,6 +62,7 @@ class Damage:
 
     @property
     def skipped_bytes(self) -> int | None:
+        """How many bytes were skipped to resume (None: the log ended there)."""
         return None if self.resumed_at is None else self.resumed_at - self.offset
 
 

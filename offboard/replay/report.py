@@ -23,6 +23,7 @@ class SourceStats:
 
     @property
     def loss_percent(self) -> float:
+        """Packets lost, % of those sent (received + lost)."""
         total = self.received + self.lost
         return 100.0 * self.lost / total if total else 0.0
 
@@ -57,6 +58,7 @@ class LogReport:
     vehicle_sysid: int | None
 
     def to_dict(self) -> dict:
+        """The report for summary.json."""
         return {
             "path": self.path,
             "size_bytes": self.size_bytes,

@@ -60,15 +60,18 @@ class RerunResult:
 
     @property
     def difference(self) -> np.ndarray:
+        """|re-run - logged| of every compared field, a row per sample."""
         return np.abs(self.rerun.astype(np.float64) - self.logged.astype(np.float64))
 
     @property
     def max_difference(self) -> dict[str, float]:
+        """The largest difference of each compared field."""
         d = self.difference
         return {name: float(np.max(d[:, i])) if len(d) else 0.0 for i, name in enumerate(self.fields)}
 
     @property
     def mismatched_samples(self) -> int:
+        """How many samples differ in some field."""
         return int(np.count_nonzero(np.any(self.rerun != self.logged, axis=1)))
 
     @property
@@ -86,6 +89,7 @@ class RerunResult:
         return float(self.t_s[k]), self.fields[i], float(self.logged[k, i]), float(self.rerun[k, i])
 
     def to_dict(self) -> dict:
+        """The comparison for summary.json (fields, largest differences, the first mismatch)."""
         first = self.first_mismatch()
         return {
             "output": self.output,

@@ -65,9 +65,11 @@ class SeqCounter:
 
     @property
     def streams(self) -> int:
+        """How many interleaved sequence counters the source showed (class docstring)."""
         return self.counters_seen
 
     def add(self, seq: int) -> None:
+        """One packet's sequence number (class docstring: which counter it continues)."""
         index = self.received
         self.received += 1
         live = [c for c in self._counters if index - c.index <= self.FORGET]
@@ -118,6 +120,7 @@ class StreamStats:
     max_gap_at_s: float = math.nan  # when the largest gap began (tlog time)
 
     def add(self, t_s: float) -> None:
+        """One message of the stream at log time ``t_s`` (its gaps measured)."""
         if self.count:
             gap = t_s - self.last_s
             if gap > self.max_gap_s:
@@ -129,6 +132,7 @@ class StreamStats:
 
     @property
     def rate_hz(self) -> float:
+        """The mean rate over the stream's span (NaN with fewer than two messages)."""
         span = self.last_s - self.first_s
         return (self.count - 1) / span if self.count > 1 and span > 0 else math.nan
 
@@ -321,6 +325,7 @@ class LogScan:
         return max(candidates, key=lambda s: (s in autopilots, len(self.attitude[s])))
 
     def role(self, src: tuple[int, int]) -> str:
+        """What a (system, component) is by its heartbeat: vehicle, ground station, onboard controller."""
         kind = self.heartbeat_kind.get(src)
         if kind is None:
             return "no heartbeat"

@@ -75,7 +75,10 @@ def _group_key(setup: FlightSetup) -> tuple:
     return (c, sc.physics_dt_s, sc.flight_duration_s, sc.ground, late)
 
 
-class ControllerParamsDefaults:  # the believed numbers replaced in a group's key
+class ControllerParamsDefaults:
+    """The believed numbers a group's key sets to fixed values: flights that differ only in what they
+    believe share one batch."""
+
     mass_kg = 0.5
     gravity_m_s2 = 9.81
     inertia_kg_m2 = (3.8e-3, 3.8e-3, 7.1e-3)

@@ -95,6 +95,7 @@ def row_of(series: Series, phases: list[Phase], converged_m: float) -> dict[str,
 
 
 def series_of_record(record) -> Series:  # noqa: ANN001 - a FlightRecord
+    """The ``Series`` (time, position, reference, attitude, thrust, status) of a flight's record."""
     return Series(record["t_s"], record["pos_ned_m"], record["ref_pos_ned_m"], record["euler_rad"], record["thrust_n"],
                   record.status, record.status_detail)  # fmt: skip
 

@@ -130,6 +130,7 @@ def _task(spec: SweepSpec, start: int, stop: int, engine: SweepEngine) -> tuple[
 
 
 def chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
+    """(start, end) of consecutive slices of ``range(total)``, ``size`` long (the last one shorter)."""
     for start in range(0, total, size):
         yield start, min(start + size, total)
 
@@ -211,6 +212,7 @@ class ParquetRows:
         self.rows += count
 
     def close(self) -> None:
+        """Close the Parquet file (its footer written)."""
         self.writer.close()
 
 

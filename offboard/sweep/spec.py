@@ -152,9 +152,11 @@ class Distribution:
 
     @property
     def grid_size(self) -> int:
+        """How many values the distribution takes on the grid (1 unless it is a grid)."""
         return len(self.args) if self.kind is DistributionKind.GRID else 1
 
     def draw(self, rng: np.random.Generator, grid_index: int) -> float | str:
+        """One value: fixed, the grid's ``grid_index``-th, or drawn from ``rng``."""
         k, a = self.kind, self.args
         if k is DistributionKind.FIXED:
             return a[0]
@@ -184,10 +186,12 @@ class SweepSpec:
 
     @property
     def grid(self) -> tuple[Distribution, ...]:
+        """The parameters swept on a grid."""
         return tuple(d for d in self.parameters if d.kind is DistributionKind.GRID)
 
     @property
     def grid_size(self) -> int:
+        """How many points the grids make together (their product)."""
         return math.prod(d.grid_size for d in self.grid)
 
     @property

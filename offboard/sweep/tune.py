@@ -63,6 +63,7 @@ class Trial:
 
     @property
     def all_complete(self) -> bool:
+        """Whether every flight of the trial completed."""
         return self.complete == self.flights
 
 
