@@ -292,9 +292,9 @@ class Plant:
         self._measured: VehicleState | None = None
         #: the estimate's error while the GPS is lost (None: it is not), drawn as it is lost
         self._dead_reckoning: DeadReckoning | None = None
-        self._rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x6A5]))
+        self._rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x6A5]))  # --seed's own stream here (tag 0x6A5)
         self._rigid = not isinstance(model, PaperModel)
-        self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]
+        self._position_index = [0, 1, 2] if self._rigid else [0, 2, 4]  # either model keeps them first or interleaved
         self.autopilot.observe(self._truth)
         self.missions = MissionManager()
         self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
@@ -375,10 +375,6 @@ class Plant:
         numbers took 10 us of every lockstep period."""
         values = x.tolist()
         return all(map(math.isfinite, values)) and max(abs(values[i]) for i in self._position_index) < MAX_DISTANCE_M
-
-    def model_position(self, x: np.ndarray) -> np.ndarray:
-        """Position entries of the model's state (either model keeps them first or interleaved)."""
-        return x[self._position_index]
 
     def _apply_task(self) -> None:
         self.sim.actuation = self.loops.actuation_for(self.autopilot.task(), self.sim.x, self.sim.on_ground)
