@@ -7,9 +7,11 @@ MAV_CMD_INJECT_FAILURE) 10 s into the hold, and a second client on PX4's ground-
 records LOCAL_POSITION_NED beside HIL_STATE_QUATERNION (SIH's truth; ``bench/px4_estimator.py``'s
 recorder). Printed: the horizontal distance of the estimate from the truth at a few times after the
 stop (less the mean offset of the 5 s before, where the frames' origins differ), with the b of
-1/2 b t^2 each implies, and where the vehicle itself went.
+1/2 b t^2 each implies, and where the vehicle itself went. With ``--land`` the offboard keeps its
+estimator guard: ESTIMATE_LOST hands the vehicle to PX4's Land about 5 s after the stop, and the
+truth's horizontal speed is printed through the blind landing instead.
 
-    python bench/px4_dead_reckoning.py [--speed F]
+    python bench/px4_dead_reckoning.py [--speed F] [--land]
 
 Needs a PX4 SITL (``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl``); says so in one line without.
 The stop is timed from the last estimate recorded before PX4's shell is called (the call itself
@@ -41,8 +43,9 @@ STOP_AFTER_S = 10.0  # vehicle seconds into the hold when the GPS is stopped
 REPORT_AT_S = (2.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 40.0)
 
 
-def fly(folder: Path, speed: float) -> tuple[GroundStationRecord, float]:
-    """One hold on a fresh PX4 SITL, its GPS stopped: the ground-station record and the stop's time (boot s)."""
+def fly(folder: Path, speed: float, land: bool = False) -> tuple[GroundStationRecord, float]:
+    """One hold on a fresh PX4 SITL, its GPS stopped: the ground-station record and the stop's time
+    (boot s). ``land``: the offboard's estimator guard on (it hands the vehicle to Land)."""
     mission = folder / "hold.toml"
     mission.write_text('[mission]\nname = "hold"\nframe = "paper-zup"\nangle_unit = "rad"\nstart = [0, 0, 0]\nstart_yaw = 0\n\n'
                        f'[[mission.segment]]\ntype = "hold"\nname = "hold"\nposition = [0, 0, 5]\nyaw = 0\nuntil_s = {HOLD_S:g}\n')  # fmt: skip
@@ -54,7 +57,8 @@ def fly(folder: Path, speed: float) -> tuple[GroundStationRecord, float]:
         with stderr.open("w") as err:
             fly = subprocess.Popen([sys.executable, "-m", "offboard.cli", "fly", str(mission), "--connect",
                                     f"udpin:127.0.0.1:{px4.api_listen_port}", "--run-dir", str(folder / "run"), "--no-plots",
-                                    "--ignore-estimator", "--lost-track-m", "inf", *(["--clock", "vehicle"] if speed != 1.0 else [])],
+                                    *([] if land else ["--ignore-estimator", "--lost-track-m", "inf"]),
+                                    *(["--clock", "vehicle"] if speed != 1.0 else [])],
                                    stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)  # fmt: skip
         try:
             deadline = time.monotonic() + 120.0
@@ -101,19 +105,43 @@ def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
     return rows
 
 
+def landing_speeds(record: GroundStationRecord, stopped_at: float, every_s: float = 0.5, until_s: float = 20.0) -> list[tuple[float, float, float]]:
+    """(time after the stop, the truth's horizontal speed, its descent rate), m/s, every ``every_s``."""
+    tru = _unique(record.truths)
+    if len(tru) < 100:
+        raise ValueError(f"too little recorded on the ground-station link ({len(tru)} truths)")
+    rows = []
+    for k in range(int(until_s / every_s) + 1):
+        t = stopped_at + k * every_s
+        if t > tru[-1, 0]:
+            break
+        vn, ve, vd = (float(np.interp(t, tru[:, 0], tru[:, 4 + i])) for i in range(3))
+        rows.append((k * every_s, math.hypot(vn, ve), vd))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
+    parser.add_argument("--land", action="store_true", help="keep the estimator guard: the truth's speed through PX4's blind Land")
     args = parser.parse_args(argv)
     if px4_launcher() is None:
         print(f"px4_dead_reckoning: {SKIP_REASON}", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory(prefix="px4-dead-reckoning-") as tmp:
         try:
-            rows = drift(*fly(Path(tmp), args.speed))
+            record, stopped_at = fly(Path(tmp), args.speed, land=args.land)
+            rows = drift(record, stopped_at)
+            speeds = landing_speeds(record, stopped_at) if args.land else []
         except (RuntimeError, ValueError, AssertionError) as exc:
             print(f"px4_dead_reckoning: {str(exc).splitlines()[0]}", file=sys.stderr)
             return 1
+    if args.land:
+        print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold; offboard fly's guard lands it:")
+        print("after the stop | horizontal speed | descent")
+        for after, speed, down in speeds:
+            print(f"{after:11.1f} s | {speed:12.2f} m/s | {down:+5.2f} m/s")
+        return 0
     print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold flown on the estimate:")
     print("after the stop | estimate from the truth | b of 1/2 b t^2 | the vehicle moved")
     for r in rows:

@@ -654,6 +654,10 @@ class Autopilot:
         if self._landed and (not m.has_taken_off or mode in (Mode.AUTO_LAND, Mode.AUTO_LOITER, Mode.AUTO_FOLLOW_TARGET) or m.rtl_landing):
             return IdleTask()
         if mode is Mode.AUTO_LAND:
+            if not self.position_valid(now):
+                # blind: with the horizontal velocity estimate gone PX4's position control takes no
+                # horizontal acceleration (level) and only descends; the vehicle coasts on its drag
+                return PositionTask((None, None, m.hold_pos[2]), m.hold_yaw, descend_m_s=self.land_speed_m_s(), acc_ne_m_s2=(0.0, 0.0))
             return PositionTask(m.hold_pos, m.hold_yaw, descend_m_s=self.land_speed_m_s())
         return PositionTask(m.hold_pos, m.hold_yaw)
 

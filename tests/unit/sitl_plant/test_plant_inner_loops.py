@@ -362,3 +362,34 @@ def test_the_truth_is_sent_on_request_as_px4_sitl_sends_simulator_truth():
     assert msg.zacc == math.trunc(float(truth.acc_ned_m_s2[2]))
     estimate = sent["LOCAL_POSITION_NED"]
     assert math.hypot(estimate.x - truth.pos_ned_m[0], estimate.y - truth.pos_ned_m[1]) > 15.0
+
+
+@pytest.mark.parametrize("gps", ["lost", "kept"])
+def test_a_landing_without_a_position_is_blind_and_coasts_on_the_drag(gps):
+    """PX4 v1.16 SIH, its GPS stopped, handed to Land by ``offboard fly`` at 1.24 m/s: with the
+    horizontal velocity estimate gone it does not brake, it levels and descends; SIH's drag
+    (1 N s/m on 1 kg) slowed it to 0.5 m/s in about 1 s (docs/plant.md). The plant's Land, the
+    estimator no longer vouching for the position, takes no horizontal acceleration either and
+    coasts on the same drag; with the GPS it brakes to the point it landed for."""
+    from offboard.model.vehicle import PX4_SIH_VEHICLE_FILE
+
+    plant = make_plant(vehicle=load_vehicle(PX4_SIH_VEHICLE_FILE))
+    take_off_and_switch_to_offboard(plant)
+    plant.params.set("SYS_FAILURE_EN", 1)
+    tilt = lambda: attitude_target(plant, pitch=-0.12, thrust=hover_thrust(plant) / math.cos(0.12))  # noqa: E731  (nose down: north)
+    if gps == "lost":
+        assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 1) == mavlink.MAV_RESULT_ACCEPTED
+    run(plant, 5.5, tilt)  # past EKF2's 5 s of dead reckoning
+    speed0 = math.hypot(*plant.sim.truth().vel_ned_m_s[:2])
+    assert speed0 > 1.0
+    assert command(plant, mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED
+    run(plant, 1.0)
+    speed1 = math.hypot(*plant.sim.truth().vel_ned_m_s[:2])
+    truth = plant.sim.truth()
+    tilt_deg = math.degrees(math.acos(math.cos(truth.euler_rad[0]) * math.cos(truth.euler_rad[1])))
+    if gps == "lost":
+        assert plant.autopilot.mode is Mode.AUTO_LAND and not plant.autopilot.position_valid(plant.time_s)
+        assert speed1 == pytest.approx(speed0 * math.exp(-1.0), rel=0.15)  # drag alone: d/m = 1 /s
+        assert tilt_deg < 1.0  # level
+    else:
+        assert speed1 < 0.3 * speed0 and tilt_deg > 1.0  # braking
