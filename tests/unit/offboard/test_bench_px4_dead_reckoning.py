@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from bench.px4_dead_reckoning import REPORT_AT_S, drift
+from bench.px4_dead_reckoning import REPORT_AT_S, drift, landing_speeds
 from bench.px4_estimator import EARTH_RADIUS_M, GroundStationRecord
 
 LAT0, LON0 = 47.397742, 8.545594
@@ -27,7 +27,7 @@ def _record() -> GroundStationRecord:
         record.estimates.append((t, est_n, est_e, -5.0, 0.0, 0.0, 0.0))
         lat = LAT0 + math.degrees(north / EARTH_RADIUS_M)
         lon = LON0 + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(LAT0))))
-        record.truths.append((t, lat, lon, 493.0, 0.0, 0.0, 0.0))
+        record.truths.append((t, lat, lon, 493.0, 0.0, 1.0 if after > 0 else 0.0, 0.5 if after > 0 else 0.0))
     return record
 
 
@@ -44,3 +44,10 @@ def test_the_estimate_error_and_its_b_are_read_from_the_record():
 def test_too_short_a_record_is_refused():
     with pytest.raises(ValueError, match="too little recorded"):
         drift(GroundStationRecord(), STOP_S)
+
+
+def test_the_landing_speeds_are_the_truths():
+    rows = landing_speeds(_record(), STOP_S, every_s=0.5, until_s=3.0)
+    assert [r[0] for r in rows] == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
+    assert rows[0][1] == pytest.approx(0.0, abs=1e-9)
+    assert all(speed == pytest.approx(1.0) and down == pytest.approx(0.5) for _, speed, down in rows[1:])
