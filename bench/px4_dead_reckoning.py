@@ -9,7 +9,8 @@ recorder). Printed: the horizontal distance of the estimate from the truth at a 
 stop (less the mean offset of the 5 s before, where the frames' origins differ), with the b of
 1/2 b t^2 each implies, and where the vehicle itself went. With ``--land`` the offboard keeps its
 estimator guard: ESTIMATE_LOST hands the vehicle to PX4's Land about 5 s after the stop, and the
-truth's horizontal speed is printed through the blind landing instead.
+truth's horizontal speed is printed through the blind landing, then the estimate's error through the
+landing and 15 s after it.
 
     python bench/px4_dead_reckoning.py [--speed F] [--land]
 
@@ -41,6 +42,7 @@ from bench.px4sitl import SKIP_REASON, px4_launcher, running_px4  # noqa: E402
 HOLD_S = 70.0  # the mission: a hold at 5 m this long
 STOP_AFTER_S = 10.0  # vehicle seconds into the hold when the GPS is stopped
 REPORT_AT_S = (2.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 40.0)
+AFTER_LANDING_S = 15.0  # --land: vehicle seconds recorded after the flight has ended (landed, disarmed)
 
 
 def fly(folder: Path, speed: float, land: bool = False) -> tuple[GroundStationRecord, float]:
@@ -70,6 +72,8 @@ def fly(folder: Path, speed: float, land: bool = False) -> tuple[GroundStationRe
             stopped_at = record.estimates[-1][0]
             px4.shell("sensor_gps_sim", "stop")
             fly.wait(timeout=HOLD_S / speed * 4 + 60)
+            if land:
+                time.sleep(AFTER_LANDING_S / speed)  # the estimate on the ground too
         finally:
             if fly.poll() is None:
                 fly.kill()
@@ -81,7 +85,7 @@ def fly(folder: Path, speed: float, land: bool = False) -> tuple[GroundStationRe
 
 def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
     """Estimate minus truth (horizontal, m) at ``REPORT_AT_S`` after the stop, the b it implies,
-    the truth's distance from where it was at the stop."""
+    the estimate's velocity error (horizontal, m/s), the truth's distance from where it was at the stop."""
     est, tru = _unique(record.estimates), _unique(record.truths)
     if len(est) < 100 or len(tru) < 100:
         raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
@@ -90,6 +94,7 @@ def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
     east = np.radians(tru[:, 2] - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
     t = est[:, 0]
     truth = np.stack([np.interp(t, tru[:, 0], north), np.interp(t, tru[:, 0], east)], axis=1)
+    truth_vel = np.stack([np.interp(t, tru[:, 0], tru[:, 4]), np.interp(t, tru[:, 0], tru[:, 5])], axis=1)
     error = est[:, 1:3] - truth
     before = (t > stopped_at - 5.0) & (t <= stopped_at)
     error -= error[before].mean(axis=0)
@@ -101,6 +106,7 @@ def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
             break
         d = float(np.hypot(*error[i]))
         rows.append({"after_s": after, "estimate_error_m": d, "b_m_s2": 2.0 * d / after**2,
+                     "velocity_error_m_s": float(np.hypot(*(est[i, 4:6] - truth_vel[i]))),
                      "vehicle_moved_m": float(np.hypot(*(truth[i] - at_stop)))})  # fmt: skip
     return rows
 
@@ -118,6 +124,14 @@ def landing_speeds(record: GroundStationRecord, stopped_at: float, every_s: floa
         vn, ve, vd = (float(np.interp(t, tru[:, 0], tru[:, 4 + i])) for i in range(3))
         rows.append((k * every_s, math.hypot(vn, ve), vd))
     return rows
+
+
+def print_drift(rows: list[dict]) -> None:
+    """``drift``'s rows as a table on stdout."""
+    print("after the stop | estimate from the truth | b of 1/2 b t^2 | its velocity error | the vehicle moved")
+    for r in rows:
+        print(f"{r['after_s']:11.0f} s | {r['estimate_error_m']:19.2f} m | {r['b_m_s2']:9.2f} m/s^2 | "
+              f"{r['velocity_error_m_s']:14.2f} m/s | {r['vehicle_moved_m']:13.2f} m")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,11 +155,11 @@ def main(argv: list[str] | None = None) -> int:
         print("after the stop | horizontal speed | descent")
         for after, speed, down in speeds:
             print(f"{after:11.1f} s | {speed:12.2f} m/s | {down:+5.2f} m/s")
+        print("and the estimate, through the landing and after it:")
+        print_drift(rows)
         return 0
     print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold flown on the estimate:")
-    print("after the stop | estimate from the truth | b of 1/2 b t^2 | the vehicle moved")
-    for r in rows:
-        print(f"{r['after_s']:11.0f} s | {r['estimate_error_m']:19.2f} m | {r['b_m_s2']:9.2f} m/s^2 | {r['vehicle_moved_m']:13.2f} m")
+    print_drift(rows)
     return 0
 
 

@@ -367,7 +367,7 @@ class Plant:
             return
         if self._dead_reckoning is None:
             self._dead_reckoning = DeadReckoning.drawn(self.params["SIM_DR_ACC_ERR"], self._rng)
-        self._dead_reckoning.advance(min(lost_s, period_s), at_rest=self._truth.on_ground)
+        self._dead_reckoning.advance(min(lost_s, period_s))
 
     def _sound(self, x: np.ndarray) -> bool:
         """Whether a state is one the simulation goes on from: every entry finite and the position

@@ -11,7 +11,7 @@ sample with the true state, and ``reset()`` to start a new run with the same see
   the size of a GPS/EKF estimate's sample-to-sample jitter.
 
 ``DeadReckoning`` is not one of them: it is what the plant's estimate becomes once its GPS is
-lost (``advance(dt_s, at_rest)`` as time passes, ``measure(state)``), on top of whichever
+lost (``advance(dt_s)`` as time passes, ``measure(state)``), on top of whichever
 model measures.
 
 Two ways in: a command-line spec (``sensors_from_spec("paper:0.05", seed)``) and a TOML
@@ -235,9 +235,9 @@ class DeadReckoning:
 
     Without the GPS an estimator like PX4's EKF2 integrates the accelerometer alone and no
     longer learns its error: a constant horizontal acceleration error ``b`` (north, east) puts the
-    estimate ``b t`` off in velocity and ``1/2 b t^2`` in position, ``t`` seconds after the loss.
-    At rest on the ground the velocity error is zero and the position error stays where it is
-    (EKF2 fuses a zero velocity when the vehicle is at rest). The vertical estimate keeps its
+    estimate ``b t`` off in velocity and ``1/2 b t^2`` in position, ``t`` seconds after the loss,
+    whatever the vehicle does: PX4 v1.16 SIH's estimate ran on after the vehicle had landed
+    (docs/plant.md; its velocity error grew more slowly there). The vertical estimate keeps its
     aid (the barometer) and the attitude its own (the gyro and the gravity vector): both stay as
     measured. ``drawn`` takes the error's direction at random (a bias has none preferred) and
     its size from ``SIM_DR_ACC_ERR``.
@@ -258,13 +258,10 @@ class DeadReckoning:
         heading = float(rng.uniform(0.0, 2.0 * math.pi))
         return cls((magnitude_m_s2 * math.cos(heading), magnitude_m_s2 * math.sin(heading)))
 
-    def advance(self, dt_s: float, at_rest: bool) -> None:
+    def advance(self, dt_s: float) -> None:
         """``dt_s`` seconds more of dead reckoning: the errors grow exactly as a constant ``b``
-        makes them in the air; at rest on the ground the velocity error is zero and the position
-        error stays."""
-        if at_rest:
-            self.vel_error_ned_m_s = np.zeros(3)
-        elif dt_s > 0.0:
+        makes them."""
+        if dt_s > 0.0:
             self.pos_error_ned_m = self.pos_error_ned_m + self.vel_error_ned_m_s * dt_s + 0.5 * self._accel * dt_s * dt_s
             self.vel_error_ned_m_s = self.vel_error_ned_m_s + self._accel * dt_s
 

@@ -17,14 +17,16 @@ B = (0.3, -0.4)  # the estimate's acceleration error from the stop on (north, ea
 
 def _record() -> GroundStationRecord:
     """A vehicle 3 m north of its estimate's origin that moves east at 1 m/s from the stop on; the
-    estimate 1 m off the truth (the frames' origins) plus 1/2 b t^2 after the stop, at 50 Hz."""
+    estimate 1 m off the truth (the frames' origins) plus 1/2 b t^2 after the stop, its velocity
+    b t off, at 50 Hz."""
     record = GroundStationRecord()
     for n in range(int(80.0 * 50)):
         t = 5.0 + n / 50.0
         after = max(0.0, t - STOP_S)
         north, east = 3.0, after
         est_n, est_e = north + 1.0 + 0.5 * B[0] * after**2, east + 0.5 * B[1] * after**2
-        record.estimates.append((t, est_n, est_e, -5.0, 0.0, 0.0, 0.0))
+        ve = 1.0 if after > 0 else 0.0  # the truth's, east
+        record.estimates.append((t, est_n, est_e, -5.0, B[0] * after, ve + B[1] * after, 0.0))
         lat = LAT0 + math.degrees(north / EARTH_RADIUS_M)
         lon = LON0 + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(LAT0))))
         record.truths.append((t, lat, lon, 493.0, 0.0, 1.0 if after > 0 else 0.0, 0.5 if after > 0 else 0.0))
@@ -39,6 +41,7 @@ def test_the_estimate_error_and_its_b_are_read_from_the_record():
         assert r["estimate_error_m"] == pytest.approx(0.5 * 0.5 * t * t, rel=0.01, abs=0.02)  # the origins' 1 m taken out
         assert r["b_m_s2"] == pytest.approx(0.5, rel=0.01)
         assert r["vehicle_moved_m"] == pytest.approx(t, rel=0.01, abs=0.02)
+        assert r["velocity_error_m_s"] == pytest.approx(0.5 * t, rel=0.01, abs=0.02)  # b t, the estimate's own velocity 0
 
 
 def test_too_short_a_record_is_refused():

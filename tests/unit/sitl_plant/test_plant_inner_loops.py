@@ -307,7 +307,7 @@ def test_a_lost_gps_dead_reckons_the_reported_position_away_from_the_truth():
     assert np.allclose(_reported(plant)[0], plant.sim.truth().pos_ned_m, atol=1e-3)
 
 
-def test_the_dead_reckoning_error_is_drawn_from_the_seed_stops_at_rest_and_is_off_at_zero():
+def test_the_dead_reckoning_error_is_drawn_from_the_seed_runs_on_after_landing_and_is_off_at_zero():
     def drift(seed: int, b: float | None = None, land: bool = False) -> np.ndarray:
         plant = make_plant(seed=seed)
         take_off_and_switch_to_offboard(plant)
@@ -316,7 +316,7 @@ def test_the_dead_reckoning_error_is_drawn_from_the_seed_stops_at_rest_and_is_of
         plant.params.set("SYS_FAILURE_EN", 1)
         assert command(plant, mavlink.MAV_CMD_INJECT_FAILURE, 4, 1) == mavlink.MAV_RESULT_ACCEPTED
         run(plant, 2.0, lambda: attitude_target(plant, thrust=hover_thrust(plant)))
-        if land:  # on the ground at rest: EKF2 fuses a zero velocity, the position error stays
+        if land:  # landed, the estimate runs on (PX4 v1.16 SIH's did: docs/plant.md)
             assert command(plant, mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED
             for _ in range(40):
                 run(plant, 0.5)
@@ -326,7 +326,8 @@ def test_the_dead_reckoning_error_is_drawn_from_the_seed_stops_at_rest_and_is_of
             before = _reported(plant)[0] - plant.sim.truth().pos_ned_m
             run(plant, 2.0)
             after = _reported(plant)[0] - plant.sim.truth().pos_ned_m
-            assert np.allclose(after, before, atol=1e-9) and np.allclose(_reported(plant)[1], plant.sim.truth().vel_ned_m_s)
+            assert np.hypot(*after[:2]) > np.hypot(*before[:2]) + 2.0  # at the vehicle at rest, b t of velocity error
+            assert np.hypot(*_reported(plant)[1][:2]) > 1.0 and np.allclose(plant.sim.truth().vel_ned_m_s, 0.0, atol=1e-6)
             return after
         return _reported(plant)[0] - plant.sim.truth().pos_ned_m
 
@@ -334,7 +335,7 @@ def test_the_dead_reckoning_error_is_drawn_from_the_seed_stops_at_rest_and_is_of
     assert not np.allclose(drift(3), drift(4))
     assert np.hypot(*drift(3)[:2]) == pytest.approx(0.5 * 0.4 * 2.0**2, rel=1e-6)
     assert np.array_equal(drift(3, b=0.0), np.zeros(3))
-    assert np.hypot(*drift(3, land=True)[:2]) > 0.8  # what it drifted until it came to rest
+    assert np.hypot(*drift(3, land=True)[:2]) > 5.0
 
 
 def test_the_truth_is_sent_on_request_as_px4_sitl_sends_simulator_truth():
