@@ -904,13 +904,22 @@ def markdown(result: dict) -> str:
         "| process | RSS start (MB) | mid (MB) | end (MB) | peak (MB) | growth (kB / sim min) |",
         "|---|---:|---:|---:|---:|---:|",
     ]
+    unfitted = []
     for name in ("plant", "offboard"):
         r = long.get(name)
+        peak = _mb(long.get("hwm_kb", {}).get(name))
         if r:
             lines.append(
                 f"| {name} | {_mb(r['rss_start_kb'])} | {_mb(r['rss_mid_kb'])} | {_mb(r['rss_end_kb'])} | "
-                f"{_mb(long.get('hwm_kb', {}).get(name))} | {_num(r['kb_per_sim_min'])} |"
+                f"{peak} | {_num(r['kb_per_sim_min'])} |"
             )
+        else:  # too short a flight for the window (a quick run's hover): the peak alone, and why
+            lines.append(f"| {name} | – | – | – | {peak} | – |")
+            unfitted.append(name)
+    if unfitted:
+        lines += ["", f"No growth fitted ({', '.join(unfitted)}): the hover took {_num(long.get('wall_s'), '.0f')} s of wall "
+                  f"time, and the fit leaves out at least {STARTUP_S:g} s at each end (fewer than two RSS samples "
+                  "were left); fly longer (`--long-s`)."]
     lines += ["", f"Commands: `{ls['commands'][0]}` and `{ls['commands'][1]}` (ports chosen by the OS)."]
     return "\n".join(lines)
 
@@ -919,7 +928,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python bench/loop.py", description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="smaller runs (well under a minute)")
-    parser.add_argument("--long-s", type=float, default=None, help=f"simulated seconds of the long hover (default {LONG_S:g}; quick 300)")
+    parser.add_argument("--long-s", type=float, default=None, help=f"simulated seconds of the long hover (default {LONG_S:g}; quick 60)")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     parser.add_argument("--floor-role", choices=("vehicle", "client", "mix-vehicle", "mix-client"), help=argparse.SUPPRESS)
     parser.add_argument("--cycles-file", type=Path, help=argparse.SUPPRESS)

@@ -133,5 +133,9 @@ def test_loop_part_gives_finite_figures_and_markdown_and_leaves_no_process(quick
     for line in text.splitlines():
         if line.startswith("|"):
             assert line.endswith("|") and "nan" not in line.lower(), line
+    memory = text.split("### Memory", 1)[1]
+    for name in ("plant", "offboard"):  # a row each, fitted or (too short a hover) saying why not
+        assert memory.count(f"| {name} |") == 1, memory
+        assert name in long or "No growth fitted" in memory, memory
     for pid in long["pids"] + [pid for rt in r["real_time"] for pid in rt["pids"]]:
         assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()

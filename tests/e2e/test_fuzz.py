@@ -96,9 +96,10 @@ def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
             for to, batches in datagrams.items():
                 for d in batches[start:start + 200]:
                     fuzzer.sendto(d, ("127.0.0.1", to))
-                # paced: the kernel's buffer holds a few hundred datagrams, and the plant reads
-                # one link after the other (a signing plant checks a hash a frame, more slowly)
-                time.sleep(0.06 if signed else 0.03)
+                # paced by the plant: the kernel's buffer holds a few hundred datagrams, and a
+                # plant slowed by a loaded machine (or by a hash a frame, signing) would lose
+                # the rest, and the floors below with them
+                _wait_until_read(to)
         client.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))  # talk last: the plant answers us
         after = client.state()  # still answering
         assert after == before  # disarmed, same mode, same parameters
@@ -117,6 +118,35 @@ def test_the_plant_survives_the_fuzz_unchanged(tmp_path, signed):
     if signed:  # what parsed was refused before handling (the fuzz holds no frame signed with the key)
         refused = int(err.split("sitl-plant: refused ")[1].split(" frames")[0])
         assert refused > FUZZ_FRAMES // 50 and bad + refused > FUZZ_FRAMES // 10
+
+
+def _receive_queue_bytes(port: int) -> int | None:
+    """The bytes waiting in the receive queue of the UDP socket bound to 127.0.0.1:port
+    (/proc/net/udp's rx_queue, Linux); None where it cannot be read."""
+    try:
+        rows = open("/proc/net/udp").read().splitlines()[1:]
+    except OSError:
+        return None
+    local = f"0100007F:{port:04X}"
+    for row in rows:
+        fields = row.split()
+        if fields[1] == local:
+            return int(fields[4].split(":")[1], 16)
+    return None
+
+
+def _wait_until_read(port: int, timeout_s: float = 10.0) -> None:
+    """Until the plant has read what was sent to its socket at ``port`` (or, without /proc, a pause)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        waiting = _receive_queue_bytes(port)
+        if waiting is None:
+            time.sleep(0.06)
+            return
+        if waiting == 0:
+            return
+        assert time.monotonic() < deadline, f"the plant left {waiting} bytes unread at port {port} for {timeout_s} s"
+        time.sleep(0.002)
 
 
 STRANGER = 7  # another autopilot's system id
