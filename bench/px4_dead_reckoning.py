@@ -83,9 +83,9 @@ def fly(folder: Path, speed: float, land: bool = False) -> tuple[GroundStationRe
     return record, stopped_at
 
 
-def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
-    """Estimate minus truth (horizontal, m) at ``REPORT_AT_S`` after the stop, the b it implies,
-    the estimate's velocity error (horizontal, m/s), the truth's distance from where it was at the stop."""
+def _estimate_error(record: GroundStationRecord, stopped_at: float) -> tuple[np.ndarray, ...]:
+    """(t, estimates, truth north-east, truth velocity north-east, estimate minus truth north-east) at
+    the estimates' times; the error less its mean over the 5 s before the stop (the frames' origins)."""
     est, tru = _unique(record.estimates), _unique(record.truths)
     if len(est) < 100 or len(tru) < 100:
         raise ValueError(f"too little recorded on the ground-station link ({len(est)} estimates, {len(tru)} truths)")
@@ -98,6 +98,24 @@ def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
     error = est[:, 1:3] - truth
     before = (t > stopped_at - 5.0) & (t <= stopped_at)
     error -= error[before].mean(axis=0)
+    return t, est, truth, truth_vel, error
+
+
+def acceleration_error(record: GroundStationRecord, stopped_at: float, fit_s: float = 4.0) -> np.ndarray:
+    """b (north, east; m/s^2): the estimate's error over the first ``fit_s`` after the stop fitted by
+    1/2 b t^2 + c t (least squares; c: what velocity error there was at the stop)."""
+    t, _, _, _, error = _estimate_error(record, stopped_at)
+    after = t[(t > stopped_at) & (t <= stopped_at + fit_s)] - stopped_at
+    if len(after) < 10:
+        raise ValueError(f"too little recorded in the {fit_s:g} s after the stop ({len(after)} estimates)")
+    design = np.stack([0.5 * after**2, after], axis=1)
+    return np.linalg.lstsq(design, error[(t > stopped_at) & (t <= stopped_at + fit_s)], rcond=None)[0][0]
+
+
+def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
+    """Estimate minus truth (horizontal, m) at ``REPORT_AT_S`` after the stop, the b it implies,
+    the estimate's velocity error (horizontal, m/s), the truth's distance from where it was at the stop."""
+    t, est, truth, truth_vel, error = _estimate_error(record, stopped_at)
     at_stop = truth[np.searchsorted(t, stopped_at)]
     rows = []
     for after in REPORT_AT_S:
@@ -111,8 +129,12 @@ def drift(record: GroundStationRecord, stopped_at: float) -> list[dict]:
     return rows
 
 
-def landing_speeds(record: GroundStationRecord, stopped_at: float, every_s: float = 0.5, until_s: float = 20.0) -> list[tuple[float, float, float]]:
-    """(time after the stop, the truth's horizontal speed, its descent rate), m/s, every ``every_s``."""
+def landing_speeds(record: GroundStationRecord, stopped_at: float, b: np.ndarray, every_s: float = 0.5,
+                   until_s: float = 20.0) -> list[tuple[float, float, float, float]]:  # fmt: skip
+    """(time after the stop, the truth's horizontal speed, its descent rate (m/s), the cosine of its
+    horizontal velocity with the estimate's acceleration error ``b`` (``acceleration_error``; nan at
+    rest)), every ``every_s``. A vehicle
+    held "level" by an estimate whose tilt is off by b / g would accelerate at -b: cosine -1."""
     tru = _unique(record.truths)
     if len(tru) < 100:
         raise ValueError(f"too little recorded on the ground-station link ({len(tru)} truths)")
@@ -122,7 +144,9 @@ def landing_speeds(record: GroundStationRecord, stopped_at: float, every_s: floa
         if t > tru[-1, 0]:
             break
         vn, ve, vd = (float(np.interp(t, tru[:, 0], tru[:, 4 + i])) for i in range(3))
-        rows.append((k * every_s, math.hypot(vn, ve), vd))
+        speed = math.hypot(vn, ve)
+        cosine = (vn * b[0] + ve * b[1]) / (speed * math.hypot(*b)) if speed > 0.01 and math.hypot(*b) > 0 else math.nan
+        rows.append((k * every_s, speed, vd, cosine))
     return rows
 
 
@@ -146,15 +170,17 @@ def main(argv: list[str] | None = None) -> int:
         try:
             record, stopped_at = fly(Path(tmp), args.speed, land=args.land)
             rows = drift(record, stopped_at)
-            speeds = landing_speeds(record, stopped_at) if args.land else []
+            b = acceleration_error(record, stopped_at)
+            speeds = landing_speeds(record, stopped_at, b) if args.land else []
         except (RuntimeError, ValueError, AssertionError) as exc:
             print(f"px4_dead_reckoning: {str(exc).splitlines()[0]}", file=sys.stderr)
             return 1
     if args.land:
-        print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold; offboard fly's guard lands it:")
-        print("after the stop | horizontal speed | descent")
-        for after, speed, down in speeds:
-            print(f"{after:11.1f} s | {speed:12.2f} m/s | {down:+5.2f} m/s")
+        print(f"PX4 SIH at --speed {args.speed:g}, GPS stopped {STOP_AFTER_S:g} s into an Offboard hold; offboard fly's guard lands it.")
+        print(f"The estimate's acceleration error b (its first 4 s): ({b[0]:+.2f}, {b[1]:+.2f}) m/s^2 north, east.")
+        print("after the stop | horizontal speed | descent | cos(velocity, b)")
+        for after, speed, down, cosine in speeds:
+            print(f"{after:11.1f} s | {speed:12.2f} m/s | {down:+5.2f} m/s | " + ("–" if math.isnan(cosine) else f"{cosine:+.2f}"))
         print("and the estimate, through the landing and after it:")
         print_drift(rows)
         return 0

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from bench.px4_dead_reckoning import REPORT_AT_S, drift, landing_speeds
+from bench.px4_dead_reckoning import REPORT_AT_S, acceleration_error, drift, landing_speeds
 from bench.px4_estimator import EARTH_RADIUS_M, GroundStationRecord
 
 LAT0, LON0 = 47.397742, 8.545594
@@ -49,8 +49,13 @@ def test_too_short_a_record_is_refused():
         drift(GroundStationRecord(), STOP_S)
 
 
-def test_the_landing_speeds_are_the_truths():
-    rows = landing_speeds(_record(), STOP_S, every_s=0.5, until_s=3.0)
+def test_the_acceleration_error_is_fitted_from_the_first_seconds_after_the_stop():
+    assert acceleration_error(_record(), STOP_S) == pytest.approx(B, abs=1e-6)
+
+
+def test_the_landing_speeds_are_the_truths_and_their_direction_is_read_against_b():
+    rows = landing_speeds(_record(), STOP_S, acceleration_error(_record(), STOP_S), every_s=0.5, until_s=3.0)
     assert [r[0] for r in rows] == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
-    assert rows[0][1] == pytest.approx(0.0, abs=1e-9)
-    assert all(speed == pytest.approx(1.0) and down == pytest.approx(0.5) for _, speed, down in rows[1:])
+    assert rows[0][1] == pytest.approx(0.0, abs=1e-9) and math.isnan(rows[0][3])  # at rest: no direction
+    assert all(speed == pytest.approx(1.0) and down == pytest.approx(0.5) for _, speed, down, _ in rows[1:])
+    assert all(cosine == pytest.approx(-0.8) for *_, cosine in rows[1:])  # east against b = (0.3, -0.4)
