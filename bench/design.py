@@ -22,6 +22,10 @@ Figures per flight: exit status; the 3D RMS error while the reference moves (mov
 half of every hold in the air (its reference over 0.5 m above the start: a hold at ground level
 is a landing, whose second half is the end of a descent and then the ground; on the helix, the
 hold at 12 m, 18.5-25 s); the RMS error there; the peak tilt of the flight.
+
+A real-PX4 figure moves from flight to flight with EKF2's errors; ``python bench/design.py
+--px4-repeat N [--speed F] [--mission FILE]`` flies one mission N times and says how many flights
+met issue 11's targets.
 """
 
 from __future__ import annotations
@@ -137,7 +141,8 @@ def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: floa
             if fly.poll() is None:
                 fly.kill()
                 fly.wait()
-    return figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
+    result = figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
+    return {**result, "px4_sensors_stopped": px4_sensors_stopped(run_dir)}
 
 
 def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # noqa: ANN001
@@ -222,6 +227,25 @@ DEMO_TARGET = (0.05, 3.0, 35.0)
 PX4_TARGET = (0.10, 5.0)
 
 
+def _misses(f: dict) -> list[str]:
+    """What a designed flight's row misses of issue 11's targets (``_target_lines``); [] if none."""
+    misses = []
+    helix = f["mission"] == "paper-helix.toml"
+    if f["vehicle"] == "sitl-plant":
+        limit_m, limit_tilt, peak = DEMO_TARGET
+        if f.get("peak_tilt_deg") is None or f["peak_tilt_deg"] > peak:
+            misses.append(f"peak tilt {_f(f.get('peak_tilt_deg'), '.1f')} deg > {peak:g}")
+    else:
+        limit_m, limit_tilt = PX4_TARGET
+    if f.get("status") != "complete":
+        misses.append(f"status {f.get('status')}")
+    if f.get("hold_tilt_max_deg") is None or f["hold_tilt_max_deg"] > limit_tilt:
+        misses.append(f"hold tilt {_f(f.get('hold_tilt_max_deg'), '.1f')} deg > {limit_tilt:g}")
+    if helix and (f.get("moving_rms_m") is None or f["moving_rms_m"] > limit_m):
+        misses.append(f"helix {_f(f.get('moving_rms_m'), '.3f')} m > {limit_m:g}")
+    return misses
+
+
 def _target_lines(flights: list[dict]) -> list[str]:
     """Issue 11's flight targets for the designed law, met or not, row by row: the demo's flight
     (sitl-plant, real time: helix at most 0.05 m, every hold within 3 deg, the peak within the
@@ -231,24 +255,12 @@ def _target_lines(flights: list[dict]) -> list[str]:
     for f in flights:
         if f["controller"] != "designed" or f["condition"] not in ("real time", "--speed 4, vehicle clock"):
             continue
-        misses = []
-        helix = f["mission"] == "paper-helix.toml"
-        if f["vehicle"] == "sitl-plant":
-            if not helix:
-                continue
-            limit_m, limit_tilt, peak = DEMO_TARGET
-            if f.get("peak_tilt_deg") is None or f["peak_tilt_deg"] > peak:
-                misses.append(f"peak tilt {_f(f.get('peak_tilt_deg'), '.1f')} deg > {peak:g}")
-        else:
-            limit_m, limit_tilt = PX4_TARGET
-        if f.get("status") != "complete":
-            misses.append(f"status {f.get('status')}")
-        if f.get("hold_tilt_max_deg") is None or f["hold_tilt_max_deg"] > limit_tilt:
-            misses.append(f"hold tilt {_f(f.get('hold_tilt_max_deg'), '.1f')} deg > {limit_tilt:g}")
-        if helix and (f.get("moving_rms_m") is None or f["moving_rms_m"] > limit_m):
-            misses.append(f"helix {_f(f.get('moving_rms_m'), '.3f')} m > {limit_m:g}")
+        if f["vehicle"] == "sitl-plant" and f["mission"] != "paper-helix.toml":
+            continue
+        misses = _misses(f)
         verdict = "met" if not misses else "not met: " + ", ".join(misses)
-        out.append(f"- {f['vehicle']}, {f['mission']}, {f['condition']}: {verdict}")
+        out.append(f"- {f['vehicle']}, {f['mission']}, {f['condition']}: {verdict}"
+                   + (f" ({SENSORS_STOPPED})" if f.get("px4_sensors_stopped") else ""))  # fmt: skip
     if out:
         out = ["", "Issue 11's targets for the designed law (sitl-plant in real time, `make demo`'s flight: helix "
                "5-11.9 s at most 0.05 m, the holds within 3 deg, the peak within the 35 deg limit; real PX4: "
@@ -282,3 +294,79 @@ def markdown(result: dict) -> str:
     if not result["px4"]:
         lines += ["", "No PX4 SITL was found (set `PX4_SITL=/path/to/px4-sitl`): no real-PX4 rows."]
     return "\n".join(lines)
+
+
+def repeat_summary(flights: list[dict]) -> list[str]:
+    """Lines for ``--px4-repeat``: each flight's figures and verdict, then how many of them met
+    issue 11's real-PX4 targets (the helix's 0.10 m, the holds' 5 deg, both), with the ranges."""
+    lines = []
+    for i, f in enumerate(flights, 1):
+        misses = _misses(f)
+        lines.append(f"{i:2d}  {f.get('status')}  moving RMS {_f(f.get('moving_rms_m'), '.3f')} m  hold tilt "
+                     f"{_f(f.get('hold_tilt_max_deg'), '.2f')} deg  " + ("met" if not misses else "not met: " + ", ".join(misses))
+                     + (f" ({SENSORS_STOPPED})" if f.get("px4_sensors_stopped") else ""))  # fmt: skip
+    limit_m, limit_tilt = PX4_TARGET
+
+    def count(values: list, limit: float) -> str:
+        finite = [v for v in values if v is not None and np.isfinite(v)]
+        span = f" ({min(finite):.3g}-{max(finite):.3g})" if finite else ""
+        return f"{sum(v <= limit for v in finite)} of {len(values)}{span}"
+
+    moving = [f.get("moving_rms_m") for f in flights]
+    tilts = [f.get("hold_tilt_max_deg") for f in flights]
+    stopped = sum(bool(f.get("px4_sensors_stopped")) for f in flights)
+    lines.append(f"moving RMS <= {limit_m:g} m: {count(moving, limit_m)}; holds within {limit_tilt:g} deg: "
+                 f"{count(tilts, limit_tilt)}; every target met: {sum(not _misses(f) for f in flights)} of {len(flights)}"
+                 + (f" ({stopped} with {SENSORS_STOPPED})" if stopped else ""))  # fmt: skip
+    return lines
+
+
+#: What PX4 v1.16 SITL prints when its simulated barometer (with the GPS, magnetometer and battery)
+#: stops in flight, a fault of PX4's SITL met now and then at take-off (docs/controller-design.md).
+PX4_SENSORS_STOPPED_LINE = "No valid data from Baro"
+SENSORS_STOPPED = "PX4's simulated sensors stopped: its px4.log says so"
+
+
+def px4_sensors_stopped(run_dir: Path) -> bool:
+    """Whether the flight's PX4 (``fly_px4``'s ``run_dir/px4/px4.log``) said its simulated sensors stopped."""
+    log = run_dir / "px4" / "px4.log"
+    return log.is_file() and PX4_SENSORS_STOPPED_LINE in log.read_text(errors="replace")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python bench/design.py --px4-repeat N [--speed F] [--mission FILE]``: the same real-PX4
+    flight of the designed law N times (a fresh PX4 each), each judged against issue 11's targets:
+    how often a flight meets them, where one ``make bench`` run flies it once."""
+    import argparse
+
+    from bench.px4sitl import SKIP_REASON, px4_launcher
+
+    parser = argparse.ArgumentParser(prog="python bench/design.py", description="The same real-PX4 flight of the designed "
+                                     "law N times, each judged against issue 11's targets.")
+    parser.add_argument("--px4-repeat", type=int, required=True, metavar="N", help="flights (each on a fresh PX4 SITL)")
+    parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
+    parser.add_argument("--mission", default="paper-helix.toml", choices=FLY_MISSIONS, help="a bundled mission")
+    args = parser.parse_args(argv)
+    if args.px4_repeat < 1 or not args.speed > 0:
+        parser.error("--px4-repeat must be >= 1 and --speed > 0")
+    if px4_launcher() is None:
+        print(f"design: {SKIP_REASON}", file=sys.stderr)
+        return 2
+    condition = "real time" if args.speed == 1.0 else f"--speed {args.speed:g}, vehicle clock"
+    flights = []
+    folder = Path(tempfile.mkdtemp(prefix="bench-design-repeat-"))  # kept: each flight's logs and PX4's
+    print(f"flights recorded in {folder}", flush=True)
+    for i in range(args.px4_repeat):
+        run_dir = folder / f"flight-{i + 1}"
+        result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed)
+        flights.append({"vehicle": "real PX4", "mission": args.mission, "controller": "designed", "condition": condition,
+                        **result})  # fmt: skip
+        print(repeat_summary(flights)[i], flush=True)
+    print(f"real PX4, {args.mission}, {condition}, no controller file: " + repeat_summary(flights)[-1])
+    return 0
+
+
+if __name__ == "__main__":
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    sys.exit(main())

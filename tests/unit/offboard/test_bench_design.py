@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from bench.design import _target_lines
+import pytest
+
+from bench.design import _target_lines, main, px4_sensors_stopped, repeat_summary
 
 
 def _row(vehicle, mission, condition, moving, hold_tilt, peak=30.0, controller="designed", status="complete"):
@@ -19,6 +21,7 @@ def test_each_designed_flight_is_judged_against_its_target():
         _row("real PX4", "paper-square.toml", "real time", 0.147, 4.5),  # square: no helix figure to meet
         _row("real PX4", "paper-helix.toml", "--speed 4, vehicle clock", 0.12, 5.1),
         _row("real PX4", "figure-eight.toml", "real time", 0.14, 4.0, status="link lost"),
+        {**_row("real PX4", "px4-sitl-survey.plan", "real time", 0.3, None, status="estimate_lost"), "px4_sensors_stopped": True},
     ])  # fmt: skip
     verdicts = [line for line in lines if line.startswith("- ")]
     assert verdicts == [
@@ -27,6 +30,8 @@ def test_each_designed_flight_is_judged_against_its_target():
         "- real PX4, paper-square.toml, real time: met",
         "- real PX4, paper-helix.toml, --speed 4, vehicle clock: not met: hold tilt 5.1 deg > 5, helix 0.120 m > 0.1",
         "- real PX4, figure-eight.toml, real time: not met: status link lost",
+        "- real PX4, px4-sitl-survey.plan, real time: not met: status estimate_lost, hold tilt n/a deg > 5 "
+        "(PX4's simulated sensors stopped: its px4.log says so)",
     ]
 
 
@@ -41,3 +46,33 @@ def test_the_demos_flight_must_keep_its_peak_within_the_tilt_limit():
 
 def test_no_designed_flight_no_lines():
     assert _target_lines([_row("real PX4", "paper-helix.toml", "real time", 0.2, 49.7, controller="paper")]) == []
+
+
+def test_repeated_flights_are_judged_one_by_one_and_counted():
+    flights = [_row("real PX4", "paper-helix.toml", "real time", 0.085, 3.35),
+               _row("real PX4", "paper-helix.toml", "real time", 0.117, 5.71),
+               _row("real PX4", "paper-helix.toml", "real time", 0.096, 5.15),
+               {**_row("real PX4", "paper-helix.toml", "real time", 0.142, None, status="estimate_lost"), "px4_sensors_stopped": True}]  # fmt: skip
+    lines = repeat_summary(flights)
+    assert lines[0].endswith("hold tilt 3.35 deg  met")
+    assert lines[1].endswith("not met: hold tilt 5.7 deg > 5, helix 0.117 m > 0.1")
+    assert lines[3].endswith("not met: status estimate_lost, hold tilt n/a deg > 5, helix 0.142 m > 0.1 "
+                             "(PX4's simulated sensors stopped: its px4.log says so)")
+    assert lines[-1] == ("moving RMS <= 0.1 m: 2 of 4 (0.085-0.142); holds within 5 deg: 1 of 4 (3.35-5.71); "
+                         "every target met: 1 of 4 (1 with PX4's simulated sensors stopped: its px4.log says so)")
+
+
+def test_a_px4_whose_sensors_stopped_is_told_by_its_log(tmp_path):
+    (tmp_path / "px4").mkdir()
+    assert not px4_sensors_stopped(tmp_path)  # no log
+    (tmp_path / "px4" / "px4.log").write_text("INFO  [commander] Takeoff detected\n")
+    assert not px4_sensors_stopped(tmp_path)
+    (tmp_path / "px4" / "px4.log").write_text("WARN  [health_and_arming_checks] Preflight Fail: No valid data from Baro 0\n")
+    assert px4_sensors_stopped(tmp_path)
+
+
+def test_the_repeat_command_refuses_a_bad_count_in_one_line(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--px4-repeat", "0"])
+    assert exit_info.value.code == 2
+    assert "--px4-repeat must be >= 1" in capsys.readouterr().err
