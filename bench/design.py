@@ -358,7 +358,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"flights recorded in {folder}", flush=True)
     for i in range(args.px4_repeat):
         run_dir = folder / f"flight-{i + 1}"
-        result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed)
+        try:
+            result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed)
+        except KeyboardInterrupt:  # the flight's PX4 and offboard are stopped on the way out
+            print(f"design: interrupted in flight {i + 1}; the flights so far are in {folder}", file=sys.stderr)
+            return 130
         flights.append({"vehicle": "real PX4", "mission": args.mission, "controller": "designed", "condition": condition,
                         **result})  # fmt: skip
         print(repeat_summary(flights)[i], flush=True)
