@@ -207,17 +207,30 @@ def _fly(c, seconds, frame, mask, **target):
     """Stream one setpoint (20 Hz wall) for ``seconds`` at the vehicles' ``PX4_SPEED``, counted on
     the vehicle's own clock (a starved PX4 runs slower than its --speed: counted in wall time, one
     loaded run flew it a fraction of the window and saw it still accelerating); the velocities NED
-    (m/s) seen meanwhile."""
-    vel = []
-    start_ms = None
-    end = time.monotonic() + 10.0 * seconds  # the cap, for a vehicle that stopped
-    while time.monotonic() < end:
+    (m/s) seen meanwhile. What a failed check needs to say why is kept as ``c.last_fly``: the
+    window's vehicle time and wall time, its heights and the modes its heartbeats gave."""
+    vel, heights, modes = [], [], []
+    start_ms = last_ms = None
+    started = time.monotonic()
+    end = started + 10.0 * seconds  # the cap, for a vehicle that stopped
+    done = False
+    while not done and time.monotonic() < end:
         c.position_target(frame, mask, **target)
-        for m in c.receive({M.MAVLINK_MSG_ID_LOCAL_POSITION_NED}, 0.05):
+        for m in c.receive({M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, M.MAVLINK_MSG_ID_HEARTBEAT}, 0.05):
+            if m.get_type() == "HEARTBEAT":
+                if not modes or modes[-1] != (m.base_mode, m.custom_mode):
+                    modes.append((m.base_mode, m.custom_mode))
+                continue
             vel.append((m.vx, m.vy, m.vz))
+            heights.append(-m.z)
             start_ms = m.time_boot_ms if start_ms is None else start_ms
-            if m.time_boot_ms - start_ms >= 1000.0 * seconds * PX4_SPEED:
-                return np.array(vel)
+            last_ms = m.time_boot_ms
+            done = m.time_boot_ms - start_ms >= 1000.0 * seconds * PX4_SPEED
+            if done:
+                break
+    c.last_fly = {"vehicle_ms": (start_ms, last_ms), "wall_s": round(time.monotonic() - started, 2), "samples": len(vel),
+                  "height_m": (round(min(heights), 2), round(max(heights), 2)) if heights else None,
+                  "modes (base, custom)": [(b, hex(cm)) for b, cm in modes]}  # fmt: skip
     return np.array(vel)
 
 
@@ -247,7 +260,7 @@ def test_body_frame_velocity_flies_along_the_heading(px4, plant, parity_finding)
                    f"{n_px4:.2f}, {e_px4:.2f}", f"{n_plant:.2f}, {e_plant:.2f}")  # fmt: skip
     assert off_px4 == off_plant == M.MAV_RESULT_ACCEPTED
     assert cal_px4 == cal_plant == M.MAV_RESULT_TEMPORARILY_REJECTED  # armed: no calibration
-    assert e_px4 > 1.2 and e_plant > 1.2  # forward at yaw 90 deg is east
+    assert e_px4 > 1.2 and e_plant > 1.2, (px4.last_fly, plant.last_fly)  # forward at yaw 90 deg is east
     assert abs(n_px4) < 0.5 and abs(n_plant) < 0.5
     assert e_plant == pytest.approx(e_px4, abs=0.8)  # measured 1.73-1.77 (PX4) and 2.15-2.18 (the plant overshoots)
 
