@@ -32,7 +32,7 @@ from offboard import jsonout
 BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
-from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, LogClock, Progress, SampleClock
+from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, HeadingHoldMode, LogClock, Progress, SampleClock
 from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.model.clihelp import HelpFormatter
@@ -90,6 +90,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="fly on when the vehicle's ESTIMATOR_STATUS stops vouching for its attitude, velocity or "
                             "position (default: ESTIMATE_LOST, exit 11)")
     ctl = parser.add_argument_group("controller")
+    ctl.add_argument("--takeoff-heading-hold", choices=[m.value for m in HeadingHoldMode], default="auto",
+                     help="hold the yaw reference at the take-off heading until 1 s after the vehicle is 1.5 m above its "
+                          "take-off point, where PX4's EKF2 aligns its heading from the magnetometer (a turning vehicle is "
+                          "then given a heading that lags the turn); auto: where the vehicle publishes an EKF2 fusing a "
+                          "magnetometer (default: auto)")
     ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
     ctl.add_argument("--model", choices=VEHICLE_MODELS, default="rigid-body",
@@ -270,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
         unread_streams_off=not args.keep_streams,
         lost_track_m=args.lost_track_m,
         watch_estimator=not args.ignore_estimator,
+        takeoff_heading_hold=HeadingHoldMode(args.takeoff_heading_hold),
         target_system=args.target_system,
         connect=args.connect,
     )
@@ -401,6 +407,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "timesync": result.timesync,
         "landed": result.landed,
         "disarmed": result.disarmed,
+        "takeoff_heading_hold": result.heading_hold,
         "notes": result.notes,
     }
 

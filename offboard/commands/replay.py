@@ -143,6 +143,18 @@ def _flight_summary(log: Path, vehicle: int | None) -> tuple[dict | None, str]:
     return data, f"summary.json of {named} (not there: this log, renamed?)"
 
 
+def _heading_hold_as_flown(summary: dict | None):  # -> TakeoffHeadingHold | None
+    """The flight's take-off heading hold, from summary.json's ``takeoff_heading_hold`` (None: it
+    held nothing, or the summary is older than the hold)."""
+    from offboard.flight.heading_hold import TakeoffHeadingHold
+
+    hold = (summary or {}).get("takeoff_heading_hold")
+    if not isinstance(hold, dict) or not hold.get("held") or not isinstance(hold.get("heading_deg"), (int, float)):
+        return None
+    released = hold.get("released_s")
+    return TakeoffHeadingHold.as_flown(math.radians(hold["heading_deg"]), float(released) if isinstance(released, (int, float)) else None)
+
+
 def _mission(args: argparse.Namespace, summary: dict | None):
     """The mission (``offboard.missions.Mission``) and a note saying where it came from (None, ''
     without one)."""
@@ -332,7 +344,8 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     if named not in CONTROLLER_KINDS:
         raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {named!r} is none of {', '.join(CONTROLLER_KINDS)}")
     kind = ControllerKind(named)
-    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind)
+    result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind,
+                                     heading_hold=_heading_hold_as_flown(summary_json))
     label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}

@@ -11,6 +11,8 @@ One idea a module, each importing only those above it:
 - ``supervisor``: ``Supervisor``, telemetry outages and the vehicle's mode and arming;
 - ``guards``: ``TrackGuard`` and ``EstimatorGuard``, when the vehicle is lost (off its reference
   and not closing, or its estimator no longer vouching for the estimate): pure rules;
+- ``heading_hold``: ``TakeoffHeadingHold``, the yaw reference held at the take-off heading until
+  PX4's EKF2 has aligned its heading in flight: a pure rule;
 - ``sampler``: ``Sampler``, when a sample is due (lockstep, our clock, the vehicle's clock), what
   it is made of, and the ``LoopStats``;
 - ``mission``: ``Flight``, which owns one of each and runs the sequence (connect, prepare, stream
@@ -21,7 +23,7 @@ One idea a module, each importing only those above it:
 """
 
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
-from offboard.flight.config import AUTO_TELEMETRY_RATE, OUTPUTS, FlightConfig, Link, SampleClock
+from offboard.flight.config import AUTO_TELEMETRY_RATE, OUTPUTS, FlightConfig, HeadingHoldMode, Link, SampleClock
 from offboard.flight.mission import FLIGHT_COLUMNS, Flight, FlightResult, LogClock, Progress
 from offboard.flight.sampler import LoopStats
 
@@ -34,6 +36,7 @@ __all__ = [
     "Flight",
     "FlightConfig",
     "FlightResult",
+    "HeadingHoldMode",
     "Link",
     "LogClock",
     "LoopStats",

@@ -15,7 +15,8 @@ from offboard.codec import Scaling, SetpointOutput
 from offboard.controller import ActionLimits, ControllerParams
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
 from offboard.controllers import CONTROLLER_KINDS, ControllerKind
-from offboard.flight.config import FlightConfig
+from offboard.flight.config import FlightConfig, HeadingHoldMode
+from offboard.flight.heading_hold import HEADING_ALIGN_PARAMS
 from offboard.model.vehicle import VehicleModel
 
 #: Tilt limit on x7ez, x9ez when neither the command line nor the controller file gives one (deg).
@@ -113,6 +114,7 @@ VEHICLE_PARAMS = {
     "SIH_T_MAX": "PX4 SIH thrust of one rotor at full throttle (N)",
 }
 VEHICLE_PARAMS.update({name: "PX4's inner loop and speed limits (the tuned design)" for name in AUTOPILOT_PARAMS})
+VEHICLE_PARAMS.update({name: "whether EKF2 aligns its heading in flight (the take-off heading hold)" for name in HEADING_ALIGN_PARAMS})
 VEHICLE_PARAMS.update({name: "PX4 SIH's vehicle" for name in SIH_PARAMS if name not in VEHICLE_PARAMS})
 
 def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_given: bool,
@@ -136,6 +138,8 @@ def params_to_read(choice: ControllerChoice, config: FlightConfig, thrust_max_gi
         if family == "SIM":
             optional += ["SIM_TQ_RP_MAX", "SIM_MOT_TAU"]
         optional += list(AUTOPILOT_PARAMS)
+    if config.takeoff_heading_hold == HeadingHoldMode.AUTO and family != "SIM":  # sitl-plant has no EKF2 to ask about
+        optional += list(HEADING_ALIGN_PARAMS)
     return required, [n for n in dict.fromkeys(optional) if n not in required]
 
 

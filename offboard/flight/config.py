@@ -34,6 +34,15 @@ class SampleClock(StrEnum):
     AUTO = "auto"
 
 
+class HeadingHoldMode(StrEnum):
+    """``offboard fly --takeoff-heading-hold``: hold the yaw reference at the take-off heading until
+    the vehicle's estimator has aligned its heading in flight (``heading_hold``)."""
+
+    AUTO = "auto"  #: where the vehicle publishes an EKF2 fusing a magnetometer (``heading_hold.aligns_in_flight``)
+    ON = "on"
+    OFF = "off"
+
+
 class Link(Protocol):
     """What a flight needs of a MAVLink link (``offboard.link.MavLink`` or a test double)."""
 
@@ -102,6 +111,10 @@ class FlightConfig:
     watch_estimator : bool
         ESTIMATE_LOST when the vehicle's ESTIMATOR_STATUS stops vouching for what the law reads
         (``guards.EstimatorGuard``).
+    takeoff_heading_hold : HeadingHoldMode
+        Hold the yaw reference at the take-off heading until the vehicle's estimator has aligned
+        its heading in flight (``heading_hold.TakeoffHeadingHold``): ``auto`` where the vehicle
+        publishes an EKF2 that fuses a magnetometer (PX4), ``on``, ``off``.
     target_system : int or None
         Fly this system id (None: the first autopilot heard).
     connect : str
@@ -125,6 +138,7 @@ class FlightConfig:
     unread_streams_off: bool = True
     lost_track_m: float = LOST_TRACK_M
     watch_estimator: bool = True
+    takeoff_heading_hold: HeadingHoldMode = HeadingHoldMode.AUTO
     target_system: int | None = None
     connect: str = ""
 
@@ -135,6 +149,7 @@ class FlightConfig:
             raise ValueError(f"model must be one of {VEHICLE_MODELS}, got {self.model!r}")
         object.__setattr__(self, "output", SetpointOutput(self.output))  # a word from the command line: its enum
         object.__setattr__(self, "model", VehicleModel(self.model))
+        object.__setattr__(self, "takeoff_heading_hold", HeadingHoldMode(self.takeoff_heading_hold))
         for name in ("telemetry_timeout_s", "reconnect_timeout_s", "heartbeat_timeout_s", "command_timeout_s",
                      "param_timeout_s", "land_timeout_s"):  # fmt: skip
             value = getattr(self, name)

@@ -53,8 +53,9 @@ from offboard.controller.tuning import vehicle_values
 from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
-from offboard.flight.config import FlightConfig, FlightEnd, Link, SampleClock
+from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
 from offboard.flight.guards import EstimatorGuard, TrackGuard, sensor_health_changes
+from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, climbs_past
 from offboard.flight.protocol import VehicleClient
 from offboard.flight.sampler import LoopStats, Sampler
 from offboard.flight.supervisor import Supervisor
@@ -93,6 +94,8 @@ class FlightResult:
     notes: list[str]
     vehicle: tuple[int, int] | None
     home_offset_ned_m: tuple[float, float, float] | None = None
+    #: the take-off heading hold: ``{"mode", "held", "heading_deg", "released_s"}`` (``heading_hold``)
+    heading_hold: dict[str, object] | None = None
 
 
 @dataclass(frozen=True)
@@ -209,6 +212,10 @@ class Flight:
         self._attitude_heard_s: float | None = None  # when the latest ATTITUDE came (our clock)
         self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
+        #: the take-off heading hold (``heading_hold``): wanted for this vehicle (decided once its
+        #: parameters are read), and the hold itself from the mission's start while it applies
+        self._hold_heading = self.config.takeoff_heading_hold == HeadingHoldMode.ON
+        self.heading_hold: TakeoffHeadingHold | None = None
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
@@ -269,7 +276,7 @@ class Flight:
             vehicle_params=dict(self.client.vehicle_params), loop=loop, outages=list(self.supervisor.outages),
             timesync=self.client.timesync,
             landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.client.target,
-            home_offset_ned_m=self.home_offset_ned_m,
+            home_offset_ned_m=self.home_offset_ned_m, heading_hold=self._heading_hold_summary(),
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -304,6 +311,8 @@ class Flight:
                 raise LinkTimeout(f"the vehicle did not answer PARAM_REQUEST_READ {name} ({VEHICLE_PARAMS[name]}) "
                                   f"after {cfg.param_attempts} tries{hint}")
         client.vehicle_params.update({name: values[name] for name in names if name in values})  # in asking order
+        if cfg.takeoff_heading_hold == HeadingHoldMode.AUTO:
+            self._hold_heading = aligns_in_flight(client.vehicle_params)
         p = vehicle_values(client.vehicle_params)
         try:
             self.scaling = Scaling(
@@ -682,15 +691,25 @@ class Flight:
         now = self.clock()
         if not sampler.mission_started:
             self._say_start(measured)
+            self._start_heading_hold(measured)
         n, t = sampler.mission_sample(now)
         self._mission_t_s = t
         recording = not sampler.mission_done and n <= sampler.mission_samples
         ref_n, ref_n1 = self.references.pair(t)
+        hold = self.heading_hold
+        if hold is not None and hold.holding:
+            if not hold.update(t, float(measured.pos_ned_m[2])):
+                self._note(f"heading released at t = {t:.2f} s, {hold.delay_s + hold.settle_s:g} s after the vehicle rose "
+                           f"{hold.align_height_m:g} m above its take-off point (EKF2's in-flight heading alignment)")
+            ref_n, ref_n1 = hold.apply(ref_n), hold.apply(ref_n1)
         if self.lookahead_s > 0.0:  # the predicted state meets the references of its own time
             if not (self.config.lockstep or sampler.on_vehicle_clock) and self._attitude_heard_s is not None:
                 # on our clock the telemetry read is 0 to a telemetry period old: predicted over its age
                 measured = replace(measured, age_s=max(0.0, now - self._attitude_heard_s))
-            command = self.controller.step(measured, *self.references_ahead.pair(t + self.lookahead_s))
+            ahead_n, ahead_n1 = self.references_ahead.pair(t + self.lookahead_s)
+            if hold is not None:
+                ahead_n, ahead_n1 = hold.apply(ahead_n), hold.apply(ahead_n1)
+            command = self.controller.step(measured, ahead_n, ahead_n1)
         else:
             command = self.controller.step(measured, ref_n, ref_n1)
         why = _diverged(measured)
@@ -719,6 +738,35 @@ class Flight:
         self._say(f"mission started at t_boot {measured.time_boot_ms / 1000:.2f} s, vehicle at NED "
                   f"({measured.pos_ned_m[0]:.2f}, {measured.pos_ned_m[1]:.2f}, {measured.pos_ned_m[2]:.2f}) m, "
                   f"first reference ({ref0[0]:.2f}, {ref0[1]:.2f}, {ref0[2]:.2f}) m")
+
+    def _start_heading_hold(self, measured: MeasuredState) -> None:
+        """At the mission's start: hold the heading the vehicle has while its estimator has yet to
+        align it in flight (``heading_hold``): wanted for this vehicle, the vehicle on the ground
+        (in the air, EKF2 aligned at its take-off) and a mission that climbs past the height."""
+        if not self._hold_heading:
+            return
+        down = float(measured.pos_ned_m[2])
+        heading = float(measured.euler_rad[2])
+        if self.client.landed_state not in (None, mavlink.MAV_LANDED_STATE_ON_GROUND, mavlink.MAV_LANDED_STATE_UNDEFINED):
+            self._note("take-off heading hold: none, the vehicle is in the air (its estimator aligned its heading at take-off)")
+            return
+        if not climbs_past(self.references.trajectory, self.to, down, EKF2_ALIGN_HEIGHT_M):
+            self._note(f"take-off heading hold: none, the mission never climbs {EKF2_ALIGN_HEIGHT_M:g} m above the take-off point")
+            return
+        hold = self.heading_hold = TakeoffHeadingHold(heading, down, delay_s=alignment_delay_s(self.client.vehicle_params))
+        self._note(f"take-off heading hold: the yaw reference stays at {math.degrees(heading):.1f} deg until "
+                   f"{hold.delay_s + hold.settle_s:g} s after the vehicle is {hold.align_height_m:g} m above its take-off point "
+                   f"(EKF2 aligns its heading from the magnetometer {hold.delay_s:g} s after, EKF2_DELAY_MAX; then "
+                   f"{hold.settle_s:g} s to settle, as PX4's own modes; --takeoff-heading-hold off: none)")
+
+    def _heading_hold_summary(self) -> dict[str, object]:
+        hold = self.heading_hold
+        return {
+            "mode": str(self.config.takeoff_heading_hold),
+            "held": hold is not None,
+            "heading_deg": None if hold is None else math.degrees(hold.heading_rad),
+            "released_s": None if hold is None else hold.released_s,
+        }
 
     def _phase_at(self, t: float) -> str:
         for phase in self.phases:

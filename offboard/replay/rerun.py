@@ -22,6 +22,7 @@ from offboard.model.vehicle import VehicleModel
 from offboard.record import FlightRecord, RecordBuilder, control_row
 from offboard.replay.record import _telemetry_rows, setpoints_for
 from offboard.replay.scan import LogScan
+from offboard.flight.heading_hold import TakeoffHeadingHold
 from offboard.trajectory.base import ReferencePairs, Trajectory
 
 #: The setpoint fields compared, per output kind (message units).
@@ -118,6 +119,7 @@ def rerun_controller(
     model: VehicleModel = VehicleModel.RIGID_BODY,
     encoding: SetpointOutput | None = None,
     kind: ControllerKind = ControllerKind.PAPER,
+    heading_hold: TakeoffHeadingHold | None = None,
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
 
@@ -145,6 +147,9 @@ def rerun_controller(
         ``rigid-body`` or ``paper`` (the attitude and torque forms).
     kind : ControllerKind
         Which controller flew (``paper``, ``se3``, ``px4``).
+    heading_hold : TakeoffHeadingHold or None
+        The flight's take-off heading hold (``TakeoffHeadingHold.as_flown`` from summary.json):
+        the references' yaw held as the flight held it.
     """
 
     output = record.meta.get("commands")
@@ -176,6 +181,9 @@ def rerun_controller(
         )
         t = float(t_all[k])
         ref_n, ref_n1 = references.pair(t)
+        if heading_hold is not None:
+            heading_hold.update(t, float(measured.pos_ned_m[2]))
+            ref_n, ref_n1 = heading_hold.apply(ref_n), heading_hold.apply(ref_n1)
         command = controller.step(measured, ref_n, ref_n1)
         builder.append(**control_row(t, measured, ref_n, command))
         if not command.is_finite():

@@ -50,6 +50,12 @@ def test_the_paper_helix_flies_smoothly_through_px4s_attitude_loop(tmp_path):
     assert c["mass_kg"] == pytest.approx(1.0) and c["thrust_max_n"] == pytest.approx(20.0)
     assert c["inertia_kg_m2"] == pytest.approx([0.025, 0.025, 0.03]) and c["linear_drag_n_s_m"] == pytest.approx(1.0)
     assert c["gains"]["kx1"] != 0.78  # designed, not Table I's
+    # PX4's EKF2 aligns its heading from the magnetometer 1.5 m above the take-off point: read from
+    # PX4 (EKF2_MAG_TYPE, SYS_HAS_MAG, EKF2_DELAY_MAX), the helix's first turn waits for it
+    hold = summary["takeoff_heading_hold"]
+    assert hold["mode"] == "auto" and hold["held"] and abs(hold["heading_deg"]) < 10.0, hold
+    assert summary["vehicle_params"]["EKF2_DELAY_MAX"] == pytest.approx(200.0)
+    assert 1.0 < hold["released_s"] < 4.0  # 1.2 s after the vehicle passed 1.5 m, 0.9-1.0 s into the climb
     d = np.genfromtxt(run / "series.csv", delimiter=",", names=True)
     t = d["t_s"]
     tilt = np.degrees(np.arccos(np.cos(d["euler_rad_0"]) * np.cos(d["euler_rad_1"])))

@@ -483,3 +483,35 @@ def test_a_log_cut_in_half_is_not_a_complete_flight(flown, tmp_path, capsys):
     # the whole log: complete
     code, payload = replay_json(capsys, str(flown.flight_log), "--mission", str(flown.mission), "--run-dir", str(tmp_path / "r2"))
     assert payload["status"] == "complete"
+
+
+#: Climbs past EKF2's 1.5 m while its heading asks for 1 rad: a take-off heading hold has something to hold.
+HOLD_MISSION = MISSION.replace("position = [0, 0, -1]\nyaw = 0", "position = [0, 0, -2.5]\nyaw = 1.0")
+
+
+@pytest.fixture(scope="module")
+def flown_heading_hold(tmp_path_factory) -> Flown:
+    return fly(tmp_path_factory.mktemp("flight-heading-hold"), "attitude", extra=("--takeoff-heading-hold", "on"),
+               mission_text=HOLD_MISSION)  # fmt: skip
+
+
+def test_a_flight_that_held_its_heading_reruns_exactly_and_only_with_the_hold(flown_heading_hold, tmp_path, capsys):
+    hold = flown_heading_hold.summary["takeoff_heading_hold"]
+    assert hold["mode"] == "on" and hold["held"] and 1.0 < hold["released_s"] < 2.5
+    yaw = {float(row["t_s"]): float(row["ref_yaw_rad"]) for row in _series(flown_heading_hold)}
+    assert all(abs(v - np.radians(hold["heading_deg"])) < 1e-9 for t, v in yaw.items() if t < hold["released_s"] - 1e-9)
+    assert yaw[2.0] == pytest.approx(1.0)  # the mission's heading once let go
+    code, payload = replay_json(capsys, str(flown_heading_hold.flight_log), "--rerun", "--mission", str(flown_heading_hold.mission),
+                                "--run-dir", str(tmp_path / "r"))  # fmt: skip
+    assert code == 0 and payload["rerun"]["exact"], payload["rerun"]
+    # the same log re-run without the hold (a summary from before it): the yaw setpoints differ while it held
+    summary = flown_heading_hold.run_dir / "summary.json"
+    kept = summary.read_text()
+    try:
+        summary.write_text(json.dumps({k: v for k, v in json.loads(kept).items() if k != "takeoff_heading_hold"}))
+        code, payload = replay_json(capsys, str(flown_heading_hold.flight_log), "--rerun", "--mission", str(flown_heading_hold.mission),
+                                    "--run-dir", str(tmp_path / "r2"))  # fmt: skip
+    finally:
+        summary.write_text(kept)
+    first = payload["rerun"]["first_mismatch"]
+    assert code == 1 and not payload["rerun"]["exact"] and first is not None and first["t_s"] < hold["released_s"]

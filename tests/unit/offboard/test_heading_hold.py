@@ -1,0 +1,153 @@
+"""offboard.flight.heading_hold: the yaw reference held at the take-off heading until PX4's EKF2 has
+aligned its heading in flight (1.5 m above the take-off point, then 1 s). The rule alone, then a
+flight against the real plant in-process (``test_fly_flight.PlantLink``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from offboard.flight import ControllerChoice, Flight, FlightConfig, HeadingHoldMode, params_to_read
+from offboard.flight.heading_hold import (
+    EKF2_ALIGN_HEIGHT_M,
+    EKF2_ALIGN_SETTLE_S,
+    EKF2_DELAY_MAX_S,
+    HEADING_ALIGN_PARAMS,
+    TakeoffHeadingHold,
+    alignment_delay_s,
+    aligns_in_flight,
+    climbs_past,
+)
+from offboard.record import FlightStatus
+from offboard.trajectory.analytic import Line
+from offboard.trajectory.base import Reference
+from helpers import FakeClock
+from test_fly_flight import PAPER, PlantLink, make_plant
+
+DT = 0.05
+
+
+def ref(yaw: float = 1.2, rate: float = 0.3) -> Reference:
+    return Reference(np.array([1.0, 2.0, -3.0]), np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.0, 0.1]), yaw, rate)
+
+
+def test_the_heading_is_held_until_ekf2_has_aligned_and_a_second_more():
+    hold = TakeoffHeadingHold(heading_rad=0.4, takeoff_down_m=0.2, delay_s=0.3)
+    downs = [0.2, 0.0, -0.8, -1.2]  # passes 1.5 m above 0.2 at -1.31 (t = 0.2 s)
+    holding = [hold.update(k * 0.05, d) for k, d in enumerate(downs)]
+    assert holding == [True] * 4 and hold.passed_s is None
+    assert hold.update(0.2, -1.31) and hold.passed_s == pytest.approx(0.2)
+    # EKF2 aligns 0.3 s later (its EKF2_DELAY_MAX), then a second, whatever the height does meanwhile
+    assert hold.update(0.2 + 0.3 + EKF2_ALIGN_SETTLE_S - 0.05, -1.0)
+    assert not hold.update(0.2 + 0.3 + EKF2_ALIGN_SETTLE_S, -1.0) and hold.released_s == pytest.approx(1.5)
+    assert not hold.update(5.0, 0.2) and hold.released_s == pytest.approx(1.5)  # released for good
+
+
+def test_the_alignment_delay_is_the_vehicles_ekf2_delay_max():
+    assert alignment_delay_s({"EKF2_DELAY_MAX": 200.0}) == pytest.approx(0.2)  # PX4's default, ms
+    assert alignment_delay_s({"EKF2_DELAY_MAX": 350.0}) == pytest.approx(0.35)
+    assert alignment_delay_s({}) == EKF2_DELAY_MAX_S
+    assert alignment_delay_s({"EKF2_DELAY_MAX": math.nan}) == EKF2_DELAY_MAX_S
+
+
+def test_while_held_the_yaw_is_the_take_off_heading_and_nothing_else_changes():
+    hold = TakeoffHeadingHold(heading_rad=-0.7, takeoff_down_m=0.0)
+    r = ref()
+    held = hold.apply(r)
+    assert held.yaw_rad == -0.7 and held.yaw_rate_rad_s == 0.0
+    for name in ("pos_ned_m", "vel_ned_m_s", "acc_ned_m_s2"):
+        np.testing.assert_array_equal(getattr(held, name), getattr(r, name))
+    hold.update(0.0, -2.0)
+    hold.update(EKF2_DELAY_MAX_S + EKF2_ALIGN_SETTLE_S, -2.0)
+    assert not hold.holding and hold.apply(r) is r
+
+
+def test_a_hold_needs_finite_values_and_a_positive_height():
+    with pytest.raises(ValueError, match="finite"):
+        TakeoffHeadingHold(math.nan, 0.0)
+    with pytest.raises(ValueError, match="align_height_m"):
+        TakeoffHeadingHold(0.0, 0.0, align_height_m=0.0)
+
+
+def test_only_an_ekf2_fusing_a_magnetometer_aligns_in_flight():
+    assert aligns_in_flight({"EKF2_MAG_TYPE": 0.0, "SYS_HAS_MAG": 1.0})  # PX4 SIH's (automatic)
+    assert aligns_in_flight({"EKF2_MAG_TYPE": 1.0})  # heading fusion
+    assert not aligns_in_flight({"EKF2_MAG_TYPE": 5.0})  # None
+    assert not aligns_in_flight({"EKF2_MAG_TYPE": 0.0, "SYS_HAS_MAG": 0.0})  # no magnetometer
+    assert not aligns_in_flight({"SIM_THR_MAX": 20.0})  # sitl-plant: no EKF2
+
+
+def test_the_vehicle_is_asked_about_its_ekf2_unless_it_is_sitl_plant():
+    choice = ControllerChoice(base=PAPER, tuned=True)
+    for family in ("SIH", "none"):
+        _, optional = params_to_read(choice, FlightConfig(), False, family)
+        assert set(HEADING_ALIGN_PARAMS) <= set(optional)
+        _, optional = params_to_read(choice, FlightConfig(takeoff_heading_hold="off"), False, family)
+        assert not set(HEADING_ALIGN_PARAMS) & set(optional)
+    _, optional = params_to_read(choice, FlightConfig(), False, "SIM")
+    assert not set(HEADING_ALIGN_PARAMS) & set(optional)
+
+
+def test_a_mission_that_never_climbs_past_the_height_has_nothing_to_wait_for():
+    low = Line((0.0, 0.0, -1.0), (5.0, 0.0, -1.4), 1.0, yaw_rad=1.0)
+    assert not climbs_past(low, DT, 0.0, EKF2_ALIGN_HEIGHT_M)
+    assert climbs_past(low, DT, 0.2, EKF2_ALIGN_HEIGHT_M)  # taken off from 0.2 m below the origin
+    assert climbs_past(Line((0.0, 0.0, -1.0), (0.0, 0.0, -3.0), 1.0), DT, 0.0, EKF2_ALIGN_HEIGHT_M)
+
+
+# --- flown against the plant ------------------------------------------------------------------------
+
+
+def fly(trajectory, mode: str):
+    link = PlantLink(make_plant(), FakeClock())
+    events: list[str] = []
+    flight = Flight(link, trajectory, ControllerChoice(base=PAPER, tuned=True),
+                    FlightConfig(lockstep=True, connect="test", takeoff_heading_hold=mode), clock=link.clock,
+                    event=events.append)  # fmt: skip
+    return flight.run(), link
+
+
+def test_the_hold_keeps_the_take_off_heading_through_the_climb_then_turns_to_the_missions():
+    climb = Line((0.0, 0.0, -3.0), (3.0, 0.0, -3.0), 0.5, yaw_rad=math.pi / 2)  # starts 3 m up, heading east
+    result, link = fly(climb, "on")
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    hh = result.heading_hold
+    assert hh is not None and hh["mode"] == "on" and hh["held"] and hh["heading_deg"] == pytest.approx(0.0, abs=1.0)
+    t, ref_yaw = result.record["t_s"], result.record["ref_yaw_rad"]
+    down = result.record["pos_ned_m"][:, 2]
+    passed = t[np.argmax(down < down[0] - EKF2_ALIGN_HEIGHT_M)]
+    released = hh["released_s"]
+    assert released == pytest.approx(passed + EKF2_DELAY_MAX_S + EKF2_ALIGN_SETTLE_S, abs=DT / 2)  # sitl-plant: no EKF2_DELAY_MAX
+    held = t < released
+    assert np.all(np.abs(ref_yaw[held] - math.radians(hh["heading_deg"])) < 1e-12)
+    assert np.all(ref_yaw[~held] == pytest.approx(math.pi / 2))  # the mission's own from then on
+    # the vehicle's heading stayed near the take-off one while held, and turned east after
+    yaw = result.record["euler_rad"][:, 2]
+    assert np.max(np.abs(yaw[held])) < math.radians(10.0) and abs(yaw[-1] - math.pi / 2) < math.radians(5.0)
+    assert any("heading released at t =" in n for n in result.notes)
+
+
+def test_auto_holds_nothing_on_sitl_plant_and_does_not_ask_it_about_ekf2():
+    climb = Line((0.0, 0.0, -3.0), (3.0, 0.0, -3.0), 0.5, yaw_rad=math.pi / 2)
+    result, link = fly(climb, "auto")
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    assert result.heading_hold == {"mode": "auto", "held": False, "heading_deg": None, "released_s": None}
+    asked = {m.param_id for m in link.sent if m.get_type() == "PARAM_REQUEST_READ"}
+    assert not asked & set(HEADING_ALIGN_PARAMS)
+    assert result.record["ref_yaw_rad"][0] == pytest.approx(math.pi / 2)
+
+
+def test_no_hold_when_the_mission_stays_low():
+    low = Line((0.0, 0.0, -1.0), (2.0, 0.0, -1.0), 0.5, yaw_rad=1.0)
+    result, _ = fly(low, "on")
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    assert result.heading_hold["held"] is False
+    assert any("never climbs 1.5 m above the take-off point" in n for n in result.notes)
+
+
+def test_the_mode_is_one_of_three_words():
+    assert [m.value for m in HeadingHoldMode] == ["auto", "on", "off"]
+    with pytest.raises(ValueError):
+        FlightConfig(takeoff_heading_hold="sometimes")
