@@ -13,9 +13,14 @@ beside LOCAL_POSITION_NED on the same link; then compares them:
 - over the second half of the hold at 12 m (18.5-25 s of the mission): how far the vehicle really
   wanders (its true position's standard deviation) while the estimate it is held on stays put,
   EKF2's mean velocity error there, and the tilt the flight shows (its ATTITUDE, as the tests and
-  ``make bench`` measure it).
+  ``make bench`` measure it);
+- EKF2's heading (ATTITUDE's yaw) against SIH's (HIL_STATE_QUATERNION's attitude): its largest
+  error in the first 5 s of the mission, where EKF2 aligns its heading in flight 1.5 m above the
+  take-off point (``offboard fly --takeoff-heading-hold``, docs/controller-design.md), and after.
 
-    python bench/px4_estimator.py [--speed F] [--json]
+    python bench/px4_estimator.py [--speed F] [--json] [-- OFFBOARD FLY OPTIONS]
+
+(``-- --takeoff-heading-hold off`` flies the helix without the take-off heading hold.)
 
 Needs a PX4 SITL (``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl``); says so in one line without.
 HIL_STATE_QUATERNION carries no usable time (PX4 sends time_usec 0): each truth sample takes the
@@ -70,6 +75,9 @@ class GroundStationRecord:
 
     estimates: list[tuple[float, ...]] = field(default_factory=list)
     truths: list[tuple[float, ...]] = field(default_factory=list)
+    #: (time_boot s, EKF2's yaw rad) from ATTITUDE, and (time s, SIH's yaw rad), stamped as ``truths``
+    headings: list[tuple[float, float]] = field(default_factory=list)
+    true_headings: list[tuple[float, float]] = field(default_factory=list)
 
 
 def record_ground_station(port: int, stop: threading.Event, record: GroundStationRecord) -> None:
@@ -89,15 +97,19 @@ def record_ground_station(port: int, stop: threading.Event, record: GroundStatio
                     link.mav.command_long_send(link.target_system, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                                message_id, interval_us, 0, 0, 0, 0, 0)  # fmt: skip
                 asked = time.monotonic()
-            msg = link.recv_match(type=["LOCAL_POSITION_NED", "HIL_STATE_QUATERNION"], blocking=True, timeout=0.2)
+            msg = link.recv_match(type=["LOCAL_POSITION_NED", "HIL_STATE_QUATERNION", "ATTITUDE"], blocking=True, timeout=0.2)
             if msg is None:
                 continue
             if msg.get_type() == "LOCAL_POSITION_NED":
                 last_time = msg.time_boot_ms / 1000.0
                 record.estimates.append((last_time, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
+            elif msg.get_type() == "ATTITUDE":
+                record.headings.append((msg.time_boot_ms / 1000.0, msg.yaw))
             elif last_time is not None:
                 record.truths.append((last_time, msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0,
                                       msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0))  # fmt: skip
+                w, x, y, z = msg.attitude_quaternion
+                record.true_headings.append((last_time, math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))))
     finally:
         link.close()
 
@@ -126,8 +138,8 @@ def error_spectra(position_error: np.ndarray, velocity_error: np.ndarray, sample
     return EstimateErrorSpectra(np.fft.rfftfreq(n, sample_time_s), density(fp, fp).real, density(fv, fv).real, density(fp, fv))
 
 
-def _unique(rows: list[tuple[float, ...]]) -> np.ndarray:
-    a = np.asarray(rows, dtype=float).reshape(-1, 7)
+def _unique(rows: list[tuple[float, ...]], width: int = 7) -> np.ndarray:
+    a = np.asarray(rows, dtype=float).reshape(-1, width)
     _, first = np.unique(a[:, 0], return_index=True)
     return a[first]
 
@@ -202,7 +214,36 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
         "hold_tilt_rms_deg": round(float(np.sqrt(np.mean(tilt**2))), 3) if tilt.size else None,
         "predicted_noise": None if design is None else predicted_noise(
             design, pos - tpos, vel - tvel, airborne, identified_s if identify else velocity_from_position_s),
+        **heading_errors(record, mission_start, lag),
     }
+
+
+#: The mission's first seconds, in which EKF2 aligns its heading in flight (the helix passes 1.5 m
+#: above the take-off point at about 1 s)
+TAKEOFF_S = 5.0
+
+
+def heading_errors(record: GroundStationRecord, mission_start_s: float, lag_s: float) -> dict:
+    """EKF2's heading against SIH's: the largest error (signed, deg) in the mission's first
+    ``TAKEOFF_S`` and after, and when the first was (mission time); None without headings."""
+    est, tru = _unique(record.headings, 2), _unique(record.true_headings, 2)
+    if len(est) < 10 or len(tru) < 10:
+        return {"takeoff_heading_error_deg": None, "takeoff_heading_error_at_s": None, "later_heading_error_deg": None}
+    t = est[:, 0]
+    truth = np.interp(t + lag_s, tru[:, 0], np.unwrap(tru[:, 1]))
+    error = np.degrees((est[:, 1] - truth + math.pi) % (2.0 * math.pi) - math.pi)
+    mission = t - mission_start_s
+    first = (mission >= 0.0) & (mission < TAKEOFF_S)
+    later = mission >= TAKEOFF_S
+
+    def largest(mask: np.ndarray) -> tuple[float | None, float | None]:
+        if not mask.any():
+            return None, None
+        k = np.flatnonzero(mask)[int(np.argmax(np.abs(error[mask])))]
+        return round(float(error[k]), 2), round(float(mission[k]), 2)
+
+    (takeoff, at), (after, _) = largest(first), largest(later)
+    return {"takeoff_heading_error_deg": takeoff, "takeoff_heading_error_at_s": at, "later_heading_error_deg": after}
 
 
 def predicted_noise(design: Design, position_error: np.ndarray, velocity_error: np.ndarray, airborne: np.ndarray,
@@ -229,7 +270,7 @@ def predicted_noise(design: Design, position_error: np.ndarray, velocity_error: 
     }
 
 
-def fly(folder: Path, speed: float) -> dict:
+def fly(folder: Path, speed: float, fly_args: tuple[str, ...] = ()) -> dict:
     """One helix on a fresh PX4 SITL with the ground-station recorder: ``compare``'s figures."""
     record, stop = GroundStationRecord(), threading.Event()
     run = folder / "run"
@@ -239,7 +280,7 @@ def fly(folder: Path, speed: float) -> dict:
         try:
             flown = subprocess.run(
                 [sys.executable, "-m", "offboard.cli", "fly", str(HELIX), "--connect", f"udpin:127.0.0.1:{px4.api_listen_port}",
-                 "--run-dir", str(run), "--no-plots", "--json"],
+                 "--run-dir", str(run), "--no-plots", "--json", *fly_args],
                 capture_output=True, text=True, timeout=300, cwd=ROOT,
             )  # fmt: skip
         finally:
@@ -253,6 +294,8 @@ def fly(folder: Path, speed: float) -> dict:
     figures = compare(record, series, float(controller["velocity_from_position_s"]), float(controller["sample_time_s"]),
                       bool(controller.get("velocity_from_position_identify", False)), flown_design(summary, flown.stderr))
     figures["speed"] = speed
+    figures["fly_args"] = list(fly_args)
+    figures["takeoff_heading_hold"] = summary.get("takeoff_heading_hold")
     return figures
 
 
@@ -278,13 +321,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument("fly_args", nargs="*", metavar="-- OFFBOARD FLY OPTIONS",
+                        help="passed on to offboard fly (after --), e.g. -- --takeoff-heading-hold off")
     args = parser.parse_args(argv)
     if px4_launcher() is None:
         print(f"px4_estimator: {SKIP_REASON}", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory(prefix="px4-estimator-") as tmp:
         try:
-            f = fly(Path(tmp), args.speed)
+            f = fly(Path(tmp), args.speed, tuple(args.fly_args))
         except (RuntimeError, ValueError) as exc:
             print(f"px4_estimator: {exc}", file=sys.stderr)
             return 1
@@ -325,6 +370,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  tilt RMS north {noise['tilt_rms_deg'][0]:.2f}, east {noise['tilt_rms_deg'][1]:.2f}, both {noise['tilt_rms_both_deg']:.2f} deg "
           f"(of it the position error alone: {noise['tilt_from_position_deg'][0]:.2f}, {noise['tilt_from_position_deg'][1]:.2f} deg)")
     print(f"  estimate error RMS north {noise['estimate_error_rms_m'][0]:.3f}, east {noise['estimate_error_rms_m'][1]:.3f} m")
+    hold = f["takeoff_heading_hold"] or {}
+    held = f"held until {hold['released_s']:.2f} s" if hold.get("held") and hold.get("released_s") is not None else "not held"
+    if f["takeoff_heading_error_deg"] is None:
+        print("EKF2's heading against SIH's: too few ATTITUDE or truth samples recorded")
+    else:
+        print(f"EKF2's heading against SIH's: largest error {f['takeoff_heading_error_deg']:+.1f} deg at "
+              f"{f['takeoff_heading_error_at_s']:.2f} s of the first {TAKEOFF_S:g} s (take-off heading {held}), "
+              f"{f['later_heading_error_deg']:+.1f} deg after")
     return 0
 
 

@@ -143,7 +143,29 @@ def test_a_figure_that_is_not_finite_is_one_line_not_json_with_nan(monkeypatch, 
     import bench.px4_estimator as px4_estimator
 
     monkeypatch.setattr(px4_estimator, "px4_launcher", lambda: "px4")
-    monkeypatch.setattr(px4_estimator, "fly", lambda folder, speed: {"truth_lag_s": float("nan")})
+    monkeypatch.setattr(px4_estimator, "fly", lambda folder, speed, fly_args: {"truth_lag_s": float("nan")})
     assert px4_estimator.main(["--json"]) == 1
     out, err = capsys.readouterr()
     assert out == "" and err.startswith("px4_estimator: a figure is not a finite number") and len(err.splitlines()) == 1
+
+
+def test_the_heading_error_at_take_off_and_after_is_read_from_attitude_and_the_truth():
+    """A heading reset of -30 deg at 1.2 s of the mission (EKF2's in-flight alignment of a turning
+    vehicle), decaying over a second; 2 deg off later; the truth turning through +-pi (the error
+    wraps, it does not jump by 360)."""
+    record = _record(lambda s: 0.0, 0.0)
+    for n in range(40 * 100):
+        t = 5.0 + n / 100.0
+        s = t - 5.0
+        truth = math.pi - 0.2 + 0.1 * s  # through +pi at 2 s
+        error = -30.0 * max(0.0, 1.0 - (s - 1.2)) if s >= 1.2 else 0.0
+        error += 2.0 if s > 20.0 else 0.0
+        wrapped = (truth + math.radians(error) + math.pi) % (2 * math.pi) - math.pi
+        record.headings.append((t, wrapped))
+        record.true_headings.append((t, (truth + math.pi) % (2 * math.pi) - math.pi))
+    f = compare(record, _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    assert f["takeoff_heading_error_deg"] == pytest.approx(-30.0, abs=0.5) and f["takeoff_heading_error_at_s"] == pytest.approx(1.2, abs=0.02)
+    assert f["later_heading_error_deg"] == pytest.approx(2.0, abs=0.1)
+    # a record without ATTITUDE (a PX4 that did not stream it) says so with nulls
+    g = compare(_record(lambda s: 0.0, 0.0), _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    assert g["takeoff_heading_error_deg"] is None and g["later_heading_error_deg"] is None
