@@ -58,15 +58,11 @@ def alignment_delay_s(vehicle_params: dict[str, float]) -> float:
     return EKF2_DELAY_MAX_S if ms is None or not (math.isfinite(ms) and ms >= 0) else float(ms) / 1000.0
 
 
-def climbs_past(trajectory: Trajectory, sample_time_s: float, start_down_m: float, height_m: float) -> bool:
-    """Whether the mission's reference rises more than ``height_m`` above ``start_down_m`` (NED
-    down of the take-off point) at any sample: where it never does, the alignment is not met in
-    the mission and there is nothing to wait for."""
+def highest_down_m(trajectory: Trajectory, sample_time_s: float) -> float:
+    """The reference's highest point over the mission's samples, as NED down (m): a take-off
+    point more than ``EKF2_ALIGN_HEIGHT_M`` below it has an in-flight alignment to wait for."""
     n = int(math.floor(trajectory.duration_s / sample_time_s + 1e-9))
-    for k in range(n + 1):
-        if start_down_m - float(trajectory.reference(k * sample_time_s).pos_ned_m[2]) > height_m:
-            return True
-    return False
+    return min(float(trajectory.reference(k * sample_time_s).pos_ned_m[2]) for k in range(n + 1))
 
 
 class TakeoffHeadingHold:

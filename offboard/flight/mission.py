@@ -55,7 +55,7 @@ from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, Mission
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
 from offboard.flight.guards import EstimatorGuard, TrackGuard, sensor_health_changes
-from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, climbs_past
+from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, highest_down_m
 from offboard.flight.protocol import VehicleClient
 from offboard.flight.sampler import LoopStats, Sampler
 from offboard.flight.supervisor import Supervisor
@@ -216,6 +216,7 @@ class Flight:
         #: parameters are read), and the hold itself from the mission's start while it applies
         self._hold_heading = self.config.takeoff_heading_hold == HeadingHoldMode.ON
         self.heading_hold: TakeoffHeadingHold | None = None
+        self._highest_down_m = math.nan  # the mission reference's highest point (NED down), where the hold is wanted
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
@@ -369,6 +370,15 @@ class Flight:
             client.sync_time()
         if self.mission_home is not None:
             self._align_mission()
+        if self._hold_heading:  # the mission's highest point, for the take-off heading hold (a scan of its samples)
+            trajectory, to = self.references.trajectory, self.to
+            if cfg.lockstep:
+                self._highest_down_m = highest_down_m(trajectory, to)
+            else:  # a long mission takes a while: keep the setpoints streaming meanwhile, as for the design
+                with ThreadPoolExecutor(max_workers=1) as pool:
+                    scan = pool.submit(highest_down_m, trajectory, to)
+                    self._pump(scan.done)
+                    self._highest_down_m = scan.result()
         self._configure_streams()
 
     def _configure_streams(self) -> None:
@@ -750,7 +760,7 @@ class Flight:
         if self.client.landed_state not in (None, mavlink.MAV_LANDED_STATE_ON_GROUND, mavlink.MAV_LANDED_STATE_UNDEFINED):
             self._note("take-off heading hold: none, the vehicle is in the air (its estimator aligned its heading at take-off)")
             return
-        if not climbs_past(self.references.trajectory, self.to, down, EKF2_ALIGN_HEIGHT_M):
+        if not down - self._highest_down_m > EKF2_ALIGN_HEIGHT_M:
             self._note(f"take-off heading hold: none, the mission never climbs {EKF2_ALIGN_HEIGHT_M:g} m above the take-off point")
             return
         hold = self.heading_hold = TakeoffHeadingHold(heading, down, delay_s=alignment_delay_s(self.client.vehicle_params))

@@ -18,7 +18,7 @@ from offboard.flight.heading_hold import (
     TakeoffHeadingHold,
     alignment_delay_s,
     aligns_in_flight,
-    climbs_past,
+    highest_down_m,
 )
 from offboard.record import FlightStatus
 from offboard.trajectory.analytic import Line
@@ -90,11 +90,10 @@ def test_the_vehicle_is_asked_about_its_ekf2_unless_it_is_sitl_plant():
     assert not set(HEADING_ALIGN_PARAMS) & set(optional)
 
 
-def test_a_mission_that_never_climbs_past_the_height_has_nothing_to_wait_for():
+def test_the_missions_highest_point_is_read_from_its_samples():
     low = Line((0.0, 0.0, -1.0), (5.0, 0.0, -1.4), 1.0, yaw_rad=1.0)
-    assert not climbs_past(low, DT, 0.0, EKF2_ALIGN_HEIGHT_M)
-    assert climbs_past(low, DT, 0.2, EKF2_ALIGN_HEIGHT_M)  # taken off from 0.2 m below the origin
-    assert climbs_past(Line((0.0, 0.0, -1.0), (0.0, 0.0, -3.0), 1.0), DT, 0.0, EKF2_ALIGN_HEIGHT_M)
+    assert highest_down_m(low, DT) == pytest.approx(-1.4, abs=0.01)  # its last sample, 0.016 s short of the end
+    assert highest_down_m(Line((0.0, 0.0, -1.0), (0.0, 0.0, -3.0), 1.0), DT) == pytest.approx(-3.0)
 
 
 # --- flown against the plant ------------------------------------------------------------------------
