@@ -91,6 +91,7 @@ class TakeoffHeadingHold:
 
     @property
     def holding(self) -> bool:
+        """Whether the heading is still held (it has not let go)."""
         return self.released_s is None
 
     def update(self, t_s: float, down_m: float) -> bool:
