@@ -9,6 +9,7 @@ packets missing from the sequence.
 from __future__ import annotations
 
 import json
+import math
 import socket
 import struct
 import threading
@@ -21,6 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.cli import main
 from offboard.errors import LogFormatError
+from offboard.replay.scan import heading_reset_deg
 from offboard.replay import (
     LoggedMessage,
     LogScan,
@@ -416,6 +418,37 @@ def test_a_burst_of_one_message_has_no_rate_and_says_so_with_a_dash():
     assert row.split()[2:] == ["24", "-", "0.000", "-"] and "nan" not in text.lower()
     assert "50.00" in next(line for line in text.splitlines() if "ATTITUDE" in line)
     assert "NaN" not in dumps(report.to_dict())
+
+
+def test_a_heading_reset_is_an_event_and_a_turn_is_not():
+    """PX4's EKF2 resets its heading in flight (-32.8 deg on a paper helix at 1.30 s, its ulog's
+    delta_heading): ATTITUDE's yaw jumps while its body rates do not turn it. A fast turn, through
+    +-pi, at a pitch and roll where the Euler yaw rate is not the body z rate, is no event; nor is a
+    gap too long to judge, nor a pitch near 90 deg."""
+    packer, parser = mavlink.MAVLink(None, srcSystem=1, srcComponent=1), mavlink.MAVLink(None)
+    scan = LogScan()
+    roll, pitch, r = 0.3, -0.2, 2.0  # body z rate 2 rad/s: the Euler yaw rate is r cos(roll) / cos(pitch)
+    yaw_rate = r * math.cos(roll) / math.cos(pitch)
+    yaw, t_ms = 3.0, 1000
+    rows = []
+    for k in range(60):  # 100 Hz, turning through +pi at ~0.08 s
+        if k == 30:
+            yaw += math.radians(-32.8)  # the reset
+        rows.append((t_ms, yaw))
+        t_ms += 10
+        yaw += yaw_rate * 0.01
+    rows.append((t_ms + 500, yaw + 1.0))  # a 0.5 s gap: not judged
+    for t, y in rows:
+        wrapped = (y + math.pi) % (2 * math.pi) - math.pi
+        msg = mavlink.MAVLink_attitude_message(t, roll, pitch, wrapped, 0.0, 0.0, r)
+        scan.add(t / 1000.0, parser.parse_buffer(msg.pack(packer))[0])
+    events = [(e.time_s, e.kind, e.text) for e in scan.events]
+    assert len(events) == 1 and events[0][:2] == (1.3, "estimator"), events
+    assert events[0][2].startswith("heading reset by -32.8 deg")
+    # the rule alone: near pitch 90 deg the Euler yaw is not defined
+    assert heading_reset_deg((0, 0.0, 1.45, 0.0, 0, 0, 0), (10, 0.0, 1.45, 1.0, 0, 0, 0)) is None
+    assert heading_reset_deg((0, 0.0, 0.0, 0.0, 0, 0, 0), (10, 0.0, 0.0, math.radians(4.0), 0, 0, 0)) is None  # under 5 deg
+    assert heading_reset_deg((0, 0.0, 0.0, 0.0, 0, 0, 0), (10, 0.0, 0.0, math.radians(6.0), 0, 0, 0)) == pytest.approx(6.0)
 
 
 def test_the_estimators_state_and_sensor_health_are_events():
