@@ -91,10 +91,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                             "position (default: ESTIMATE_LOST, exit 11)")
     ctl = parser.add_argument_group("controller")
     ctl.add_argument("--takeoff-heading-hold", choices=[m.value for m in HeadingHoldMode], default="auto",
-                     help="hold the yaw reference at the take-off heading until 1 s after the vehicle is 1.5 m above its "
-                          "take-off point, where PX4's EKF2 aligns its heading from the magnetometer (a turning vehicle is "
-                          "then given a heading that lags the turn); auto: where the vehicle publishes an EKF2 fusing a "
-                          "magnetometer (default: auto)")
+                     help="hold the yaw reference at the take-off heading until EKF2_DELAY_MAX + 1 s after the vehicle is "
+                          "1.5 m above its take-off point, where PX4's EKF2 aligns its heading from the magnetometer (a "
+                          "turning vehicle is then given a heading that lags the turn); auto: where the vehicle publishes an "
+                          "EKF2 fusing a magnetometer (default: auto)")
     ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
                      help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
     ctl.add_argument("--model", choices=VEHICLE_MODELS, default="rigid-body",

@@ -7,14 +7,15 @@ earth magnetic field once the vehicle is 1.5 m above the ground after take-off
 its low-passed magnetometer (``_mag_lpf``). A vehicle turning then is given a heading that lags
 the turn: on PX4 SIH the paper helix's 45 deg/s turn to its first heading, at that moment, got a
 reset of -32 to -35 deg off the truth in every flight. That heading error turns the estimate's
-horizontal acceleration by as much, EKF2's velocity ran 0.5 m/s off the truth within 0.3 s, and
-the join's tail decided whether the helix met 0.10 m. PX4's own flight modes do the same for the
+horizontal acceleration by as much: EKF2's velocity ran 0.31 m/s off the truth 0.2 s after the
+reset and 0.46 m/s 0.45 s after, and the join's tail decided whether the helix met 0.10 m. PX4's own flight modes do the same for the
 same reason: they leave the yaw loop open until this alignment, and one second more (PX4 pull
 request 18624, "Close yaw loop after final mag alignment only").
 
 ``TakeoffHeadingHold`` is pure: it takes the mission time and the vehicle's height and hands on
-the references with their yaw held (rate 0) until ``settle_s`` after the vehicle first rose
-``align_height_m`` above its take-off point; then it hands them on unchanged for good (the law's
+the references with their yaw held (rate 0) until ``delay_s + settle_s`` after the vehicle first
+rose ``align_height_m`` above its take-off point (EKF2 aligns ``delay_s``, its EKF2_DELAY_MAX,
+after); then it hands them on unchanged for good (the law's
 yaw-rate bound, PX4's MPC_YAWRAUTO_MAX, then turns the vehicle to the mission's heading).
 """
 
