@@ -149,10 +149,17 @@ def _heading_hold_as_flown(summary: dict | None):  # -> TakeoffHeadingHold | Non
     from offboard.flight.heading_hold import TakeoffHeadingHold
 
     hold = (summary or {}).get("takeoff_heading_hold")
-    if not isinstance(hold, dict) or not hold.get("held") or not isinstance(hold.get("heading_deg"), (int, float)):
+    if not isinstance(hold, dict) or hold.get("held") is not True:
         return None
-    released = hold.get("released_s")
-    return TakeoffHeadingHold.as_flown(math.radians(hold["heading_deg"]), float(released) if isinstance(released, (int, float)) else None)
+    heading, released = hold.get("heading_deg"), hold.get("released_s")
+
+    def number(value: object) -> bool:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+    if not number(heading) or not (released is None or number(released)):
+        raise ReplayArgumentError(f"--rerun: summary.json: takeoff_heading_hold held, but its heading_deg {heading!r} or "
+                                  f"released_s {released!r} is not a finite number (released_s may be null)")
+    return TakeoffHeadingHold.as_flown(math.radians(heading), None if released is None else float(released))
 
 
 def _mission(args: argparse.Namespace, summary: dict | None):

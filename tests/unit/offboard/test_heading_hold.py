@@ -150,3 +150,19 @@ def test_the_mode_is_one_of_three_words():
     assert [m.value for m in HeadingHoldMode] == ["auto", "on", "off"]
     with pytest.raises(ValueError):
         FlightConfig(takeoff_heading_hold="sometimes")
+
+
+def test_a_re_run_holds_as_summary_json_says_and_refuses_a_hold_it_cannot_read():
+    from offboard.commands.replay import ReplayArgumentError, _heading_hold_as_flown
+
+    hold = _heading_hold_as_flown({"takeoff_heading_hold": {"mode": "auto", "held": True, "heading_deg": 90.0, "released_s": 2.2}})
+    assert hold is not None and hold.heading_rad == pytest.approx(math.pi / 2)
+    assert hold.update(2.15, 0.0) and not hold.update(2.2, 0.0)  # let go at the recorded time, whatever the height
+    never = _heading_hold_as_flown({"takeoff_heading_hold": {"held": True, "heading_deg": 0.0, "released_s": None}})
+    assert never is not None and never.update(100.0, -50.0)
+    for summary in (None, {}, {"takeoff_heading_hold": None}, {"takeoff_heading_hold": {"mode": "off", "held": False}}):
+        assert _heading_hold_as_flown(summary) is None
+    for bad in ({"heading_deg": float("inf"), "released_s": 2.0}, {"heading_deg": "east", "released_s": 2.0},
+                {"heading_deg": 1.0, "released_s": float("nan")}):  # fmt: skip
+        with pytest.raises(ReplayArgumentError, match="takeoff_heading_hold held, but"):
+            _heading_hold_as_flown({"takeoff_heading_hold": {"held": True, **bad}})
