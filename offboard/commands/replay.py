@@ -152,14 +152,11 @@ def _heading_hold_as_flown(summary: dict | None):  # -> TakeoffHeadingHold | Non
     if not isinstance(hold, dict) or hold.get("held") is not True:
         return None
     heading, released = hold.get("heading_deg"), hold.get("released_s")
-
-    def number(value: object) -> bool:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-    if not number(heading) or not (released is None or number(released)):
+    released_ok = released is None or (isinstance(released, (int, float)) and not isinstance(released, bool) and math.isfinite(released))
+    if not isinstance(heading, (int, float)) or isinstance(heading, bool) or not math.isfinite(heading) or not released_ok:
         raise ReplayArgumentError(f"--rerun: summary.json: takeoff_heading_hold held, but its heading_deg {heading!r} or "
                                   f"released_s {released!r} is not a finite number (released_s may be null)")
-    return TakeoffHeadingHold.as_flown(math.radians(heading), None if released is None else float(released))
+    return TakeoffHeadingHold.as_flown(math.radians(float(heading)), None if released is None else float(released))
 
 
 def _mission(args: argparse.Namespace, summary: dict | None):
