@@ -12,8 +12,9 @@ beside LOCAL_POSITION_NED on the same link; then compares them:
   (``offboard.controller.velocity.estimate_noise``: is the identified T the one the truth favours?);
 - over the second half of the hold at 12 m (18.5-25 s of the mission): how far the vehicle really
   wanders (its true position's standard deviation) while the estimate it is held on stays put,
-  EKF2's mean velocity error there, and the tilt the flight shows (its ATTITUDE, as the tests and
-  ``make bench`` measure it);
+  EKF2's mean velocity error there, the tilt the flight shows (its ATTITUDE, as the tests and
+  ``make bench`` measure it), the vehicle's true tilt (HIL_STATE_QUATERNION's attitude) and
+  EKF2's mean attitude error (roll and pitch);
 - EKF2's heading (ATTITUDE's yaw) against SIH's (HIL_STATE_QUATERNION's attitude): its largest
   error in the first 5 s of the mission, where EKF2 aligns its heading in flight 1.5 m above the
   take-off point (``offboard fly --takeoff-heading-hold``, docs/controller-design.md), and after.
@@ -78,6 +79,10 @@ class GroundStationRecord:
     #: (time_boot s, EKF2's yaw rad) from ATTITUDE, and (time s, SIH's yaw rad), stamped as ``truths``
     headings: list[tuple[float, float]] = field(default_factory=list)
     true_headings: list[tuple[float, float]] = field(default_factory=list)
+    #: (time_boot s, EKF2's roll rad, pitch rad) from ATTITUDE, and (time s, SIH's roll, pitch),
+    #: stamped as ``truths``: the vehicle's true tilt in the hold beside the one EKF2 reports
+    attitudes: list[tuple[float, float, float]] = field(default_factory=list)
+    true_attitudes: list[tuple[float, float, float]] = field(default_factory=list)
 
 
 def record_ground_station(port: int, stop: threading.Event, record: GroundStationRecord) -> None:
@@ -105,11 +110,14 @@ def record_ground_station(port: int, stop: threading.Event, record: GroundStatio
                 record.estimates.append((last_time, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
             elif msg.get_type() == "ATTITUDE":
                 record.headings.append((msg.time_boot_ms / 1000.0, msg.yaw))
+                record.attitudes.append((msg.time_boot_ms / 1000.0, msg.roll, msg.pitch))
             elif last_time is not None:
                 record.truths.append((last_time, msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0,
                                       msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0))  # fmt: skip
                 w, x, y, z = msg.attitude_quaternion
                 record.true_headings.append((last_time, math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))))
+                record.true_attitudes.append((last_time, math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
+                                              math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))))  # fmt: skip
     finally:
         link.close()
 
@@ -215,7 +223,29 @@ def compare(record: GroundStationRecord, series: np.ndarray, velocity_from_posit
         "predicted_noise": None if design is None else predicted_noise(
             design, pos - tpos, vel - tvel, airborne, identified_s if identify else velocity_from_position_s),
         **heading_errors(record, mission_start, lag),
+        **true_hold_tilt(record, mission_start, lag),
     }
+
+
+def _tilt_deg(roll_pitch: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(np.cos(roll_pitch[:, 0]) * np.cos(roll_pitch[:, 1]), -1.0, 1.0)))
+
+
+def true_hold_tilt(record: GroundStationRecord, mission_start_s: float, lag_s: float) -> dict:
+    """The vehicle's true tilt over the hold's second half (SIH's attitude, at each ATTITUDE of
+    the ground-station link), its maximum and RMS, and EKF2's attitude error there (its roll and
+    pitch less SIH's: mean, deg); None without attitudes."""
+    est, tru = _unique(record.attitudes, 3), _unique(record.true_attitudes, 3)
+    mission = est[:, 0] - mission_start_s if len(est) else np.zeros(0)
+    hold = (mission >= HOLD_S[0]) & (mission < HOLD_S[1])
+    if len(tru) < 10 or not hold.any():
+        return {"hold_true_tilt_max_deg": None, "hold_true_tilt_rms_deg": None, "hold_attitude_error_mean_deg": None}
+    t = est[hold, 0]
+    truth = np.stack([np.interp(t + lag_s, tru[:, 0], tru[:, 1 + k]) for k in range(2)], axis=1)
+    tilt = _tilt_deg(truth)
+    error = np.degrees(est[hold, 1:3] - truth).mean(axis=0)
+    return {"hold_true_tilt_max_deg": round(float(tilt.max()), 3), "hold_true_tilt_rms_deg": round(float(np.sqrt(np.mean(tilt**2))), 3),
+            "hold_attitude_error_mean_deg": [round(float(v), 3) for v in error]}
 
 
 #: The mission's first seconds, in which EKF2 aligns its heading in flight (the helix passes 1.5 m
@@ -364,7 +394,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  estimated position std {_axes(f['hold_estimated_position_std_m'], 'm')}")
     print(f"  EKF2 velocity error mean {_axes(f['hold_velocity_error_mean_m_s'], 'm/s')}")
     print(f"  the velocity the law reads: error RMS {_axes(f['hold_velocity_read_error_rms_m_s'], 'm/s')}")
-    print(f"  tilt max {f['hold_tilt_max_deg']:.2f} deg, RMS {f['hold_tilt_rms_deg']:.2f} deg")
+    print(f"  tilt max {f['hold_tilt_max_deg']:.2f} deg, RMS {f['hold_tilt_rms_deg']:.2f} deg (EKF2's attitude, as the flight reads it)")
+    if f["hold_true_tilt_max_deg"] is None:
+        print("  the true tilt: too few ATTITUDE or truth samples recorded")
+    else:
+        roll, pitch = f["hold_attitude_error_mean_deg"]
+        print(f"  true tilt max {f['hold_true_tilt_max_deg']:.2f} deg, RMS {f['hold_true_tilt_rms_deg']:.2f} deg (SIH's); "
+              f"EKF2's attitude error mean roll {roll:+.2f}, pitch {pitch:+.2f} deg")
     noise = f["predicted_noise"]
     print("what the flown design's loop makes of the airborne errors above (design.noise_response):")
     print(f"  tilt RMS north {noise['tilt_rms_deg'][0]:.2f}, east {noise['tilt_rms_deg'][1]:.2f}, both {noise['tilt_rms_both_deg']:.2f} deg "

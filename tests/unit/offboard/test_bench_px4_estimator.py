@@ -169,3 +169,22 @@ def test_the_heading_error_at_take_off_and_after_is_read_from_attitude_and_the_t
     # a record without ATTITUDE (a PX4 that did not stream it) says so with nulls
     g = compare(_record(lambda s: 0.0, 0.0), _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
     assert g["takeoff_heading_error_deg"] is None and g["later_heading_error_deg"] is None
+
+
+def test_the_true_tilt_in_the_hold_and_ekf2s_attitude_error_are_read_from_attitude_and_the_truth():
+    """The vehicle truly swings 3 deg in roll at 1 Hz in the hold while EKF2 reads its roll 1.5 deg
+    low and its pitch 0.5 deg high (an attitude error as PX4 SIH's EKF2 keeps in its holds)."""
+    record = _record(lambda s: 0.0, 0.0)
+    for n in range(40 * 50):
+        t = 5.0 + n / 50.0
+        s = t - 5.0
+        roll = math.radians(3.0) * math.sin(2 * math.pi * s)
+        record.true_attitudes.append((t, roll, 0.0))
+        record.attitudes.append((t, roll - math.radians(1.5), math.radians(0.5)))
+    f = compare(record, _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    assert f["hold_true_tilt_max_deg"] == pytest.approx(3.0, abs=0.05)
+    assert f["hold_true_tilt_rms_deg"] == pytest.approx(3.0 / math.sqrt(2), rel=0.03)
+    assert f["hold_attitude_error_mean_deg"] == pytest.approx([-1.5, 0.5], abs=0.02)
+    # a record without attitudes says so with nulls
+    g = compare(_record(lambda s: 0.0, 0.0), _series(), velocity_from_position_s=0.0, sample_time_s=0.05)
+    assert g["hold_true_tilt_max_deg"] is None and g["hold_attitude_error_mean_deg"] is None
