@@ -408,6 +408,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "landed": result.landed,
         "disarmed": result.disarmed,
         "takeoff_heading_hold": result.heading_hold,
+        "estimator_heading_resets": result.heading_resets,
         "notes": result.notes,
     }
 

@@ -17,6 +17,10 @@ docs/controller-design.md), and has no notion of a reference to be off.
   relative to the origin, vertical position). SYS_STATUS's sensor health is reported as it
   changes (``sensor_health_changes``) but not acted on: the estimator says what a lost sensor
   costs (a GPS lost under vision-aided flight costs nothing).
+- ``HeadingResetWatch``: the estimator's heading resets, read from ATTITUDE alone (a jump of its
+  yaw that its body rates do not account for, ``heading_reset_deg``): noted, not acted on. PX4's
+  EKF2 re-aligns its heading from the magnetometer 1.5 m above the ground (docs/controller-design.md,
+  "The take-off heading hold"); ``offboard replay`` lists the same resets as events.
 
 Pure: they take numbers and flags, and know nothing of the link.
 """
@@ -140,3 +144,54 @@ def sensor_health_changes(previous: dict[str, bool] | None, present: int, enable
     if previous is not None:
         lines += [f"{name} no longer reported (SYS_STATUS)" for name in previous if name not in now]
     return now, lines
+
+
+#: A jump of ATTITUDE's yaw that its body rates do not account for, at least this (deg), between
+#: samples at most ``HEADING_RESET_MAX_GAP_S`` apart, is an estimator's heading reset (PX4's
+#: EKF2 aligns its heading in flight 1.5 m above the ground: -32 deg on the paper helix's first
+#: turn, docs/controller-design.md). Integrating the rates over 50 ms of a 100 rad/s^2 swing
+#: errs by about 1 deg.
+HEADING_RESET_MIN_DEG = 5.0
+HEADING_RESET_MAX_GAP_S = 0.1
+
+
+def heading_reset_deg(before: tuple, after: tuple) -> float | None:
+    """The heading reset between two ATTITUDE rows ``(time_boot_ms, roll, pitch, yaw, p, q, r, ...)``
+    (deg), or None: the yaw's change less the Euler yaw rate ``(q sin(roll) + r cos(roll)) /
+    cos(pitch)`` integrated over the gap (trapezoid), where that is at least
+    ``HEADING_RESET_MIN_DEG``, the gap positive and at most ``HEADING_RESET_MAX_GAP_S``, and the
+    pitch away from +-90 deg (where the Euler yaw is not defined)."""
+    dt = (after[0] - before[0]) / 1000.0
+    if not 0.0 < dt <= HEADING_RESET_MAX_GAP_S:
+        return None
+    rates = []
+    for roll, pitch, q, r in ((before[1], before[2], before[5], before[6]), (after[1], after[2], after[5], after[6])):
+        c = math.cos(pitch)
+        if abs(c) < 0.3 or not all(math.isfinite(v) for v in (roll, pitch, q, r)):
+            return None
+        rates.append((q * math.sin(roll) + r * math.cos(roll)) / c)
+    turned = 0.5 * (rates[0] + rates[1]) * dt
+    change = after[3] - before[3]
+    unexplained = math.degrees((change - turned + math.pi) % (2.0 * math.pi) - math.pi)
+    return unexplained if math.isfinite(unexplained) and abs(unexplained) >= HEADING_RESET_MIN_DEG else None
+
+
+class HeadingResetWatch:
+    """``heading_reset_deg`` on consecutive ATTITUDE rows ``(time_boot_ms, roll, pitch, yaw, p, q,
+    r)``; ``resets`` keeps ``(time_boot_ms, deg)`` of each reset found."""
+
+    def __init__(self) -> None:
+        self._last: tuple | None = None
+        self.resets: list[tuple[int, float]] = []
+
+    def observe(self, row: tuple) -> float | None:
+        """The reset (deg) between the last row and ``row``, or None; a row stamped no later than
+        the last one (a repeat, a reordered packet) is ignored."""
+        last = self._last
+        if last is not None and row[0] <= last[0]:
+            return None
+        self._last = row
+        jump = None if last is None else heading_reset_deg(last, row)
+        if jump is not None:
+            self.resets.append((int(row[0]), jump))
+        return jump

@@ -38,7 +38,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -54,7 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
-from offboard.flight.guards import EstimatorGuard, TrackGuard, sensor_health_changes
+from offboard.flight.guards import EstimatorGuard, HeadingResetWatch, TrackGuard, sensor_health_changes
 from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, highest_down_m
 from offboard.flight.protocol import VehicleClient
 from offboard.flight.sampler import LoopStats, Sampler
@@ -96,6 +96,9 @@ class FlightResult:
     home_offset_ned_m: tuple[float, float, float] | None = None
     #: the take-off heading hold: ``{"mode", "held", "heading_deg", "released_s"}`` (``heading_hold``)
     heading_hold: dict[str, object] | None = None
+    #: the estimator's heading resets seen in ATTITUDE: ``{"t_s", "time_boot_ms", "deg"}`` each
+    #: (``t_s``: mission time, None before the mission; ``guards.HeadingResetWatch``)
+    heading_resets: list[dict[str, object]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -217,6 +220,8 @@ class Flight:
         self._hold_heading = self.config.takeoff_heading_hold == HeadingHoldMode.ON
         self.heading_hold: TakeoffHeadingHold | None = None
         self._highest_down_m = math.nan  # the mission reference's highest point (NED down), where the hold is wanted
+        self.heading_resets = HeadingResetWatch()
+        self._mission_boot0_ms: int | None = None  # the vehicle's time of the mission's first sample's telemetry
         self.notes: list[str] = []
         self.armed_by_us = False
         self.landed = False
@@ -278,6 +283,8 @@ class Flight:
             timesync=self.client.timesync,
             landed=self.landed, disarmed=self.disarmed, notes=list(self.notes), vehicle=self.client.target,
             home_offset_ned_m=self.home_offset_ned_m, heading_hold=self._heading_hold_summary(),
+            heading_resets=[{"t_s": self._mission_time_of(boot_ms), "time_boot_ms": boot_ms, "deg": deg}
+                            for boot_ms, deg in self.heading_resets.resets],
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -614,6 +621,7 @@ class Flight:
         now = self.clock()
         if msg.get_type() == "ATTITUDE":
             self._attitude_heard_s = now
+            self._watch_heading(msg)
         self.supervisor.heard(now)
         sampler.meter(msg, now)
         if self.supervisor.in_outage and sampler.has_telemetry:
@@ -700,6 +708,7 @@ class Flight:
         sampler = self.sampler
         now = self.clock()
         if not sampler.mission_started:
+            self._mission_boot0_ms = int(measured.time_boot_ms)
             self._say_start(measured)
             self._start_heading_hold(measured)
         n, t = sampler.mission_sample(now)
@@ -768,6 +777,23 @@ class Flight:
                    f"{hold.delay_s + hold.settle_s:g} s after the vehicle is {hold.align_height_m:g} m above its take-off point "
                    f"(EKF2 aligns its heading from the magnetometer {hold.delay_s:g} s after, EKF2_DELAY_MAX; then "
                    f"{hold.settle_s:g} s to settle, as PX4's own modes; --takeoff-heading-hold off: none)")
+
+    def _watch_heading(self, msg: mavlink.MAVLink_message) -> None:
+        """Note the estimator's heading resets as ATTITUDE shows them (``guards.HeadingResetWatch``)."""
+        boot_ms = int(msg.time_boot_ms)
+        jump = self.heading_resets.observe((boot_ms, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed))
+        if jump is None:
+            return
+        t = self._mission_time_of(boot_ms)
+        when = f"at t = {t:.2f} s" if t is not None else f"before the mission (t_boot {boot_ms / 1000:.2f} s)"
+        self._note(f"the vehicle's estimator reset its heading by {jump:+.1f} deg {when} (ATTITUDE's yaw jumped, its body "
+                   "rates did not turn it)")
+
+    def _mission_time_of(self, boot_ms: int) -> float | None:
+        """The mission time of the vehicle's ``boot_ms`` (s; None before the mission)."""
+        if self._mission_boot0_ms is None or boot_ms < self._mission_boot0_ms:
+            return None
+        return (boot_ms - self._mission_boot0_ms) / 1000.0
 
     def _heading_hold_summary(self) -> dict[str, object]:
         hold = self.heading_hold

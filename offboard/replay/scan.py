@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
-from offboard.flight.guards import lost_estimates, missing_estimates, sensor_health_changes
+from offboard.flight.guards import heading_reset_deg, lost_estimates, missing_estimates, sensor_health_changes
 from offboard.missions.geo import mission_offset_ned
 from offboard.model import px4_modes
 from offboard.model.messages import MAVLinkMessage
@@ -336,36 +336,6 @@ class LogScan:
             return "no heartbeat"
         return {MAV_TYPE_GCS: "ground station", MAV_TYPE_ONBOARD_CONTROLLER: "onboard controller"}.get(
             kind[0], "vehicle" if kind[1] != MAV_AUTOPILOT_INVALID else f"MAV_TYPE {kind[0]}")
-
-
-#: A jump of ATTITUDE's yaw that its body rates do not account for, at least this (deg), between
-#: samples at most ``HEADING_RESET_MAX_GAP_S`` apart, is an estimator's heading reset (PX4's
-#: EKF2 aligns its heading in flight 1.5 m above the ground: -32 deg on the paper helix's first
-#: turn, docs/controller-design.md). Integrating the rates over 50 ms of a 100 rad/s^2 swing
-#: errs by about 1 deg.
-HEADING_RESET_MIN_DEG = 5.0
-HEADING_RESET_MAX_GAP_S = 0.1
-
-
-def heading_reset_deg(before: tuple, after: tuple) -> float | None:
-    """The heading reset between two ATTITUDE rows ``(time_boot_ms, roll, pitch, yaw, p, q, r, ...)``
-    (deg), or None: the yaw's change less the Euler yaw rate ``(q sin(roll) + r cos(roll)) /
-    cos(pitch)`` integrated over the gap (trapezoid), where that is at least
-    ``HEADING_RESET_MIN_DEG``, the gap positive and at most ``HEADING_RESET_MAX_GAP_S``, and the
-    pitch away from +-90 deg (where the Euler yaw is not defined)."""
-    dt = (after[0] - before[0]) / 1000.0
-    if not 0.0 < dt <= HEADING_RESET_MAX_GAP_S:
-        return None
-    rates = []
-    for roll, pitch, q, r in ((before[1], before[2], before[5], before[6]), (after[1], after[2], after[5], after[6])):
-        c = math.cos(pitch)
-        if abs(c) < 0.3 or not all(math.isfinite(v) for v in (roll, pitch, q, r)):
-            return None
-        rates.append((q * math.sin(roll) + r * math.cos(roll)) / c)
-    turned = 0.5 * (rates[0] + rates[1]) * dt
-    change = after[3] - before[3]
-    unexplained = math.degrees((change - turned + math.pi) % (2.0 * math.pi) - math.pi)
-    return unexplained if math.isfinite(unexplained) and abs(unexplained) >= HEADING_RESET_MIN_DEG else None
 
 
 _HANDLERS: dict[str, Callable[[LogScan, float, tuple[int, int], object], None]] = {

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from offboard.flight import ControllerChoice, Flight, FlightConfig, HeadingHoldMode, params_to_read
+from offboard.flight.guards import HeadingResetWatch
 from offboard.flight.heading_hold import (
     EKF2_ALIGN_HEIGHT_M,
     EKF2_ALIGN_SETTLE_S,
@@ -21,7 +22,7 @@ from offboard.flight.heading_hold import (
     highest_down_m,
 )
 from offboard.record import FlightStatus
-from offboard.trajectory.analytic import Line
+from offboard.trajectory.analytic import Hold, Line
 from offboard.trajectory.base import Reference
 from helpers import FakeClock
 from test_fly_flight import PAPER, PlantLink, make_plant
@@ -99,8 +100,8 @@ def test_the_missions_highest_point_is_read_from_its_samples():
 # --- flown against the plant ------------------------------------------------------------------------
 
 
-def fly(trajectory, mode: str):
-    link = PlantLink(make_plant(), FakeClock())
+def fly(trajectory, mode: str, link: PlantLink | None = None):
+    link = link if link is not None else PlantLink(make_plant(), FakeClock())
     events: list[str] = []
     flight = Flight(link, trajectory, ControllerChoice(base=PAPER, tuned=True),
                     FlightConfig(lockstep=True, connect="test", takeoff_heading_hold=mode), clock=link.clock,
@@ -166,3 +167,48 @@ def test_a_re_run_holds_as_summary_json_says_and_refuses_a_hold_it_cannot_read()
                 {"heading_deg": 1.0, "released_s": float("nan")}):  # fmt: skip
         with pytest.raises(ReplayArgumentError, match="takeoff_heading_hold held, but"):
             _heading_hold_as_flown({"takeoff_heading_hold": {"held": True, **bad}})
+
+
+# --- the estimator's heading resets, noted in flight ---------------------------------------------------
+
+
+def test_a_yaw_jump_the_body_rates_do_not_explain_is_a_reset_and_a_turn_is_not():
+    watch = HeadingResetWatch()
+    assert watch.observe((1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)) is None  # the first row: nothing to compare
+    assert watch.observe((1050, 0.0, 0.0, 0.05, 0.0, 0.0, 1.0)) is None  # turning at 1 rad/s: 0.05 rad in 50 ms
+    jump = watch.observe((1100, 0.0, 0.0, 0.05 + 0.05 - math.radians(30.0), 0.0, 0.0, 1.0))
+    assert jump == pytest.approx(-30.0, abs=0.1)
+    assert watch.observe((1100, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0)) is None  # a repeat of the same stamp: ignored
+    assert watch.observe((1150, 0.0, 0.0, 0.1 - math.radians(30.0), 0.0, 0.0, 0.0)) is None
+    assert watch.resets == [(1100, pytest.approx(-30.0, abs=0.1))]
+
+
+class ResettingLink(PlantLink):
+    """The plant's ATTITUDE with its yaw turned by ``jump_rad`` from the vehicle's ``at_ms`` on: an
+    estimator that re-aligned its heading there (the vehicle itself does not turn)."""
+
+    def __init__(self, at_ms: int, jump_rad: float) -> None:
+        super().__init__(make_plant(), FakeClock())
+        self.at_ms, self.jump_rad = at_ms, jump_rad
+
+    def recv(self, timeout_s: float):
+        msg = super().recv(timeout_s)
+        if msg is not None and msg.get_type() == "ATTITUDE" and msg.time_boot_ms >= self.at_ms:
+            msg.yaw = (msg.yaw + self.jump_rad + math.pi) % (2 * math.pi) - math.pi
+        return msg
+
+
+def test_a_heading_reset_in_flight_is_noted_with_its_mission_time():
+    hover = Hold((0.0, 0.0, -3.0), 0.0, 4.0)
+    probe, _ = fly(hover, "off")
+    assert probe.status is FlightStatus.COMPLETE, probe.detail
+    assert probe.heading_resets == [] and not any("reset its heading" in n for n in probe.notes)
+    start_ms = int(probe.record["time_boot_ms"][0])
+    result, _ = fly(hover, "off", ResettingLink(start_ms + 2000, math.radians(-25.0)))
+    assert result.status is FlightStatus.COMPLETE, result.detail
+    [reset] = result.heading_resets
+    assert reset["deg"] == pytest.approx(-25.0, abs=0.5) and reset["t_s"] == pytest.approx(2.0, abs=0.06)
+    assert any(f"reset its heading by {reset['deg']:+.1f} deg at t = {reset['t_s']:.2f} s" in n for n in result.notes)
+    # the yaw the flight recorded is the estimator's, reset from then on
+    t, yaw = result.record["t_s"], result.record["euler_rad"][:, 2]
+    assert abs(yaw[t < 1.9]).max() < math.radians(1.0) and yaw[t > 2.1] == pytest.approx(math.radians(-25.0), abs=math.radians(1.0))

@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard.cli import main
 from offboard.errors import LogFormatError
-from offboard.replay.scan import heading_reset_deg
+from offboard.flight.guards import heading_reset_deg
 from offboard.replay import (
     LoggedMessage,
     LogScan,
