@@ -11,6 +11,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
+from offboard.clockrate import STALLED_RATE, ClockRateMeter
 from offboard.errors import LogFormatError
 from offboard.model.rotations import euler_from_quat
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
@@ -79,7 +80,13 @@ def setpoints_for(scan: LogScan, sysid: int) -> SetpointSeries:
         for row in rows:
             sources[row[-3]] = sources.get(row[-3], 0) + 1
         source = max(sources, key=sources.__getitem__)  # the controller (others: a GCS, a test)
-        rows = _unique_by_time([r for r in rows if r[-3] == source])
+        # one command per telemetry stamp (a repeat answers a repeated burst), but not across the
+        # accepted arm: the mission's first sample may answer the very telemetry the last
+        # pre-mission setpoint did (no new stamp came while the vehicle armed: PX4 at --speed 4)
+        arm = arm_accepted(scan, sysid)
+        split = arm[0] if arm is not None else -1
+        ours = [r for r in rows if r[-3] == source]
+        rows = _unique_by_time([r for r in ours if r[-1] < split]) + _unique_by_time([r for r in ours if r[-1] >= split])
         return SetpointSeries(
             kind,
             np.array([r[0] for r in rows], dtype=np.int64),
@@ -155,14 +162,29 @@ def sample_numbers(elapsed_s: np.ndarray, sample_time_s: float) -> np.ndarray:
     return n
 
 
+def on_vehicle_clock(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> bool:
+    """Whether commands logged at ``log_time_s`` and echoing the vehicle's ``time_boot_ms`` were
+    sampled on the vehicle's clock: the vehicle's time ran at a rate other than the log's
+    (``offboard fly --clock vehicle`` against PX4 SITL at ``--speed 4``, logged on the wall clock;
+    ``clockrate.ClockRate.real_time``), and moved (not a lockstep vehicle waiting). A lockstep
+    log, stamped with the vehicle's time, and a real-time one run at 1."""
+    meter = ClockRateMeter()
+    for t, boot in zip(np.asarray(log_time_s, dtype=float).tolist(), np.asarray(time_boot_ms).tolist()):
+        meter.add(t, int(boot))
+    rate = meter.measure() if len(log_time_s) > 1 else None
+    return rate is not None and not rate.real_time and rate.rate > STALLED_RATE
+
+
 def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample_time_s: float | None,
-                  duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float]:
-    """(rows of ``setpoints`` flown as the mission, their sample numbers n, To).
+                  duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """(rows of ``setpoints`` flown as the mission, their sample numbers n, To, whether they were
+    sampled on the vehicle's clock).
 
     The mission starts with the first command sent after the vehicle accepted the arm command
-    (``offboard fly`` starts mission time there), or, without one in the log, with the first
     command once the vehicle reports OFFBOARD. n counts sample periods from there
-    (``sample_numbers``: tlog time / To, exact in lockstep, the tick count in real time). It ends after
+    (``sample_numbers``: tlog time / To, exact in lockstep, the tick count in real time; the
+    commands' ``time_boot_ms`` / To where the vehicle's clock ran at another rate than the log's,
+    ``on_vehicle_clock``). It ends after
     ``duration_s`` (the mission's), or when the controller sends its next command (land,
     mode) or the vehicle leaves OFFBOARD.
     """
@@ -182,14 +204,19 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
         if entered is not None:
             start = int(np.searchsorted(setpoints.time_s, entered, side="left"))
     if start >= count:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), sample_time_s or math.nan
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), sample_time_s or math.nan, False
+    # the clock the samples were taken on: the log's, or the vehicle's when it ran at another rate
+    elapsed = setpoints.time_s[start:] - setpoints.time_s[start]
+    vehicle_clock = on_vehicle_clock(setpoints.time_s[start:], setpoints.time_boot_ms[start:])
+    if vehicle_clock:
+        elapsed = (setpoints.time_boot_ms[start:] - setpoints.time_boot_ms[start]) / 1000.0
     if sample_time_s is None:
         # the mean command period (whole milliseconds): exact in lockstep, robust to real-time jitter
-        span = setpoints.time_s[-1] - setpoints.time_s[start]
+        span = elapsed[-1]
         sample_time_s = round(1000.0 * span / (count - start - 1)) / 1000.0 if count - start > 1 else math.nan
         if not sample_time_s > 0:
             sample_time_s = 0.05
-    n = sample_numbers(setpoints.time_s[start:] - setpoints.time_s[start], sample_time_s)
+    n = sample_numbers(elapsed, sample_time_s)
     rows = np.arange(start, count)
     if duration_s is not None:
         keep = n <= int(round(duration_s / sample_time_s))
@@ -204,7 +231,7 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
                 and e.text != OFFBOARD_MODE_NAME]
         if left:
             keep &= setpoints.time_s[start:] < left[0]
-    return rows[keep], n[keep], sample_time_s
+    return rows[keep], n[keep], sample_time_s, vehicle_clock
 
 
 def build_record(
@@ -244,7 +271,7 @@ def build_record(
     commanded = setpoints.kind in ("attitude", "actuator")
     duration = trajectory.duration_s if trajectory is not None else None
     if commanded:
-        rows, n_samples, to = _mission_rows(scan, vehicle, setpoints, sample_time_s, duration)
+        rows, n_samples, to, vehicle_clock = _mission_rows(scan, vehicle, setpoints, sample_time_s, duration)
         grid = setpoints.time_boot_ms[rows]
         t_s = n_samples * to
         log_time = setpoints.time_s[rows]
@@ -261,6 +288,12 @@ def build_record(
     i_att, i_pos, att, pos = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows] if commanded else None)
     keep = (i_att >= 0) & (i_pos >= 0)
     grid, t_s, log_time, i_att, i_pos = grid[keep], t_s[keep], log_time[keep], i_att[keep], i_pos[keep]
+    if commanded and vehicle_clock and len(pos):
+        # offboard fly on the vehicle's clock ticks every To of it from the first position it
+        # heard, samples at the first position at or after each tick, and takes the references
+        # at that position's time: n To plus how late after its tick the position was
+        first_ms = float(pos[:, 0].min())
+        t_s = t_s + np.mod(pos[i_pos, 0] - first_ms, 1000.0 * to) / 1000.0
     if commanded:
         rows = rows[keep]
     n = len(grid)

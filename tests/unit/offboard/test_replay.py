@@ -470,3 +470,13 @@ def test_the_estimators_state_and_sensor_health_are_events():
         (3.5, "health", "GPS no longer reported (SYS_STATUS)"),
         (5.0, "estimator", "the vehicle's estimator vouches again for every estimate the law reads (ESTIMATOR_STATUS flags 0x37f)"),
     ]  # fmt: skip
+
+
+def test_commands_were_sampled_on_the_vehicles_clock_where_it_ran_at_another_rate_than_the_log():
+    from offboard.replay.record import on_vehicle_clock
+
+    log = 100.0 + np.arange(200) * 0.0125  # 2.5 s of the log's clock, a command every 12.5 ms
+    assert on_vehicle_clock(log, 4000 + np.arange(200) * 50)  # the vehicle's 50 ms each: 4x (PX4 at --speed 4)
+    assert not on_vehicle_clock(log, 4000 + np.rint(np.arange(200) * 12.5))  # real time
+    assert not on_vehicle_clock(log, np.full(200, 4000))  # a vehicle that waits (lockstep, stalled)
+    assert not on_vehicle_clock(log[:40], 4000 + np.arange(40) * 50)  # under a second of the log: not measured
