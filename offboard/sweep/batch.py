@@ -98,7 +98,7 @@ def fly_batch(spec: SweepSpec, fls: list[FlightSpec]) -> list[dict]:
             groups.setdefault(_group_key(setup), []).append(k)
     for members in groups.values():
         for k, series in zip(members, fly_group([setups[k] for k in members])):
-            rows[k] = row_of(series, spec.base.trajectory.phases(), spec.converged_m)
+            rows[k] = row_of(series, spec.base.trajectory.phases(), spec.base.flight_duration_s, spec.converged_m)
     return rows  # type: ignore[return-value]
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from offboard.controller.paper import PaperController
 from offboard.inprocess import simulate
-from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, SETTLE_S
+from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, SETTLE_S, flown_end_s
 from offboard.record import FlightStatus
 from offboard.sweep.spec import FlightSpec, SweepSpec, scenario_of
 from offboard.trajectory.base import Phase
@@ -45,27 +45,40 @@ class Series:
     detail: str = ""
 
 
-def phase_columns(phases: list[Phase]) -> list[str]:
-    """The per-phase columns of a row, in order (the same for every flight of a sweep)."""
-    names = ["whole", "after_5s", *(p.name for p in phases)]
+def flown_phases(phases: list[Phase], duration_s: float) -> list[Phase]:
+    """The mission's phases a flight of ``duration_s`` flies: those that begin before its last
+    sample (``offboard simulate``'s table lists the same; a phase that begins at the last sample,
+    as the paper helix's hold after a 12 s scenario, is not flown)."""
+    return [p for p in phases if p.start_s < duration_s - 1e-9]
+
+
+def phase_columns(phases: list[Phase], duration_s: float) -> list[str]:
+    """The per-phase columns of a row, in order (the same for every flight of a sweep): the
+    whole flight, after 5 s and each phase flown in ``duration_s`` (``flown_phases``)."""
+    names = ["whole", "after_5s", *(p.name for p in flown_phases(phases, duration_s))]
     return [f"{kind}_{name}_m" for name in names for kind in ("rms", "max")]
 
 
-def row_of(series: Series, phases: list[Phase], converged_m: float) -> dict[str, float | str]:
-    """The figures of one flight (module docstring): per-phase RMS and max of the 3D error, the
-    final error, peak tilt and thrust, status and the time to converge (of a complete flight: the
-    first sample within ``converged_m`` of the reference; NaN if none is)."""
+def row_of(series: Series, phases: list[Phase], duration_s: float, converged_m: float) -> dict[str, float | str]:
+    """The figures of one flight (module docstring) of a scenario of ``duration_s`` over a mission
+    of ``phases``: per-phase RMS and max of the 3D error (``phase_columns``), the final error,
+    peak tilt and thrust, status and the time to converge (of a complete flight: the first sample
+    within ``converged_m`` of the reference; NaN if none is). A last sample at the start of a
+    phase not flown reads that phase's first reference, a step the flight never flew
+    (``metrics.flown_end_s``): no span counts it and the final error is the sample's before."""
     t = series.t_s
     err = np.linalg.norm(series.ref_pos_ned_m - series.pos_ned_m, axis=1) if len(t) else np.zeros(0)
     row: dict[str, float | str] = {}
-    end = float(t[-1]) + 1e-9 if len(t) else 0.0
-    spans = [("whole", 0.0, end), ("after_5s", SETTLE_S, end), *((p.name, p.start_s, p.end_s) for p in phases)]
+    end = flown_end_s(float(t[-1]), phases) if len(t) else 0.0
+    spans = [("whole", 0.0, end), ("after_5s", SETTLE_S, end),
+             *((p.name, p.start_s, p.end_s) for p in flown_phases(phases, duration_s))]  # fmt: skip
     for name, a, b in spans:
         mask = (t >= a) & (t < b) if math.isfinite(b) else t >= a
         e = err[mask]
         row[f"rms_{name}_m"] = float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
         row[f"max_{name}_m"] = float(np.max(e)) if len(e) else math.nan
-    row["final_error_m"] = float(err[-1]) if len(err) else math.nan
+    flown = err[t < end]
+    row["final_error_m"] = float(flown[-1]) if len(flown) else math.nan
     euler = series.euler_rad
     tilt = np.degrees(np.arccos(np.clip(np.cos(euler[:, 0]) * np.cos(euler[:, 1]), -1, 1))) if len(t) else np.zeros(0)
     row["peak_tilt_deg"] = float(np.max(tilt)) if len(tilt) else math.nan
@@ -113,4 +126,4 @@ def fly_one(spec: SweepSpec, fl: FlightSpec, *, fast: bool = False) -> tuple[dic
         initial_pos_ned_m=sc.initial_pos_ned_m, initial_yaw_rad=sc.initial_yaw_rad, latency_s=setup.latency_s,
         fast=fast and sc.model == "rigid-body",
     )  # fmt: skip
-    return row_of(series_of_record(result.record), sc.trajectory.phases(), spec.converged_m), result
+    return row_of(series_of_record(result.record), sc.trajectory.phases(), sc.flight_duration_s, spec.converged_m), result

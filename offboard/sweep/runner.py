@@ -53,7 +53,7 @@ def columns(spec: SweepSpec) -> list[tuple[str, str]]:
     """The Parquet columns (name, ``float``/``string``/``int``) of a sweep's rows, in order."""
     cols = [("flight", "int"), ("seed", "int")]
     cols += [(d.name, "string" if PARAMETERS[d.name].kind is ParameterKind.SPEC else "float") for d in spec.parameters]
-    cols += [(c, "float") for c in phase_columns(spec.base.trajectory.phases())]
+    cols += [(c, "float") for c in phase_columns(spec.base.trajectory.phases(), spec.base.flight_duration_s)]
     cols += [(c, "string" if c in ("status", "detail") else "float") for c in METRIC_COLUMNS_TAIL]
     return cols
 

@@ -178,3 +178,25 @@ def test_winds_drawn_many_at_once_are_the_winds_drawn_one_at_a_time(wind):
     drawn = np.concatenate([many.velocity_ned_many(steps[k : k + 50] * 1e-3) for k in range(0, 3000, 50)])
     assert np.any(expected != 0.0)
     np.testing.assert_array_equal(drawn, expected)
+
+
+def test_a_flight_cut_at_a_segments_switch_is_not_measured_at_the_step_it_never_flew(tmp_path):
+    """The paper's 12 s scenarios fly the helix of a mission that holds from 12 s: their last
+    sample reads the hold's first reference, 2 m off. The row counts that step nowhere (before,
+    rms_hold-12m_m and final_error_m were the step, 2.0-3.2 m over sweep-table2, and it was most
+    of rms_after_5s_m), as offboard simulate's table does not."""
+    from offboard.metrics import summarize
+    from offboard.sweep.runner import columns
+
+    spec = load_sweep(write_sweep(tmp_path, flights=1, duration_s=12.0, scenario=MISSIONS / "paper-sim1-rigid-body.toml"))
+    names = [name for name, _ in columns(spec)]
+    assert "rms_helix_m" in names and not any("hold-12m" in name or "descent" in name for name in names)
+    row, result = fly_one(spec, flights(spec)[0])
+    rec = result.record
+    err = np.linalg.norm(rec["pos_ned_m"] - rec["ref_pos_ned_m"], axis=1)
+    assert rec["t_s"][-1] == pytest.approx(12.0) and err[-1] > 1.9  # the last sample: the hold's reference
+    assert row["final_error_m"] == pytest.approx(err[-2]) and row["final_error_m"] < 0.1
+    table = {p.name: p for p in summarize(rec).phases}
+    assert set(table) == {"whole flight", "after 5 s", "helix"}
+    assert row["rms_after_5s_m"] == pytest.approx(table["after 5 s"].axes["3d"].rms_m) and row["rms_after_5s_m"] < 0.05
+    assert row["max_whole_m"] == pytest.approx(table["whole flight"].axes["3d"].max_m)
