@@ -247,7 +247,7 @@ def _report(args: argparse.Namespace, reader, scan) -> int:
     recorded_to = ((summary_json or {}).get("controller") or {}).get("sample_time_s")
     record = replay.build_record(scan, sysid=args.sysid, trajectory=trajectory, thrust_max_n=args.thrust_max_n, source=str(args.log),
                                  sample_time_s=recorded_to)  # fmt: skip
-    log_report = replay.log_report(reader, scan, float(record.meta["start_log_time_s"]))  # type: ignore[arg-type]
+    log_report = replay.log_report(reader, scan, float(record.meta["start_log_time_s"]), float(record.meta["clock_rate"]))  # type: ignore[arg-type]
     if record.meta["references"] == "none":
         why = summary_note or "no summary.json beside it describing this log"
         _warn(f"{args.log.name}: no references, so no tracking errors (no --mission; {why}; no POSITION_TARGET_LOCAL_NED "

@@ -111,10 +111,11 @@ def _latest(times: np.ndarray, at: np.ndarray) -> np.ndarray:
     return np.searchsorted(times, at, side="right") - 1
 
 
-def mode_phases(scan: LogScan, sysid: int, t0_s: float) -> list[Phase]:
-    """The vehicle's flight modes as report phases, times relative to ``t0_s`` (tlog time)."""
-    changes = [(e.time_s - t0_s, e.text) for e in scan.events if e.system == sysid and e.kind == "mode"]
-    end = scan.last_time_s - t0_s
+def mode_phases(scan: LogScan, sysid: int, t0_s: float, clock_rate: float = 1.0) -> list[Phase]:
+    """The vehicle's flight modes as report phases, times relative to ``t0_s`` (tlog time), in
+    seconds of the record (``clock_rate`` of them per second of the log)."""
+    changes = [((e.time_s - t0_s) * clock_rate, e.text) for e in scan.events if e.system == sysid and e.kind == "mode"]
+    end = (scan.last_time_s - t0_s) * clock_rate
     phases: list[Phase] = []
     counts: dict[str, int] = {}
     for k, (start, name) in enumerate(changes):
@@ -162,23 +163,29 @@ def sample_numbers(elapsed_s: np.ndarray, sample_time_s: float) -> np.ndarray:
     return n
 
 
-def on_vehicle_clock(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> bool:
-    """Whether commands logged at ``log_time_s`` and echoing the vehicle's ``time_boot_ms`` were
-    sampled on the vehicle's clock: the vehicle's time ran at a rate other than the log's
-    (``offboard fly --clock vehicle`` against PX4 SITL at ``--speed 4``, logged on the wall clock;
-    ``clockrate.ClockRate.real_time``), and moved (not a lockstep vehicle waiting). A lockstep
-    log, stamped with the vehicle's time, and a real-time one run at 1."""
+def vehicle_clock_rate(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> float | None:
+    """The vehicle's seconds per second of the log, where commands logged at ``log_time_s`` and
+    echoing the vehicle's ``time_boot_ms`` were sampled on the vehicle's clock: its time ran at a
+    rate other than the log's (``offboard fly --clock vehicle`` against PX4 SITL at ``--speed 4``,
+    logged on the wall clock; ``clockrate.ClockRate.real_time``) and moved (not a lockstep vehicle
+    waiting). None otherwise: a lockstep log, stamped with the vehicle's time, and a real-time one
+    run at 1."""
     meter = ClockRateMeter()
     for t, boot in zip(np.asarray(log_time_s, dtype=float).tolist(), np.asarray(time_boot_ms).tolist()):
         meter.add(t, int(boot))
     rate = meter.measure() if len(log_time_s) > 1 else None
-    return rate is not None and not rate.real_time and rate.rate > STALLED_RATE
+    return rate.rate if rate is not None and not rate.real_time and rate.rate > STALLED_RATE else None
+
+
+def on_vehicle_clock(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> bool:
+    """Whether those commands were sampled on the vehicle's clock (``vehicle_clock_rate``)."""
+    return vehicle_clock_rate(log_time_s, time_boot_ms) is not None
 
 
 def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample_time_s: float | None,
-                  duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float, bool]:
-    """(rows of ``setpoints`` flown as the mission, their sample numbers n, To, whether they were
-    sampled on the vehicle's clock).
+                  duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float, float | None]:
+    """(rows of ``setpoints`` flown as the mission, their sample numbers n, To, and the vehicle's
+    clock rate against the log's where they were sampled on the vehicle's clock, else None).
 
     The mission starts with the first command sent after the vehicle accepted the arm command
     command once the vehicle reports OFFBOARD. n counts sample periods from there
@@ -204,11 +211,11 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
         if entered is not None:
             start = int(np.searchsorted(setpoints.time_s, entered, side="left"))
     if start >= count:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), sample_time_s or math.nan, False
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), sample_time_s or math.nan, None
     # the clock the samples were taken on: the log's, or the vehicle's when it ran at another rate
     elapsed = setpoints.time_s[start:] - setpoints.time_s[start]
-    vehicle_clock = on_vehicle_clock(setpoints.time_s[start:], setpoints.time_boot_ms[start:])
-    if vehicle_clock:
+    clock_rate = vehicle_clock_rate(setpoints.time_s[start:], setpoints.time_boot_ms[start:])
+    if clock_rate is not None:
         elapsed = (setpoints.time_boot_ms[start:] - setpoints.time_boot_ms[start]) / 1000.0
     if sample_time_s is None:
         # the mean command period (whole milliseconds): exact in lockstep, robust to real-time jitter
@@ -231,7 +238,7 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
                 and e.text != OFFBOARD_MODE_NAME]
         if left:
             keep &= setpoints.time_s[start:] < left[0]
-    return rows[keep], n[keep], sample_time_s, vehicle_clock
+    return rows[keep], n[keep], sample_time_s, clock_rate
 
 
 def build_record(
@@ -271,7 +278,7 @@ def build_record(
     commanded = setpoints.kind in ("attitude", "actuator")
     duration = trajectory.duration_s if trajectory is not None else None
     if commanded:
-        rows, n_samples, to, vehicle_clock = _mission_rows(scan, vehicle, setpoints, sample_time_s, duration)
+        rows, n_samples, to, clock_rate = _mission_rows(scan, vehicle, setpoints, sample_time_s, duration)
         grid = setpoints.time_boot_ms[rows]
         t_s = n_samples * to
         log_time = setpoints.time_s[rows]
@@ -288,12 +295,18 @@ def build_record(
     i_att, i_pos, att, pos = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows] if commanded else None)
     keep = (i_att >= 0) & (i_pos >= 0)
     grid, t_s, log_time, i_att, i_pos = grid[keep], t_s[keep], log_time[keep], i_att[keep], i_pos[keep]
-    if commanded and vehicle_clock and len(pos):
-        # offboard fly on the vehicle's clock ticks every To of it from the first position it
-        # heard, samples at the first position at or after each tick, and takes the references
-        # at that position's time: n To plus how late after its tick the position was
-        first_ms = float(pos[:, 0].min())
-        t_s = t_s + np.mod(pos[i_pos, 0] - first_ms, 1000.0 * to) / 1000.0
+    if commanded and clock_rate is not None and len(i_pos):
+        # offboard fly on the vehicle's clock ticks every To of it (from the first position it
+        # heard: not always the log's first), samples at the first position at or after each
+        # tick and takes the references at that position's time, n To plus how late after its
+        # tick the position came. The ticks lie To apart at or before every sampled position:
+        # at the latest, where the least late sample was on its tick (exact where positions
+        # often fall on a tick, as sitl-plant's every 100 ms; PX4's stamps within a millisecond
+        # or two)
+        stamp_ms = pos[i_pos, 0]
+        n_kept = np.rint(t_s / to)
+        tick0_ms = float(np.min(stamp_ms - n_kept * 1000.0 * to))
+        t_s = (stamp_ms - tick0_ms) / 1000.0
     if commanded:
         rows = rows[keep]
     n = len(grid)
@@ -344,13 +357,14 @@ def build_record(
                 [torque_rp_max, torque_rp_max, torque_y_max]
             )
 
-    t0_log = float(log_time[0] - columns["t_s"][0]) if n else scan.first_time_s
-    phases = trajectory.phases() if trajectory is not None else mode_phases(scan, vehicle, t0_log)
+    rate = clock_rate if commanded and clock_rate is not None else 1.0
+    t0_log = float(log_time[0] - columns["t_s"][0] / rate) if n else scan.first_time_s
+    phases = trajectory.phases() if trajectory is not None else mode_phases(scan, vehicle, t0_log, rate)
     status, detail = FlightStatus.COMPLETE, ""
     end_log = float(log_time[-1]) if n else scan.last_time_s
     failsafes = [e for e in scan.events if e.kind == "failsafe" and e.system == vehicle and e.time_s <= end_log + 1.0]
     if failsafes:
-        status, detail = FlightStatus.FAILSAFE, f"at t = {failsafes[0].time_s - t0_log:.2f} s: {failsafes[0].text}"
+        status, detail = FlightStatus.FAILSAFE, f"at t = {(failsafes[0].time_s - t0_log) * rate:.2f} s: {failsafes[0].text}"
     return FlightRecord(
         columns={name: columns[name] for name in COLUMNS},
         phases=phases,
@@ -364,6 +378,8 @@ def build_record(
             "references": reference_source,
             "sample_time_s": to,
             "start_log_time_s": t0_log,
+            # the record's seconds per second of the log (not 1: sampled on a vehicle's clock that ran faster)
+            "clock_rate": rate,
             "thrust_max_n": thrust_max,
             "setpoint_rows": rows,  # rows of setpoints_for(scan, vehicle) behind each sample
             "time_boot_ms": grid,

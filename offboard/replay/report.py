@@ -56,6 +56,9 @@ class LogReport:
     rates: list[MessageRate]
     events: list[Event]  # times relative to the record's t = 0
     vehicle_sysid: int | None
+    #: the record's seconds per second of the log: 1, or the vehicle's clock rate where the flight
+    #: was sampled on it (events, gaps and rates are then on that clock; ``duration_s`` is the log's)
+    clock_rate: float = 1.0
 
     def to_dict(self) -> dict:
         """The report for summary.json."""
@@ -67,6 +70,7 @@ class LogReport:
             "start_unix_s": self.start_unix_s,
             "duration_s": self.duration_s,
             "vehicle_sysid": self.vehicle_sysid,
+            "clock_rate": self.clock_rate,
             "damages": [{"offset": d.offset, "resumed_at": d.resumed_at, "reason": d.reason} for d in self.damages],
             "sources": [dict(vars(s), loss_percent=s.loss_percent) for s in self.sources],
             "rates": [vars(r) for r in self.rates],
@@ -74,18 +78,20 @@ class LogReport:
         }
 
 
-def log_report(reader: TlogReader, scan: LogScan, t0_log_s: float) -> LogReport:
-    """Statistics and events of a scanned log; times relative to ``t0_log_s`` (tlog time)."""
+def log_report(reader: TlogReader, scan: LogScan, t0_log_s: float, clock_rate: float = 1.0) -> LogReport:
+    """Statistics and events of a scanned log; times relative to ``t0_log_s`` (tlog time), in
+    seconds of the record: ``clock_rate`` of them per second of the log (a flight sampled on the
+    vehicle's clock, which ran faster: its events, gaps and stream rates on that clock)."""
     vehicle = scan.vehicle_sysid()
     sources = [
         SourceStats(s, c, scan.role((s, c)), k.received, k.lost, k.duplicates, k.streams)
         for (s, c), k in sorted(scan.seq.items())
     ]
     rates = [
-        MessageRate(s, c, m, st.count, st.rate_hz, st.max_gap_s, st.max_gap_at_s - t0_log_s)
+        MessageRate(s, c, m, st.count, st.rate_hz / clock_rate, st.max_gap_s * clock_rate, (st.max_gap_at_s - t0_log_s) * clock_rate)
         for (s, c, m), st in sorted(scan.streams.items())
     ]
-    events = [Event(e.time_s - t0_log_s, e.kind, e.text, e.system) for e in scan.events]
+    events = [Event((e.time_s - t0_log_s) * clock_rate, e.kind, e.text, e.system) for e in scan.events]
     return LogReport(
         path=str(reader.path),
         size_bytes=reader.size_bytes,
@@ -98,6 +104,7 @@ def log_report(reader: TlogReader, scan: LogScan, t0_log_s: float) -> LogReport:
         rates=rates,
         events=events,
         vehicle_sysid=vehicle,
+        clock_rate=clock_rate,
     )
 
 
@@ -105,7 +112,9 @@ def format_log_report(report: LogReport, all_rates: bool = False) -> str:
     """Plain-text tables: sources and loss, message rates and gaps, events."""
     lines = [f"log {report.path}: {report.size_bytes} bytes, {report.messages} messages"
              + (f" ({report.unknown_messages} of unknown type)" if report.unknown_messages else "")
-             + f", {report.duration_s:.2f} s, vehicle system {report.vehicle_sysid}"]
+             + f", {report.duration_s:.2f} s, vehicle system {report.vehicle_sysid}"
+             + (f"; times, gaps and rates below on the vehicle's clock, which ran at {report.clock_rate:.2f}x the log's"
+                if report.clock_rate != 1.0 else "")]
     for d in report.damages:
         resumed = "nothing readable after it" if d.resumed_at is None else f"resumed at byte {d.resumed_at}"
         lines.append(f"  damaged at byte {d.offset}: {d.reason}; {resumed}")

@@ -16,7 +16,7 @@ import pytest
 
 from offboard.clockrate import RATE_TOLERANCE
 from offboard.missions import MISSIONS_DIR, load_mission
-from offboard.replay import TlogReader, build_record, scan_log
+from offboard.replay import TlogReader, build_record, log_report, scan_log
 from helpers.flights import error_3d, fly, read_tlog, rms, series, write_mission
 
 HELIX = MISSIONS_DIR / "paper-helix.toml"
@@ -46,12 +46,23 @@ def test_a_vehicle_four_times_faster_is_flown_on_its_own_clock(tmp_path):
     # four times compressed; before, it read 875 samples of 13 ms and a mission that ended at
     # 11.4 s): the flight's 801 samples, answering the same telemetry, at the same mission times
     # (each sample's lateness after its tick included) and so with the same references
-    record = build_record(scan_log(TlogReader(flown.tlog)), trajectory=load_mission(HELIX).trajectory)
+    reader = TlogReader(flown.tlog)
+    scan = scan_log(reader)
+    record = build_record(scan, trajectory=load_mission(HELIX).trajectory)
     assert len(record) == 801
     assert np.array_equal(record.meta["time_boot_ms"], s["time_boot_ms"])
     assert np.abs(record["t_s"] - t).max() < 1e-9
     ref = np.stack([s[f"ref_pos_ned_m_{i}"] for i in range(3)], axis=1)
     assert np.abs(record["ref_pos_ned_m"] - ref).max() < 1e-9
+    # and the log's report on that clock too: the setpoints at 20 Hz of the vehicle's time (77 Hz
+    # of the log's), the landing after the mission's 40 s
+    rate = float(record.meta["clock_rate"])
+    assert rate > 2.0
+    report = log_report(reader, scan, float(record.meta["start_log_time_s"]), rate)
+    [setpoints] = [r for r in report.rates if r.message == "SET_ATTITUDE_TARGET" and r.system != 1]
+    assert setpoints.rate_hz == pytest.approx(20.0, rel=0.1)
+    landing = [e.time_s for e in report.events if e.kind == "mode" and e.text == "Land"]
+    assert landing and 40.0 <= landing[0] < 43.0
 
 
 @pytest.mark.e2e
