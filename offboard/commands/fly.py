@@ -409,6 +409,8 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "disarmed": result.disarmed,
         "takeoff_heading_hold": result.heading_hold,
         "estimator_heading_resets": result.heading_resets,
+        # the latency the law's state was predicted over (null: the measured state), for replay --rerun
+        "predicted_latency_s": result.predicted_latency_s,
         "notes": result.notes,
     }
 

@@ -159,6 +159,31 @@ def _heading_hold_as_flown(summary: dict | None):  # -> TakeoffHeadingHold | Non
     return TakeoffHeadingHold.as_flown(math.radians(float(heading)), None if released is None else float(released))
 
 
+def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tuple[float | None, np.ndarray | None, str]:
+    """The latency the flight predicted its state over (summary.json's ``predicted_latency_s``),
+    the telemetry ages it handed the prediction at each of ``record``'s samples (series.csv's
+    ``telemetry_age_s`` beside the log, by ``time_boot_ms``), and a note for the re-run's label."""
+    latency = (summary or {}).get("predicted_latency_s")
+    if latency is None:
+        return None, None, ""
+    if not isinstance(latency, (int, float)) or isinstance(latency, bool) or not (math.isfinite(latency) and latency >= 0):
+        raise ReplayArgumentError(f"--rerun: summary.json: predicted_latency_s {latency!r} is not a latency (s, >= 0)")
+    note = f"; state predicted over {latency * 1000:.0f} ms"
+    series = log.parent / "series.csv"
+    try:
+        with series.open() as fh:
+            header = fh.readline().strip().split(",")
+            data = np.loadtxt(fh, delimiter=",", ndmin=2) if "telemetry_age_s" in header else None
+    except (OSError, ValueError):
+        data = None
+    if data is None or not len(data):
+        return float(latency), None, note + " (no series.csv with the telemetry's ages: predicted over the latency alone)"
+    ages_by_stamp = dict(zip(data[:, header.index("time_boot_ms")].astype(np.int64).tolist(), data[:, header.index("telemetry_age_s")].tolist()))
+    stamps = np.asarray(record.meta["time_boot_ms"], dtype=np.int64).tolist()
+    ages = np.array([ages_by_stamp.get(stamp, math.nan) for stamp in stamps], dtype=float)
+    return float(latency), ages, note + " and the telemetry's ages from series.csv"
+
+
 def _mission(args: argparse.Namespace, summary: dict | None):
     """The mission (``offboard.missions.Mission``) and a note saying where it came from (None, ''
     without one)."""
@@ -348,8 +373,13 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     if named not in CONTROLLER_KINDS:
         raise ReplayArgumentError(f"--rerun: summary.json: controller_kind {named!r} is none of {', '.join(CONTROLLER_KINDS)}")
     kind = ControllerKind(named)
+    latency, ages, age_note = None, None, ""
+    if args.controller is None:  # the flight's own controller: its latency prediction too
+        latency, ages, age_note = _predicted_latency_as_flown(args.log, summary_json, record)
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind,
-                                     heading_hold=_heading_hold_as_flown(summary_json))
+                                     heading_hold=_heading_hold_as_flown(summary_json), predicted_latency_s=latency,
+                                     vehicle_params=params_log, telemetry_age_s=ages)  # fmt: skip
+    origin += age_note
     label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"
     text = replay.format_rerun(result, label)
     payload = {"controller": origin, "model": model, **result.to_dict()}

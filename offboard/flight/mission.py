@@ -68,7 +68,10 @@ from offboard.trajectory.shifted import shift_trajectory
 from pymavlink.dialects.v20 import common as mavlink
 
 #: Extra record columns of a MAVLink flight: the ATTITUDE stamp answered, and when (wall clock).
-FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1}
+#: the record's columns, the telemetry stamp answered, the sample's wall time, and the telemetry's
+#: age the latency prediction was handed (NaN where it was handed none: no prediction, lockstep,
+#: the vehicle's clock), which ``offboard replay --rerun`` reads back to re-run it exactly
+FLIGHT_COLUMNS = {**COLUMNS, "time_boot_ms": 1, "sample_wall_s": 1, "telemetry_age_s": 1}
 MAX_HOME_OFFSET_M = 1000.0  # a mission's home farther than this from the vehicle's is refused
 #: Ends of a guard (``flight.guards``): the vehicle is handed to its own landing.
 GUARD_ENDS = (FlightStatus.LOST_TRACK, FlightStatus.ESTIMATE_LOST)
@@ -99,6 +102,8 @@ class FlightResult:
     #: the estimator's heading resets seen in ATTITUDE: ``{"t_s", "time_boot_ms", "deg"}`` each
     #: (``t_s``: mission time, None before the mission; ``guards.HeadingResetWatch``)
     heading_resets: list[dict[str, object]] = field(default_factory=list)
+    #: the latency the law's state was predicted over (s; None: the measured state)
+    predicted_latency_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -212,6 +217,7 @@ class Flight:
         self.references = ReferencePairs(trajectory, self.to)
         #: with a latency prediction the law sees the state L ahead, and the references L ahead with it
         self.lookahead_s = 0.0
+        self.predicted_latency_s: float | None = None  # the latency the state was predicted over (None: not predicted)
         self._attitude_heard_s: float | None = None  # when the latest ATTITUDE came (our clock)
         self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
@@ -285,6 +291,7 @@ class Flight:
             home_offset_ned_m=self.home_offset_ned_m, heading_hold=self._heading_hold_summary(),
             heading_resets=[{"t_s": self._mission_time_of(boot_ms), "time_boot_ms": boot_ms, "deg": deg}
                             for boot_ms, deg in self.heading_resets.resets],
+            predicted_latency_s=self.predicted_latency_s,
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -371,6 +378,7 @@ class Flight:
             model = inner_loop_from_params(vehicle_values(client.vehicle_params), choice.latency_s or 0.0)
             predictor = LatencyPredictor(model, self.params.sample_time_s, self.params.mass_kg, self.params.gravity_m_s2)
             self.lookahead_s = predictor.latency_s
+            self.predicted_latency_s = choice.latency_s or 0.0
         self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model, predictor=predictor)
         self.sampler.mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:
@@ -736,7 +744,9 @@ class Flight:
             if why:
                 raise FlightEnd(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
             wall_s = sampler.recorded(now)
-            self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms, sample_wall_s=wall_s)
+            age = getattr(measured, "age_s", None)
+            self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms, sample_wall_s=wall_s,
+                             telemetry_age_s=math.nan if age is None else age)  # fmt: skip
             err = float(np.linalg.norm(ref_n.pos_ned_m - measured.pos_ned_m))
             if self._progress is not None:
                 self._progress(Progress(self._phase_at(t), t, tuple(float(v) for v in measured.pos_ned_m), err))  # type: ignore[arg-type]

@@ -5,7 +5,8 @@ and which controller that is (``flight_controller``, resolved as ``offboard fly`
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,10 @@ import numpy as np
 from offboard import codec
 from offboard.codec import SetpointOutput
 from offboard.controller import PAPER_CONTROLLER_FILE, ActionLimits, ControllerGains, load_controller
+from offboard.controller.design import inner_loop_from_params
 from offboard.controller.params import ControllerParams
+from offboard.controller.prediction import LatencyPredictor
+from offboard.controller.tuning import vehicle_values
 from offboard.controllers import ControllerKind, make_controller
 from offboard.errors import LogFormatError, ParameterFileError
 from offboard.flight import ControllerChoice, resolve_controller
@@ -120,6 +124,9 @@ def rerun_controller(
     encoding: SetpointOutput | None = None,
     kind: ControllerKind = ControllerKind.PAPER,
     heading_hold: TakeoffHeadingHold | None = None,
+    predicted_latency_s: float | None = None,
+    vehicle_params: Mapping[str, float] | None = None,
+    telemetry_age_s: np.ndarray | None = None,
 ) -> RerunResult:
     """Feed the controller the telemetry of ``record``'s samples, as ``offboard fly`` did.
 
@@ -150,6 +157,14 @@ def rerun_controller(
     heading_hold : TakeoffHeadingHold or None
         The flight's take-off heading hold (``TakeoffHeadingHold.as_flown`` from summary.json):
         the references' yaw held as the flight held it.
+    predicted_latency_s : float or None
+        The latency the flight predicted the law's state over (summary.json's
+        ``predicted_latency_s``; an attitude output of the paper's law): the same
+        ``LatencyPredictor``, built from ``vehicle_params`` (the vehicle's, as logged), and the
+        references taken that far ahead, as ``offboard fly`` does. None: the measured state.
+    telemetry_age_s : ndarray or None
+        Per sample of ``record``, the telemetry's age the flight handed the prediction (series.csv's
+        ``telemetry_age_s``; NaN: none), which the log does not carry to the microsecond.
     """
 
     output = record.meta.get("commands")
@@ -166,10 +181,16 @@ def rerun_controller(
     i_att, i_pos, att_table, pos_table = _telemetry_rows(scan, vehicle, grid, setpoints.index[rows])
     att, pos = att_table[i_att], pos_table[i_pos]
     to = params.sample_time_s
-    controller = make_controller(kind, params, vehicle_model=model)
+    predictor = None
+    if predicted_latency_s is not None and predicted_latency_s > 0.0 and sent is SetpointOutput.ATTITUDE \
+            and kind is ControllerKind.PAPER:  # fmt: skip
+        inner = inner_loop_from_params(vehicle_values(dict(vehicle_params or {})), predicted_latency_s)
+        predictor = LatencyPredictor(inner, to, params.mass_kg, params.gravity_m_s2)
+    controller = make_controller(kind, params, vehicle_model=model, predictor=predictor)
     t_all = record["t_s"]
     builder = RecordBuilder()
     references = ReferencePairs(trajectory, to)
+    ahead = ReferencePairs(trajectory, to)
     logged = setpoints.values[rows]
     logged = logged[:, 1:9] if output == "attitude" else logged[:, 0:4]
     rerun = np.full(logged.shape, np.nan, dtype=np.float32)
@@ -184,7 +205,16 @@ def rerun_controller(
         if heading_hold is not None:
             heading_hold.update(t, float(measured.pos_ned_m[2]))
             ref_n, ref_n1 = heading_hold.apply(ref_n), heading_hold.apply(ref_n1)
-        command = controller.step(measured, ref_n, ref_n1)
+        if predictor is not None:  # as Flight._mission_source: the predicted state meets the references of its time
+            age = float(telemetry_age_s[k]) if telemetry_age_s is not None else math.nan
+            if math.isfinite(age):
+                measured = replace(measured, age_s=age)
+            ahead_n, ahead_n1 = ahead.pair(t + predictor.latency_s)
+            if heading_hold is not None:
+                ahead_n, ahead_n1 = heading_hold.apply(ahead_n), heading_hold.apply(ahead_n1)
+            command = controller.step(measured, ahead_n, ahead_n1)
+        else:
+            command = controller.step(measured, ref_n, ref_n1)
         builder.append(**control_row(t, measured, ref_n, command))
         if not command.is_finite():
             continue

@@ -75,14 +75,15 @@ def free_udp_port() -> int:
 
 
 def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, ...] = (), *,
-        mission_file: str = "replay-test.toml", mission_text: str = MISSION, plant_extra: tuple[str, ...] = ()) -> Flown:
+        mission_file: str = "replay-test.toml", mission_text: str = MISSION, plant_extra: tuple[str, ...] = (),
+        lockstep: bool = True) -> Flown:  # fmt: skip
     folder.mkdir(parents=True, exist_ok=True)
     mission = folder / mission_file
     mission.write_text(mission_text)
     run_dir = folder / "run"
     port = free_udp_port()
     plant = subprocess.Popen(
-        [str(BIN / "sitl-plant"), "--lockstep", "--model", model, "--inner-loop", "paper" if model == "paper" else "px4",
+        [str(BIN / "sitl-plant"), *(["--lockstep"] if lockstep else []), "--model", model, "--inner-loop", "paper" if model == "paper" else "px4",
          "--api-bind", "127.0.0.1:0",
          "--api-remote", f"127.0.0.1:{port}", "--gcs-bind", "none", "--log", str(folder / "plant.tlog"),
          "--quiet", "--duration", "120", *plant_extra],
@@ -90,7 +91,7 @@ def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, 
     )  # fmt: skip
     try:
         done = subprocess.run(
-            [str(BIN / "offboard"), "fly", str(mission), "--connect", f"udpin:127.0.0.1:{port}", "--lockstep",
+            [str(BIN / "offboard"), "fly", str(mission), "--connect", f"udpin:127.0.0.1:{port}", *(["--lockstep"] if lockstep else []),
              "--output", output, "--model", model, "--run-dir", str(run_dir), "--quiet", "--no-plots", *extra],
             capture_output=True, text=True, timeout=120, cwd=folder,
         )  # fmt: skip
@@ -109,6 +110,13 @@ def fly(folder: Path, output: str, model: str = "rigid-body", extra: tuple[str, 
 @pytest.fixture(scope="module", params=["attitude", "rates", "actuator"])
 def flown(request, tmp_path_factory) -> Flown:
     return fly(tmp_path_factory.mktemp(f"flight-{request.param}"), request.param)
+
+
+@pytest.fixture(scope="module")
+def flown_real_time(tmp_path_factory) -> Flown:
+    """make demo's setting: real time, attitude output, the gains designed for the vehicle and the
+    law handed the state predicted over the measured latency (and each sample's telemetry age)."""
+    return fly(tmp_path_factory.mktemp("flight-real-time"), "attitude", lockstep=False)
 
 
 @pytest.fixture(scope="module")
@@ -515,3 +523,32 @@ def test_a_flight_that_held_its_heading_reruns_exactly_and_only_with_the_hold(fl
         summary.write_text(kept)
     first = payload["rerun"]["first_mismatch"]
     assert code == 1 and not payload["rerun"]["exact"] and first is not None and first["t_s"] < hold["released_s"]
+
+
+def test_a_real_time_flight_with_its_latency_predicted_re_runs_exactly(flown_real_time, tmp_path, capsys):
+    """The re-run predicts the state over the latency the flight did (summary.json's
+    predicted_latency_s), with each sample's telemetry age (series.csv's telemetry_age_s) and the
+    references that far ahead: before, it handed the law the measured state and every sample of
+    make demo's flight differed (q up to 0.03)."""
+    flown = flown_real_time
+    latency = flown.summary["predicted_latency_s"]
+    assert latency is not None and 0.0 < latency < 0.1
+    ages = np.array([float(r["telemetry_age_s"]) for r in _series(flown)])
+    assert np.all(np.isfinite(ages)) and np.all(ages >= 0.0) and ages.max() > 0.0
+    code, payload = replay_json(capsys, str(flown.flight_log), "--rerun", "--run-dir", str(tmp_path / "r"))
+    rerun = payload["rerun"]
+    assert code == 0 and rerun["exact"] and rerun["mismatched_samples"] == 0, rerun["first_mismatch"]
+    assert "state predicted over" in rerun["controller"] and "ages from series.csv" in rerun["controller"]
+    # the log and summary.json alone (no series.csv): predicted over the latency, and it says so
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    for name in ("flight.tlog", "summary.json"):
+        (alone / name).write_bytes((flown.run_dir / name).read_bytes())
+    code, payload = replay_json(capsys, str(alone / "flight.tlog"), "--rerun", "--run-dir", str(tmp_path / "r2"))
+    assert "no series.csv with the telemetry's ages" in payload["rerun"]["controller"]
+    assert payload["rerun"]["samples"] == rerun["samples"]
+
+
+def test_a_lockstep_flight_predicts_nothing_and_records_no_age(flown):
+    assert flown.summary["predicted_latency_s"] is None
+    assert all(r["telemetry_age_s"] == "nan" for r in _series(flown))
