@@ -405,17 +405,23 @@ def _telemetry_rows(scan: LogScan, vehicle: int, time_boot_ms: np.ndarray, befor
         att = table(scan.attitude[vehicle], False)
         pos = table(scan.local_position[vehicle], False)
         i_att = np.searchsorted(att[:, 8], before, side="left") - 1
+        i_pos = np.searchsorted(pos[:, 8], before, side="left") - 1
         echoed = (i_att >= 0) & (att[np.maximum(i_att, 0), 0] == time_boot_ms)
-        if len(echoed) and np.mean(echoed) >= 0.99:
-            # offboard fly samples the attitude of the position's own instant when it has it
-            # (``Flight._sample``): an ATTITUDE newer than the position may be logged before the
-            # command that answered an older one; the command's echo names which it was
-            for j in np.flatnonzero(~echoed & (i_att >= 0)):
-                for k in range(int(i_att[j]) - 1, max(int(i_att[j]) - codec.RECENT_ATTITUDES, -1), -1):
-                    if att[k, 0] == time_boot_ms[j]:
-                        i_att[j] = k
-                        break
-            return i_att, np.searchsorted(pos[:, 8], before, side="left") - 1, att, pos
+        # offboard fly samples the attitude of the position's own instant when it has it
+        # (``Flight._sample``): an ATTITUDE newer than the position may be logged before the
+        # command that answered an older one; the command's echo names which it was, and the
+        # latest position before the command is of that very instant (PX4 in real time: a
+        # tenth of the samples; sitl-plant, which stamps both alike, seldom)
+        paired = echoed.copy()
+        for j in np.flatnonzero(~echoed & (i_att >= 0) & (i_pos >= 0)):
+            if pos[i_pos[j], 0] != time_boot_ms[j]:
+                continue
+            for k in range(int(i_att[j]) - 1, max(int(i_att[j]) - codec.RECENT_ATTITUDES, -1), -1):
+                if att[k, 0] == time_boot_ms[j]:
+                    i_att[j], paired[j] = k, True
+                    break
+        if len(paired) and np.mean(paired) >= 0.99:
+            return i_att, i_pos, att, pos
         # not the controller's own log (a plant's, in real time: telemetry newer than what the
         # command answered is logged before it): the command's echo of time_boot_ms decides
     att = table(scan.attitude[vehicle], True)

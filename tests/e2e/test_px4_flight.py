@@ -70,6 +70,17 @@ def test_the_paper_helix_flies_smoothly_through_px4s_attitude_loop(tmp_path):
     # the take-off heading hold (0.07-0.25 m before it; its EKF and the machine's load move it). 0.5 m still catches a wrong frame, sign or scale,
     # any of which costs metres; the hold's tilt above is what tells Table I (49 deg) apart.
     assert helix_rms < 0.5
+    # its own log re-runs exactly: the latency prediction it flew (summary.json, series.csv's
+    # telemetry ages), and each sample paired with the ATTITUDE of its position's instant, which
+    # PX4's streams log before a newer one in a tenth of the samples (before, a quarter of the
+    # samples read another position and every command after the first differed)
+    assert summary["predicted_latency_s"] is not None
+    replay = subprocess.run([PY, "-m", "offboard.cli", "replay", str(run / "flight.tlog"), "--rerun", "--thrust-max-n", "20",
+                             "--run-dir", str(tmp_path / "replay"), "--no-plots", "--json"],
+                            capture_output=True, text=True, env=ENV, timeout=240)  # fmt: skip
+    assert replay.returncode == 0, replay.stderr
+    rerun = json.loads(replay.stdout)["rerun"]
+    assert rerun["exact"] and rerun["samples"] == len(t), rerun["first_mismatch"]
 
 
 def test_the_body_rate_output_flies_the_paper_helix_on_px4s_rate_loop(tmp_path):
