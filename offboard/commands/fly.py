@@ -427,13 +427,13 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
     """The lines under the tracking table: messages, loop timing, outages, landing.
 
     In lockstep the vehicle paces the samples, so the period's jitter against To means nothing
-    and is not shown (summary.json keeps it).
+    and is not shown (summary.json keeps it); on the vehicle's clock it is the vehicle's.
     """
     m, loop = extra["messages"], extra["loop"]
     lost_pct = 100.0 * m["lost"] / max(m["received"] + m["lost"], 1)
-    timing = ("lockstep: paced by the vehicle" if lockstep else "on the vehicle's clock" if vehicle_clock else
-              f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
+    jitter = (f"period jitter p50 {loop['jitter_p50_ms']:.2f} ms, p99 {loop['jitter_p99_ms']:.2f} ms, "
               f"max {loop['jitter_max_ms']:.2f} ms")  # fmt: skip
+    timing = ("lockstep: paced by the vehicle" if lockstep else f"on the vehicle's clock, its {jitter}" if vehicle_clock else jitter)
     lines = [
         f"messages: sent {m['sent']}, received {m['received']}, lost {m['lost']} ({lost_pct:.2f} %), "
         f"duplicates {m['duplicates']}, bad {m['bad']}"

@@ -743,7 +743,7 @@ class Flight:
         if recording:
             if why:
                 raise FlightEnd(FlightStatus.DIVERGED, f"at t = {t:.2f} s: {why}")
-            wall_s = sampler.recorded(now)
+            wall_s = sampler.recorded(now, t)
             age = getattr(measured, "age_s", None)
             self.rows.append(**control_row(t, measured, ref_n, command), time_boot_ms=measured.time_boot_ms, sample_wall_s=wall_s,
                              telemetry_age_s=math.nan if age is None else age)  # fmt: skip

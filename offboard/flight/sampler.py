@@ -165,6 +165,7 @@ class Sampler:
         self.mission_done = False
         self._mission_wall0: float | None = None
         self._last_sample_wall: float | None = None
+        self._last_sample_t: float | None = None  # on the vehicle's clock: the last sample's mission time
         self.loop = LoopStats()
 
     # -- the telemetry -------------------------------------------------------------------------------
@@ -346,10 +347,16 @@ class Sampler:
         n = self.tick - self.mission_tick0
         return n, n * self.to + (self._sample_late_s if self.on_vehicle_clock else 0.0)
 
-    def recorded(self, now: float) -> float:
-        """A mission sample was recorded at ``now`` (s of the clock); its time since the mission's
-        first (s)."""
-        if self._last_sample_wall is not None:
+    def recorded(self, now: float, mission_t_s: float | None = None) -> float:
+        """A mission sample was recorded at ``now`` (s of the clock), at mission time
+        ``mission_t_s``; its time since the mission's first (s). The loop's period is our clock's,
+        or on the vehicle's clock the vehicle's between the samples' mission times (its To, and how
+        late each came after its tick: our clock's would measure the vehicle's speed-up)."""
+        if self.on_vehicle_clock and mission_t_s is not None:
+            if self._last_sample_t is not None:
+                self.loop.add_period(mission_t_s - self._last_sample_t)
+            self._last_sample_t = mission_t_s
+        elif self._last_sample_wall is not None:
             self.loop.add_period(now - self._last_sample_wall)
         self._last_sample_wall = now
         self.loop.samples += 1

@@ -38,6 +38,11 @@ def test_a_vehicle_four_times_faster_is_flown_on_its_own_clock(tmp_path):
     stamps = np.diff(s["time_boot_ms"])  # the vehicle's time between samples: To
     assert np.median(stamps) == pytest.approx(50.0, abs=1.0)
     assert flown.summary["loop"]["mission_wall_s"] < 20.0  # a quarter of the 40 s (and some slack)
+    # the period's jitter on the vehicle's clock: how late a sample's position came after its tick
+    # moves by at most the telemetry's step (the plant's 100 Hz on its 4 ms steps: 8 and 12 ms),
+    # not our clock's 12.5 ms against 50 (37 ms of "jitter" before)
+    assert flown.summary["loop"]["jitter_max_ms"] <= 12.0 + 1e-6
+    assert "on the vehicle's clock, its period jitter p50" in (flown.run_dir / "summary.txt").read_text()
     tilt = np.degrees(np.arccos(np.cos(s["euler_rad_0"]) * np.cos(s["euler_rad_1"])))
     hold = (t >= 18.5) & (t < 25.0)
     print(f"\n--speed 4: helix 5-11.9 s RMS {rms(err[(t >= 5.0) & (t < 11.9)]):.4f} m, hold tilt max {tilt[hold].max():.3f} deg")
