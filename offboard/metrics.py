@@ -270,7 +270,10 @@ def format_table(summary: Summary) -> str:
     the flight reached) the 3D error's RMS, max and mean, and the RMS per axis, in metres; then
     steady states, peak actions, duration and status. Every figure, per axis max and mean too,
     is in the JSON summary (``Summary.to_dict``)."""
-    head = (f"{'phase':<16} {'span s':>11}  {'3d rms':>7} {'max':>7} {'mean':>7}   "
+    # the phase column as wide as the longest name (a waypoint file's "waypoints 3..6:hold-item4"
+    # and "waypoints 3..6:to-item4" were both "waypoints 3..6:t" at 16)
+    width = max([16, *(len(p.name) for p in summary.phases if p.samples)])
+    head = (f"{'phase':<{width}} {'span s':>11}  {'3d rms':>7} {'max':>7} {'mean':>7}   "
             f"{'north rms':>9} {'east rms':>9} {'down rms':>9}")  # fmt: skip
     lines = [head, "-" * len(head)]
     end = summary.duration_s
@@ -281,7 +284,7 @@ def format_table(summary: Summary) -> str:
             continue
         d3 = p.axes["3d"]
         span = f"{p.start_s:.1f}-{min(p.end_s, end, 9999):.1f}"
-        lines.append(f"{p.name[:16]:<16} {span:>11}  {_num(d3.rms_m, 7)} {_num(d3.max_m, 7)} {_num(d3.mean_m, 7)}   "
+        lines.append(f"{p.name:<{width}} {span:>11}  {_num(d3.rms_m, 7)} {_num(d3.max_m, 7)} {_num(d3.mean_m, 7)}   "
                      + " ".join(_num(p.axes[a].rms_m, 9) for a in AXES))  # fmt: skip
     if empty:
         lines.append(f"no samples in: {', '.join(empty)} (the record ends at {end:.2f} s)")

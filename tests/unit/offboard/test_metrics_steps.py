@@ -57,3 +57,18 @@ def test_without_steps_the_whole_flight_is_tracking_and_without_references_nothi
     assert none.reference_steps == [] and verdict(none).startswith("no references to track")
     payload = json.loads(json.dumps(none.to_dict()))
     assert payload["settled"] is None and payload["verdict"].startswith("no references")
+
+
+def test_long_phase_names_are_printed_whole():
+    """A waypoint file's phases ("waypoints 3..6:to-item4", "waypoints 3..6:hold-item4") were cut to
+    16 characters, both "waypoints 3..6:t": the column is as wide as the longest name."""
+    from offboard.trajectory.base import Phase, PhaseKind
+
+    rec = record([0.0] * 100, [0.01] * 100)
+    phases = [Phase("waypoints 3..6:to-item4", 0.0, 2.0), Phase("waypoints 3..6:hold-item4", 2.0, 5.0, PhaseKind.HOLD)]
+    lines = format_table(summarize(rec, phases)).splitlines()
+    rows = [line for line in lines if line.startswith("waypoints")]
+    assert [row.split("  ")[0].strip() for row in rows] == ["waypoints 3..6:to-item4", "waypoints 3..6:hold-item4"]
+    assert len({line.index("span s") for line in lines[:1]}) == 1 and all(len(row) == len(lines[0]) for row in rows)
+    # a short name keeps the table as it was
+    assert format_table(summarize(rec)).splitlines()[0].startswith(f"{'phase':<16} {'span s':>11}  {'3d rms':>7}")
