@@ -153,18 +153,20 @@ def summarize(record: FlightRecord, phases: list[Phase] | None = None) -> Summar
         duration_s=float(t[-1]) if len(t) else 0.0,
         status=record.status.value,
         status_detail=record.status_detail,
-        **_steps_and_settled(record),
+        **_steps_and_settled(record, end),
     )
 
 
-def _steps_and_settled(record: FlightRecord) -> dict:
+def _steps_and_settled(record: FlightRecord, end_s: float = math.inf) -> dict:
     """The reference's steps (``StepStats``) and the 3D error over the settled spans: from the
-    first sample within ``SETTLED_M`` after each step to the next step."""
-    t = record["t_s"]
+    first sample within ``SETTLED_M`` after each step to the next step; of the samples before
+    ``end_s`` (``flown_end_s``: a last sample on a phase not flown is no step the flight took)."""
+    flown = record["t_s"] < end_s
+    t = record["t_s"][flown]
     if not len(t):
         return {}
-    ref = record["ref_pos_ned_m"]
-    err = np.linalg.norm(record.error_ned_m, axis=1)
+    ref = record["ref_pos_ned_m"][flown]
+    err = np.linalg.norm(record.error_ned_m[flown], axis=1)
     if not np.any(np.isfinite(err)):
         return {}  # no references: nothing to say
     jumps = np.linalg.norm(np.diff(ref, axis=0), axis=1)

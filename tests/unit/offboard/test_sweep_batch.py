@@ -196,7 +196,9 @@ def test_a_flight_cut_at_a_segments_switch_is_not_measured_at_the_step_it_never_
     err = np.linalg.norm(rec["pos_ned_m"] - rec["ref_pos_ned_m"], axis=1)
     assert rec["t_s"][-1] == pytest.approx(12.0) and err[-1] > 1.9  # the last sample: the hold's reference
     assert row["final_error_m"] == pytest.approx(err[-2]) and row["final_error_m"] < 0.1
-    table = {p.name: p for p in summarize(rec).phases}
+    summary = summarize(rec)
+    table = {p.name: p for p in summary.phases}
     assert set(table) == {"whole flight", "after 5 s", "helix"}
+    assert [s.t_s for s in summary.reference_steps] == [0.0]  # the start's; not the hold's, never flown
     assert row["rms_after_5s_m"] == pytest.approx(table["after 5 s"].axes["3d"].rms_m) and row["rms_after_5s_m"] < 0.05
     assert row["max_whole_m"] == pytest.approx(table["whole flight"].axes["3d"].max_m)
