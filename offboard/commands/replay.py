@@ -177,7 +177,7 @@ def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tupl
     except (OSError, ValueError):
         data = None
     if data is None or not len(data):
-        return float(latency), None, note + " (no series.csv with the telemetry's ages: predicted over the latency alone)"
+        return float(latency), None, note + " (no readable series.csv with the telemetry's ages beside the log: predicted over the latency alone)"
     ages_by_stamp = dict(zip(data[:, header.index("time_boot_ms")].astype(np.int64).tolist(), data[:, header.index("telemetry_age_s")].tolist()))
     stamps = np.asarray(record.meta["time_boot_ms"], dtype=np.int64).tolist()
     ages = np.array([ages_by_stamp.get(stamp, math.nan) for stamp in stamps], dtype=float)

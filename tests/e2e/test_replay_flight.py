@@ -545,7 +545,7 @@ def test_a_real_time_flight_with_its_latency_predicted_re_runs_exactly(flown_rea
     for name in ("flight.tlog", "summary.json"):
         (alone / name).write_bytes((flown.run_dir / name).read_bytes())
     code, payload = replay_json(capsys, str(alone / "flight.tlog"), "--rerun", "--run-dir", str(tmp_path / "r2"))
-    assert "no series.csv with the telemetry's ages" in payload["rerun"]["controller"]
+    assert "no readable series.csv with the telemetry's ages" in payload["rerun"]["controller"]
     assert payload["rerun"]["samples"] == rerun["samples"]
 
 
