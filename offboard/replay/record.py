@@ -188,12 +188,12 @@ def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample
     clock rate against the log's where they were sampled on the vehicle's clock, else None).
 
     The mission starts with the first command sent after the vehicle accepted the arm command
+    (``offboard fly`` starts mission time there), or, without one in the log, with the first
     command once the vehicle reports OFFBOARD. n counts sample periods from there
     (``sample_numbers``: tlog time / To, exact in lockstep, the tick count in real time; the
     commands' ``time_boot_ms`` / To where the vehicle's clock ran at another rate than the log's,
-    ``on_vehicle_clock``). It ends after
-    ``duration_s`` (the mission's), or when the controller sends its next command (land,
-    mode) or the vehicle leaves OFFBOARD.
+    ``vehicle_clock_rate``). It ends after ``duration_s`` (the mission's), or when the controller
+    sends its next command (land, mode) or the vehicle leaves OFFBOARD.
     """
     count = len(setpoints)
     arm = arm_accepted(scan, vehicle)
