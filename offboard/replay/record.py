@@ -177,11 +177,6 @@ def vehicle_clock_rate(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> floa
     return rate.rate if rate is not None and not rate.real_time and rate.rate > STALLED_RATE else None
 
 
-def on_vehicle_clock(log_time_s: np.ndarray, time_boot_ms: np.ndarray) -> bool:
-    """Whether those commands were sampled on the vehicle's clock (``vehicle_clock_rate``)."""
-    return vehicle_clock_rate(log_time_s, time_boot_ms) is not None
-
-
 def _mission_rows(scan: LogScan, vehicle: int, setpoints: SetpointSeries, sample_time_s: float | None,
                   duration_s: float | None) -> tuple[np.ndarray, np.ndarray, float, float | None]:
     """(rows of ``setpoints`` flown as the mission, their sample numbers n, To, and the vehicle's

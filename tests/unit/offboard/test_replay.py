@@ -473,10 +473,10 @@ def test_the_estimators_state_and_sensor_health_are_events():
 
 
 def test_commands_were_sampled_on_the_vehicles_clock_where_it_ran_at_another_rate_than_the_log():
-    from offboard.replay.record import on_vehicle_clock
+    from offboard.replay.record import vehicle_clock_rate
 
     log = 100.0 + np.arange(200) * 0.0125  # 2.5 s of the log's clock, a command every 12.5 ms
-    assert on_vehicle_clock(log, 4000 + np.arange(200) * 50)  # the vehicle's 50 ms each: 4x (PX4 at --speed 4)
-    assert not on_vehicle_clock(log, 4000 + np.rint(np.arange(200) * 12.5))  # real time
-    assert not on_vehicle_clock(log, np.full(200, 4000))  # a vehicle that waits (lockstep, stalled)
-    assert not on_vehicle_clock(log[:40], 4000 + np.arange(40) * 50)  # under a second of the log: not measured
+    assert vehicle_clock_rate(log, 4000 + np.arange(200) * 50) == pytest.approx(4.0)  # the vehicle's 50 ms each (PX4 at --speed 4)
+    assert vehicle_clock_rate(log, 4000 + np.rint(np.arange(200) * 12.5)) is None  # real time
+    assert vehicle_clock_rate(log, np.full(200, 4000)) is None  # a vehicle that waits (lockstep, stalled)
+    assert vehicle_clock_rate(log[:40], 4000 + np.arange(40) * 50) is None  # under a second of the log: not measured
