@@ -173,7 +173,8 @@ def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tupl
     try:
         with series.open() as fh:
             header = fh.readline().strip().split(",")
-            data = np.loadtxt(fh, delimiter=",", ndmin=2) if "telemetry_age_s" in header else None
+            wanted = "telemetry_age_s" in header and "time_boot_ms" in header
+            data = np.loadtxt(fh, delimiter=",", ndmin=2) if wanted else None
     except (OSError, ValueError):
         data = None
     if data is None or not len(data):
