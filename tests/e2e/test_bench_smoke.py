@@ -45,6 +45,7 @@ def test_report_has_every_section(quick_run):
                     "### Faults: a lossy link, a killed offboard"):  # fmt: skip
         assert heading in text, heading
     assert "Machine:" in text and "python bench/run.py --quick" in text
+    assert "Target ≥ 500× (issue 16): " in text
     assert (out.parent / "img" / "tracking-helix.png").stat().st_size > 1000
 
 
