@@ -14,8 +14,9 @@ at the same rate through the same attitude loop.
   10 ms (``--design-latency``); the baselines with the delay;
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
   mission with the designed gains, the helix with Table I's, the helix and the square with the
-  baselines, and every bundled mission again with PX4 at ``--speed 4`` (``offboard fly --clock
-  vehicle``).
+  baselines and with PX4's own position controller (``px4-own``: OFFBOARD position setpoints
+  carrying the reference, ``bench/px4_own.py``; real time and ``--speed 4``), and every bundled
+  mission again with PX4 at ``--speed 4`` (``offboard fly --clock vehicle``).
 
 Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
 5 s, without each phase's last 0.1 s: on the helix, 5-11.9 s); the largest tilt in the second
@@ -48,6 +49,8 @@ FLY_MISSIONS = ("paper-helix.toml", "paper-square.toml", "figure-eight.toml", "a
 DELAY_S, JITTER_S = 0.05, 0.02
 #: ``offboard fly --controller`` words of the baselines (``offboard.controllers``).
 BASELINES = ("se3", "px4")
+#: The controller column of PX4's own position controller's flights (``bench/px4_own.py``).
+PX4_OWN = "px4-own"
 
 
 def figures(run_dir: Path) -> dict:
@@ -60,28 +63,35 @@ def figures(run_dir: Path) -> dict:
     d = np.genfromtxt(series, delimiter=",", names=True)
     if d.size < 2:
         return out
-    t = d["t_s"]
-    err = np.linalg.norm(np.stack([d[f"pos_ned_m_{i}"] - d[f"ref_pos_ned_m_{i}"] for i in range(3)], 1), axis=1)
-    tilt = np.degrees(np.arccos(np.clip(np.cos(d["euler_rad_0"]) * np.cos(d["euler_rad_1"]), -1, 1)))
+    phases = [(p["start_s"], p["end_s"], p.get("steady_state_m") is not None)  # a hold has a steady state
+              for p in summary.get("phases", []) if p["name"] not in ("whole flight", "after 5 s")]  # fmt: skip
+    pos = np.stack([d[f"pos_ned_m_{i}"] for i in range(3)], 1)
+    ref = np.stack([d[f"ref_pos_ned_m_{i}"] for i in range(3)], 1)
+    return {**out, **flight_figures(d["t_s"], pos, ref, d["euler_rad_0"], d["euler_rad_1"], phases)}
+
+
+def flight_figures(t: np.ndarray, pos_ned_m: np.ndarray, ref_ned_m: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.ndarray,
+                   phases: list[tuple[float, float, bool]]) -> dict:  # fmt: skip
+    """The module docstring's figures of one flight's samples: ``phases`` are (start s, end s,
+    whether it is a hold) of the mission's own phases."""
+    err = np.linalg.norm(pos_ned_m - ref_ned_m, axis=1)
+    tilt = np.degrees(np.arccos(np.clip(np.cos(roll_rad) * np.cos(pitch_rad), -1, 1)))
     # a hold in the air: its reference over half a metre above where the flight started (a hold
     # whose reference is the ground is a landing: its second half is the tail of the descent and
     # then standing on the ground, where neither the error nor the tilt says anything of a hold)
-    ground_up = -d["pos_ned_m_2"][0]
-    aloft = -d["ref_pos_ned_m_2"] > ground_up + 0.5
-    phases = [p for p in summary.get("phases", []) if p["name"] not in ("whole flight", "after 5 s")]
+    ground_up = -pos_ned_m[0, 2]
+    aloft = -ref_ned_m[:, 2] > ground_up + 0.5
     moving = np.zeros(t.shape, bool)
     hold = np.zeros(t.shape, bool)
-    for p in phases:
-        start, end = p["start_s"], p["end_s"]
-        if p.get("steady_state_m") is not None:  # a hold: its second half, if in the air
+    for start, end, is_hold in phases:
+        if is_hold:  # its second half, if in the air
             hold |= (t >= start + (end - start) / 2) & (t < end) & aloft
         else:
             moving |= (t >= max(start, 5.0)) & (t < end - 0.1)
     rms = lambda m: float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None  # noqa: E731
-    out.update(moving_rms_m=rms(moving), hold_rms_m=rms(hold),
-               hold_tilt_max_deg=float(tilt[hold].max()) if hold.any() else None,
-               peak_tilt_deg=float(tilt.max()), duration_s=float(t[-1]))  # fmt: skip
-    return out
+    return dict(moving_rms_m=rms(moving), hold_rms_m=rms(hold),
+                hold_tilt_max_deg=float(tilt[hold].max()) if hold.any() else None,
+                peak_tilt_deg=float(tilt.max()), duration_s=float(t[-1]))  # fmt: skip
 
 
 def _fly(mission: Path, run_dir: Path, connect_port: int, extra: tuple[str, ...]) -> subprocess.Popen:
@@ -193,6 +203,12 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
                     k += 1
                     record("real PX4", name, baseline, "real time",
                            fly_px4(MISSIONS / name, work / f"f{k}", controller=baseline))  # fmt: skip
+            from bench.px4_own import fly_px4_own
+
+            for name in ("paper-helix.toml", "paper-square.toml"):  # PX4's own controller, the same missions
+                for speed, condition in ((1.0, "real time"), (4.0, "--speed 4, vehicle clock")):
+                    k += 1
+                    record("real PX4", name, PX4_OWN, condition, fly_px4_own(MISSIONS / name, work / f"f{k}", speed))
             for name in FLY_MISSIONS:  # issue 11: every bundled mission at --speed 4 too
                 k += 1
                 record("real PX4", name, None, "--speed 4, vehicle clock",
@@ -268,6 +284,28 @@ def _target_lines(flights: list[dict]) -> list[str]:
     return out
 
 
+def _own_lines(flights: list[dict]) -> list[str]:
+    """The designed law against PX4's own position controller on the same real-PX4 missions: what
+    EKF2's wander costs each (``bench/px4_own.py``)."""
+    rows = {(f["mission"], f["condition"], f["controller"]): f for f in flights if f["vehicle"] == "real PX4"}
+    out = []
+    for (mission, condition, controller), own in rows.items():
+        designed = rows.get((mission, condition, "designed"))
+        if controller != PX4_OWN or designed is None:
+            continue
+
+        def said(f: dict) -> str:
+            return (f"moving RMS {_f(f.get('moving_rms_m'), '.3f')} m, hold RMS {_f(f.get('hold_rms_m'), '.3f')} m, "
+                    f"hold tilt {_f(f.get('hold_tilt_max_deg'), '.1f')} deg")  # fmt: skip
+
+        out.append(f"- {mission}, {condition}: designed law {said(designed)}; PX4's own {said(own)}")
+    if out:
+        out = ["", "On the real PX4, the designed law against PX4's own position controller on the same mission "
+               "(`px4-own`: OFFBOARD position setpoints carrying the reference's position, velocity, acceleration and "
+               "yaw at 20 Hz, `bench/px4_own.py`), both reading EKF2's estimates:", "", *out]  # fmt: skip
+    return out
+
+
 def markdown(result: dict) -> str:
     """The part's section of bench/RESULTS.md."""
     lines = [
@@ -276,7 +314,8 @@ def markdown(result: dict) -> str:
         "Each flight: `offboard fly` (attitude output) against `sitl-plant` or a real PX4 SITL, as a user flies it;",
         "`paper` is Table I's gains (`--controller paper`), `designed` the default, gains designed for the vehicle's",
         "inner loop (docs/controller-design.md); `se3` and `px4` the baselines (`--controller se3|px4`), sending the",
-        "same SET_ATTITUDE_TARGET at the same rate. Moving RMS: 3D error while the reference moves, after 5 s",
+        "same SET_ATTITUDE_TARGET at the same rate; `px4-own` PX4's own position controller handed the reference",
+        "(`bench/px4_own.py`). Moving RMS: 3D error while the reference moves, after 5 s",
         "(helix: 5-11.9 s); hold tilt and hold RMS: the second half of every hold whose reference is over 0.5 m "
         "above the start (helix: the hold at 12 m, 18.5-25 s; a hold at ground level is a landing).",
         "",
@@ -291,6 +330,7 @@ def markdown(result: dict) -> str:
         )
     lines += _delay_lines(result["flights"])
     lines += _target_lines(result["flights"])
+    lines += _own_lines(result["flights"])
     if not result["px4"]:
         lines += ["", "No PX4 SITL was found (set `PX4_SITL=/path/to/px4-sitl`): no real-PX4 rows."]
     return "\n".join(lines)
