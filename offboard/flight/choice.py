@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from offboard import codec
 from offboard.codec import Scaling, SetpointOutput
-from offboard.controller import ActionLimits, ControllerParams
+from offboard.controller import ControllerParams
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
 from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 from offboard.flight.config import FlightConfig, HeadingHoldMode
@@ -209,7 +209,8 @@ def resolve_controller(
         tilt = limits.tilt_max_rad
     else:
         tilt = math.radians(DEFAULT_TILT_MAX_DEG)
-    changes["limits"] = ActionLimits(thrust_min_n=thrust_min, thrust_max_n=thrust_max, tilt_max_rad=tilt)
+    # the file's other bounds (a tuned file's tilt cone, speed and yaw-rate bounds) stay as it has them
+    changes["limits"] = replace(limits, thrust_min_n=thrust_min, thrust_max_n=thrust_max, tilt_max_rad=tilt)
     params = base.with_changes(**changes)
     if choice.tuned:
         try:

@@ -467,6 +467,24 @@ def test_a_controller_file_keeps_its_beliefs_and_limits():
     assert with_mass.mass_kg == 0.7 and with_mass.inertia_kg_m2 == (2.7e-3, 4.8e-3, 8.9e-3)
 
 
+def test_a_controller_file_keeps_its_cone_speed_and_yaw_rate_bounds():
+    """A file ``offboard tune`` writes bounds the tilt as a cone, the desired speeds by the
+    vehicle's MPC_*_VEL_MAX and the yaw reference's rate by MPC_YAWRAUTO_MAX: flown with
+    ``--controller FILE`` it keeps them, as the flight designed without a file does (they were
+    dropped: a tuned file flew PX4's helix to a 42.8 deg peak tilt against its 35 deg bound, its pi
+    yaw step unslewed). Only the thrust range is bounded by the vehicle."""
+    bounded = ActionLimits(1.0, 50.0, math.radians(30.0), tilt_cone=True, speed_xy_max_m_s=12.0, speed_up_max_m_s=3.0,
+                           speed_down_max_m_s=1.5, yaw_rate_max_rad_s=math.radians(45.0))  # fmt: skip
+    params, _ = resolve_controller(ControllerChoice(base=PAPER.with_changes(limits=bounded), from_file=True), "rigid-body",
+                                   VEHICLE, SC)  # fmt: skip
+    assert params.limits == ActionLimits(1.0, 20.0, math.radians(30.0), tilt_cone=True, speed_xy_max_m_s=12.0,
+                                         speed_up_max_m_s=3.0, speed_down_max_m_s=1.5, yaw_rate_max_rad_s=math.radians(45.0))  # fmt: skip
+    # an explicit --tilt-max still wins, and leaves the other bounds as the file has them
+    choice = ControllerChoice(base=PAPER.with_changes(limits=bounded), from_file=True, tilt_max_deg=90.0)
+    wide = resolve_controller(choice, "rigid-body", VEHICLE, SC)[0].limits
+    assert wide.tilt_max_rad is None and wide.tilt_cone and wide.yaw_rate_max_rad_s == math.radians(45.0)
+
+
 def test_command_line_options_win():
     choice = ControllerChoice(base=PAPER.with_changes(limits=ActionLimits(tilt_max_rad=math.radians(20.0))), from_file=True,
                               yaw_aware=True, tilt_max_deg=90.0, thrust_min_fraction=0.0, sample_time_s=0.02)  # fmt: skip

@@ -45,6 +45,13 @@ def test_tune_a_vehicle_file_writes_the_designed_controller(tmp_path, capsys):
     assert (g.kx7, g.kx8) == (0.7, 0.67)  # Table I's: the autopilot closes the attitude loop
     assert params.tilt_lead == float(h.lead) and params.reference_lead_s2 == pytest.approx(design.reference_lead_s2, abs=1e-6)
     assert params.limits.tilt_cone and params.limits.speed_down_max_m_s == 1.5
+    # ... and offboard fly --controller FILE flies it with those bounds (it once dropped all but the tilt and thrust)
+    from offboard.codec import Scaling
+    from offboard.flight import ControllerChoice, resolve_controller
+
+    values = plant_values()
+    flown, _ = resolve_controller(ControllerChoice(base=params, from_file=True), "rigid-body", values, Scaling(values["SIM_THR_MAX"]))
+    assert flown.limits == params.limits
     assert params.mass_kg == 0.5 and params.euler_rate_form == "zyx" and params.yaw_aware
     # what it achieved is printed, one line per axis, and kept in the file's comments
     lines = err.strip().splitlines()
