@@ -397,7 +397,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
             "tilt_cone": c.limits.tilt_cone, "speed_xy_max_m_s": c.limits.speed_xy_max_m_s,
             "speed_up_max_m_s": c.limits.speed_up_max_m_s, "speed_down_max_m_s": c.limits.speed_down_max_m_s,
-            "yaw_rate_max_rad_s": c.limits.yaw_rate_max_rad_s,
+            "yaw_rate_max_rad_s": c.limits.yaw_rate_max_rad_s, "rate_carry_s": c.limits.rate_carry_s,
         },  # fmt: skip
         "messages": link_stats,
         "loop": result.loop.to_dict(to),

@@ -224,6 +224,37 @@ def rate_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per
     return a, b
 
 
+def rate_carry_s(loop: TiltLoop, horizon_s: float = 1.0, step_s: float = 1e-3) -> float:
+    """How far the autopilot's rate loop carries a body rate once its setpoint drops to zero, as
+    a time (s): a vehicle turning steadily at omega0 turns through at most omega0 * T more.
+
+    T = max over t of the integral from 0 to t of (1 - y), y the closed rate loop's step response
+    (``rate_axis_plant``'s omega, rate integral and torque, theta not acting back; stepped exactly
+    at ``step_s`` for ``horizon_s``): the first-order loop's tau. The integral is not the mean
+    response time -G'(0): with the rate integral, whose state is the angle error, the response
+    overshoots until the area is paid back, and the mean time is 0 while the angle still goes
+    on by omega0 T before it turns back. The horizon of the body-rate output's tilt bound
+    (``ActionLimits.rate_carry_s``).
+    """
+    a, b = rate_axis_plant(loop)
+    keep = slice(RATE_STATE, a.shape[0])
+    sub_a, sub_b = a[keep, keep], b[keep]
+    n = sub_a.shape[0]
+    # one exact step of the held input: [x; u] -> expm([[A, B], [0, 0]] h)
+    block = np.zeros((n + 1, n + 1))
+    block[:n, :n], block[:n, n:] = sub_a * step_s, sub_b * step_s
+    m = _expm(block)
+    phi, gamma = m[:n, :n], m[:n, n]
+    x = np.zeros(n)
+    area = best = 0.0
+    for _ in range(int(round(horizon_s / step_s))):
+        nxt = phi @ x + gamma
+        area += (1.0 - 0.5 * (x[0] + nxt[0])) * step_s  # the trapezoid of 1 - y over the step
+        best = max(best, area)
+        x = nxt
+    return best
+
+
 def tilt_axis_plant(loop: TiltLoop, gravity_m_s2: float = GRAVITY_M_S2, drag_per_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of one horizontal axis, states (p, v, theta, omega, rate integral, torque).
 

@@ -9,7 +9,8 @@
   ``[law] reference_lead_s2`` when it is set;
 - out (``paper_command``): the attitude target (the law's thrust axis at the heading x11d(n+1)
   on a rigid body, ``frames.setpoint_attitude``), the yaw-rate feed-forward, the body-rate
-  target ``W_eta(eta(n)) (x8ref, x10ref, x12ref)`` (eq. 3), the torque input of the vehicle
+  target ``W_eta(eta(n)) (x8ref, x10ref, x12ref)`` (eq. 3; on a rigid body with a tilt limit, its
+  roll and pitch rates bounded by it: ``tilt_bounded_rates``), the torque input of the vehicle
   model (the eq. 16 torques as body torques ``solve(W_eta^T, tau)`` on a rigid body, as they are
   on the paper's model) and tau~ itself for the paper's inner loop.
 
@@ -42,7 +43,35 @@ def paper_state_of(
     return paper_state(state.pos_ned_m, vel, state.euler_rad, rates)
 
 
-def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: VehicleModel) -> Command:
+def tilt_bounded_rates(euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray | tuple[float, float, float],
+                       euler_rate_ref_rad_s: tuple[float, float, float], tilt_max_rad: float, sample_time_s: float,
+                       rate_carry_s: float = 0.0) -> tuple[float, float, float]:  # fmt: skip
+    """The roll and pitch rate references bounded so that, held for a sample, neither carries its
+    angle past the tilt bound b; the yaw rate as it is.
+
+    The angle phi turning at phi_dot (measured) goes on by phi_dot C once the setpoint drops (C:
+    ``rate_carry_s``, what the vehicle's rate loop and the latency carry, ``design.rate_carry_s``),
+    and the setpoint held for To turns it by To x8ref more, so x8ref is held within
+    ((-b - phi - C phi_dot) / To, (b - phi - C phi_dot) / To), likewise x10ref with theta: beyond the
+    bound, or carried past it, that asks to turn back within the sample.
+
+    The body-rate output's bound (the attitude output bounds the attitude it hands on, x7ez and
+    x9ez, which the autopilot's attitude P follows): eq. 32-33 on the angles carry the memory of the
+    last sample's angle error, and after a reference that swings (the helix's 2 m jump: x7ez +34,
+    -32, +26 deg in three samples) they ask for rates that turn the vehicle far past x7ez, which the
+    rate loop flies at once (63 deg on sitl-plant's quad against its 35 deg bound).
+    """
+    b, to = tilt_max_rad, sample_time_s
+    out = []
+    for angle, rate, ref in ((euler_rad[0], euler_rate_rad_s[0], euler_rate_ref_rad_s[0]),
+                             (euler_rad[1], euler_rate_rad_s[1], euler_rate_ref_rad_s[1])):  # fmt: skip
+        reach = float(angle) + rate_carry_s * float(rate)
+        out.append(min(max(ref, (-b - reach) / to), (b - reach) / to))
+    return out[0], out[1], euler_rate_ref_rad_s[2]
+
+
+def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerParams, vehicle_model: VehicleModel,
+                  euler_rate_rad_s: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Command:  # fmt: skip
     """The ``Command`` of one sample of the law (module docstring).
 
     Parameters
@@ -55,6 +84,9 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
         The controller that produced ``out`` (its W_eta form, whether it is yaw-aware).
     vehicle_model : VehicleModel
         ``rigid-body`` or ``paper``.
+    euler_rate_rad_s : array (3,)
+        The measured Euler rates of sample n, which the body-rate output's tilt bound carries on
+        (``tilt_bounded_rates``).
     """
     if vehicle_model not in VEHICLE_MODELS:
         raise ValueError(f"vehicle_model must be one of {VEHICLE_MODELS}, got {vehicle_model!r}")
@@ -62,7 +94,13 @@ def paper_command(out: ControlOutput, euler_rad: np.ndarray, params: ControllerP
     form = params.euler_rate_form
     heading = float(euler_rad[2]) if params.yaw_aware else 0.0
     q = setpoint_attitude(law.roll_setpoint_rad, law.pitch_setpoint_rad, law.yaw_ref_rad, heading, vehicle_model)
-    rates = body_rates_from_euler_rates(euler_rad, law.euler_rate_ref_rad_s, form)  # eq. 3
+    euler_rate_ref = law.euler_rate_ref_rad_s
+    # a rigid body's autopilot flies these rates with its rate loop (--output rates): bounded by the tilt; the
+    # paper's model flies them with eq. 16 (its plant's paper inner loop), as the law gave them
+    if vehicle_model == VehicleModel.RIGID_BODY and params.limits.tilt_max_rad is not None:
+        euler_rate_ref = tilt_bounded_rates(euler_rad, euler_rate_rad_s, euler_rate_ref, params.limits.tilt_max_rad,
+                                            params.sample_time_s, params.limits.rate_carry_s)  # fmt: skip
+    rates = body_rates_from_euler_rates(euler_rad, euler_rate_ref, form)  # eq. 3
     torque: np.ndarray | tuple[float, ...] = out.torques_nm
     if vehicle_model == VehicleModel.RIGID_BODY:
         try:
@@ -141,4 +179,4 @@ class PaperController:
         out = self.law.step(x, tracking_reference(ref_n, lead), tracking_reference(ref_n1, lead))
         if self.predictor is not None:
             self.predictor.record(out.law.thrust_n, out.law.roll_setpoint_rad, out.law.pitch_setpoint_rad)
-        return paper_command(out, state.euler_rad, p, self.vehicle_model)
+        return paper_command(out, state.euler_rad, p, self.vehicle_model, (x[7], x[9], x[11]))

@@ -67,6 +67,10 @@ class ActionLimits:
     yaw_rate_max_rad_s : float or None
         Bound on the yaw reference's rate (PX4's MPC_YAWRAUTO_MAX): the law's yaw reference
         slews towards x11d at most this fast (``LawMemory.yaw_ref``).
+    rate_carry_s : float
+        With ``tilt_max_rad``, the body-rate output's tilt bound (``paper.tilt_bounded_rates``):
+        how far the vehicle's rate loop carries a body rate once its setpoint drops to zero, as a
+        time, plus the latency (``design.rate_carry_s``; 0: the rate stops with the sample).
     """
 
     thrust_min_n: float | None = None
@@ -77,8 +81,11 @@ class ActionLimits:
     speed_up_max_m_s: float | None = None
     speed_down_max_m_s: float | None = None
     yaw_rate_max_rad_s: float | None = None
+    rate_carry_s: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_carry_s) and self.rate_carry_s >= 0.0):
+            raise ValueError(f"rate_carry_s must be >= 0, got {self.rate_carry_s}")
         lo, hi = self.thrust_min_n, self.thrust_max_n
         if lo is not None and hi is not None and not lo < hi:
             raise ValueError(f"thrust_min_n ({lo}) must be below thrust_max_n ({hi})")
@@ -243,6 +250,7 @@ def controller_from_table(f: Fields) -> ControllerParams:
         tilt_max_rad=None if tilt_deg is None else math.radians(limits_table.number("tilt_max_deg", gt=0, lt=90)),
         tilt_cone=limits_table.boolean("tilt_cone", False),
         **{name: limits_table.number(name, gt=0) if limits_table.has(name) else None for name in SPEED_LIMITS},
+        rate_carry_s=limits_table.number("rate_carry_s", 0.0, ge=0),
     )
     if limits.thrust_min_n is not None and limits.thrust_max_n is not None and limits.thrust_min_n >= limits.thrust_max_n:
         raise limits_table.error("thrust_min_n", "must be below thrust_max_n")

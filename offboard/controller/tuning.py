@@ -25,6 +25,7 @@ from offboard.controller.design import (
     design_gains,
     inner_loop_from_params,
     pd_analysis,
+    rate_carry_s,
     step_hold_s,
 )
 from offboard.controller.params import ControllerGains, ControllerParams
@@ -118,6 +119,7 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
         k7, k8 = float(angle.k_pos), float(angle.k_vel)
         gains = replace(gains, kx7=k7, kx8=k8, kx9=k7, kx10=k8)
     speed = {k: float(params.get(k, v)) for k, v in PX4_SPEED_DEFAULTS.items()}
+    m = design.model
     limits = replace(
         base.limits,
         tilt_cone=True,
@@ -125,6 +127,8 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
         speed_up_max_m_s=speed["MPC_Z_VEL_MAX_UP"],
         speed_down_max_m_s=speed["MPC_Z_VEL_MAX_DN"],
         yaw_rate_max_rad_s=math.radians(speed["MPC_YAWRAUTO_MAX"]),
+        # the body-rate output bounds the rates it hands on by what the rate loop carries past them
+        rate_carry_s=round(max(rate_carry_s(m.roll), rate_carry_s(m.pitch)) + m.latency_s, 4) if angle is not None else 0.0,
     )
     return base.with_changes(gains=gains, limits=limits, sample_time_s=design.sample_time_s, tilt_lead=float(h.lead),
                              integral_gain_per_s=float(h.integral_per_s),
@@ -255,6 +259,9 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         value = getattr(lim, name)
         if value is not None:
             lines.append(f"{name} = {_fmt(value)}")
+    if lim.rate_carry_s > 0.0:
+        lines += ["# the body rates are bounded so that neither angle passes tilt_max_deg: the rate loop carries a",
+                  "# rate this long after its setpoint drops, latency included", f"rate_carry_s = {_fmt(lim.rate_carry_s)}"]
     return "\n".join(lines) + "\n"
 
 

@@ -329,6 +329,7 @@ def flight_controller(
             speed_up_max_m_s=recorded.get("speed_up_max_m_s"),
             speed_down_max_m_s=recorded.get("speed_down_max_m_s"),
             yaw_rate_max_rad_s=recorded.get("yaw_rate_max_rad_s"),
+            rate_carry_s=float(recorded.get("rate_carry_s") or 0.0),  # a flight before the key: none
         )
     return params.with_changes(**changes), f"the flight's (summary.json beside the log; {file_note})"
 

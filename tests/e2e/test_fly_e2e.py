@@ -309,7 +309,7 @@ def test_the_px4_sih_twin_is_flown_with_its_drag(tmp_path):
 def test_the_body_rate_output_flies_its_own_design(tmp_path):
     """--output rates with no --controller: the law closes the attitude loop itself, its angle gains
     kx7..kx10 designed on the plant's rate loop with the rest (docs/controller-design.md, "The
-    body-rate output"); Table I's gains through the same rate loop diverge in the helix's 2 m step."""
+    body-rate output"); Table I's gains through the same rate loop ring out in the helix's 2 m step."""
     from offboard.controller.tuning import design_for_vehicle, vehicle_values
     from sitl_plant.params import plant_params
 
@@ -335,10 +335,18 @@ def test_the_body_rate_output_flies_its_own_design(tmp_path):
                        r"within ([0-9.]+)° of tilt", doc)  # fmt: skip
     assert quoted, "the rates flight's sentence is gone from docs/controller-design.md"
     assert float(quoted[1]) == round(helix_rms, 3) and hold_tilt <= float(quoted[2])
-    peak = re.search(r"the vehicle tilts to ([0-9]+)° for 0\.2 s against the 35° bound", doc)
-    assert peak and int(peak[1]) == round(float(tilt.max())), "the doc's peak tilt at the helix's end"
+    # the rates handed on carry neither angle past the 35 deg bound (paper.tilt_bounded_rates): 50 deg before
+    peak = re.search(r"Flown, the paper's quad ([0-9.]+)° at most \(lockstep, the test above\)", doc)
+    assert peak and float(peak[1]) == round(float(tilt.max()), 1), "the doc's peak tilt at the helix's end"
+    assert tilt.max() < 36.0
+    # Table I's gains keep 13 deg of phase margin on this loop: they diverged in the helix's 2 m step until the
+    # rates were bounded by the tilt; bounded (their file has no rate_carry_s: the rate stops with the sample)
+    # they ring out there far past the bound the designed law keeps, and recover
     table1 = fly(tmp_path, HELIX, fly_args=("--output", "rates", "--controller", "paper"), name="rates-table1")
-    assert table1.summary["status"] == "diverged", table1.summary["status"]
+    t1 = series(table1)
+    t1_tilt = np.degrees(np.arccos(np.cos(t1["euler_rad_0"]) * np.cos(t1["euler_rad_1"])))
+    print(f"body rates, Table I: {table1.summary['status']}, peak tilt {t1_tilt.max():.1f} deg")
+    assert t1_tilt.max() > 50.0 > tilt.max() + 10.0, t1_tilt.max()
 
 
 def test_a_controller_that_identifies_its_velocity_filter_reads_the_telemetrys_noise(tmp_path):

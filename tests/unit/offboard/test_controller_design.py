@@ -631,3 +631,102 @@ def test_the_search_checks_margins_of_stable_candidates_alone_and_finds_the_same
     assert np.array_equal(alone, every[finite])
     unstable = [i for i in range(0, kp.size, 3) if analyse_axis(north, AxisGains(kp[i], kv[i], lead[i]), to).spectral_radius >= 1.0]
     assert unstable and np.all(np.isinf(every[unstable]))
+
+
+# --- the body-rate output's tilt bound --------------------------------------------------------------
+
+
+def _carried_s(loop, seconds: float = 1.0, steps: int = 20000) -> float:
+    """The most of the area of 1 - y, y the rate loop's step response, by fine RK4 of
+    ``rate_axis_plant``'s rate states (an independent integration of what ``rate_carry_s`` reads)."""
+    a, b = rate_axis_plant(loop)
+    sa, sb = a[3:, 3:], b[3:, 0]
+    h = seconds / steps
+    x = np.zeros(3)
+    area = best = 0.0
+    f = lambda x: sa @ x + sb  # noqa: E731 - the step input held at 1
+    for _ in range(steps):
+        k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)  # noqa: E702
+        nxt = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        area += (1.0 - 0.5 * (x[0] + nxt[0])) * h
+        best = max(best, area)
+        x = nxt
+    return best
+
+
+def test_the_rate_carry_is_the_most_area_over_the_rate_loops_step_response():
+    """How far the rate loop carries a body rate once its setpoint drops to zero, as a time: the
+    paper's quad 38.5 ms, PX4 SIH's 78 ms (its motors' 50 ms lag); slower motors carry further.
+    Not the mean response time -G'(0): the rate integral makes the response overshoot until the
+    area is paid back, so that is 0 while the angle still runs on."""
+    from offboard.controller.design import rate_carry_s
+
+    plant = inner_loop_from_params(plant_vehicle_params())
+    sih = inner_loop_from_params(vehicle_values(sih_params()))
+    for loop in (plant.roll, sih.roll):
+        assert rate_carry_s(loop) == pytest.approx(_carried_s(loop), rel=2e-3)
+        a, b = rate_axis_plant(loop)
+        inv = np.linalg.inv(a[3:, 3:])
+        assert (inv @ inv @ b[3:])[0, 0] == pytest.approx(0.0, abs=1e-12)  # -G'(0) = 0
+    assert rate_carry_s(plant.roll) == pytest.approx(0.0385, abs=5e-4)
+    assert rate_carry_s(sih.roll) == pytest.approx(0.0783, abs=5e-4)
+    slower = dataclasses.replace(plant.roll, motor_time_constant_s=2 * plant.roll.motor_time_constant_s)
+    assert rate_carry_s(slower) > rate_carry_s(plant.roll)
+
+
+def test_a_body_rate_design_writes_the_carry_with_its_latency_and_an_attitude_one_none():
+    from offboard.controller.design import rate_carry_s
+    from offboard.controller.tuning import controller_file_text, design_for_vehicle, tuned_params
+
+    values = plant_vehicle_params()
+    base = load_controller(PAPER_CONTROLLER_FILE)
+    rates = design_for_vehicle(values, sample_time_s=TO, latency_s=0.02, body_rates=True)
+    params = tuned_params(base, rates, values)
+    assert params.limits.rate_carry_s == pytest.approx(rate_carry_s(rates.model.roll) + 0.02, abs=1e-4)
+    assert tuned_params(base, design_for_vehicle(values, sample_time_s=TO), values).limits.rate_carry_s == 0.0
+    text = controller_file_text(params, rates, source="test")
+    assert "rate_carry_s = " in text
+    assert controller_from_text(text).limits.rate_carry_s == params.limits.rate_carry_s
+
+
+def controller_from_text(text: str):  # noqa: ANN201
+    import tomllib
+
+    from offboard.controller.params import controller_from_table
+    from offboard.model.tomlfile import Fields
+
+    return controller_from_table(Fields(tomllib.loads(text), "test.toml"))
+
+
+def test_the_rate_carry_is_a_limits_key_that_must_not_be_negative():
+    from offboard.model.errors import ParameterFileError
+
+    text = PAPER_CONTROLLER_FILE.read_text() + "\n[limits]\ntilt_max_deg = 35\nrate_carry_s = 0.05\n"
+    assert controller_from_text(text).limits.rate_carry_s == 0.05
+    assert load_controller(PAPER_CONTROLLER_FILE).limits.rate_carry_s == 0.0  # the paper's law: none
+    with pytest.raises(ParameterFileError, match="rate_carry_s"):
+        controller_from_text(text.replace("0.05", "-0.05"))
+    with pytest.raises(ValueError, match="rate_carry_s"):
+        ActionLimits(rate_carry_s=math.nan)
+
+
+def test_the_body_rates_handed_on_carry_neither_angle_past_the_tilt_bound():
+    """(x8ref, x10ref) within ((-b - phi - C phi_dot) / To, (b - phi - C phi_dot) / To); the yaw rate
+    untouched; inside the bound with room to spare, the rates as the law gave them."""
+    from offboard.controller.paper import tilt_bounded_rates
+
+    b, to = math.radians(35.0), 0.05
+    free = tilt_bounded_rates(np.radians([5.0, -5.0, 0.0]), (0.0, 0.0, 0.0), (0.5, -0.5, 2.0), b, to, 0.04)
+    assert free == (0.5, -0.5, 2.0)
+    # 28 deg of roll turning at 4 rad/s towards the bound: asked for +18 rad/s (the helix's jump),
+    # handed a rate that brakes: 28 deg + 0.04 s x 4 rad/s is past 35 deg already
+    roll, pitch, yaw = tilt_bounded_rates(np.radians([28.0, -10.0, 1.0]), (4.0, 0.0, 0.3), (18.0, -30.0, 0.3), b, to, 0.04)
+    assert roll == pytest.approx((b - math.radians(28.0) - 0.04 * 4.0) / to) and roll < 0.0
+    assert pitch == pytest.approx((-b - math.radians(-10.0)) / to)  # the other side of the bound
+    assert yaw == 0.3
+    # without a carry: the angle the held rate reaches at the sample's end
+    assert tilt_bounded_rates(np.radians([28.0, 0.0, 0.0]), (4.0, 0.0, 0.0), (18.0, 0.0, 0.0), b, to)[0] == pytest.approx(
+        (b - math.radians(28.0)) / to)
+    # beyond the bound: back to it within the sample
+    assert tilt_bounded_rates(np.radians([40.0, 0.0, 0.0]), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), b, to)[0] == pytest.approx(
+        (b - math.radians(40.0)) / to)
