@@ -276,8 +276,16 @@ def test_a_short_mission_reaches_the_same_items_on_both(vehicles, parity_finding
     parity_finding("mission.short.end_north", f"{what}: lands north of home (m)", px4["end north m"], plant["end north m"])
     parity_finding("mission.short.disarmed_s", f"{what}: arming to disarmed (s)", px4["disarmed s"], plant["disarmed s"])
     # PX4 v1.16 sends no STATUSTEXT on this link: why it flew otherwise is in its console
-    assert px4["reached"] == [1, 2, 3], f"PX4 modes {flights['px4'].modes}; its console:\n{px4_console_since(vehicles, console_from)}"  # the takeoff (0) and the speed change (1) in one step: 1
-    assert plant["reached"] == px4["reached"]
+    # PX4 reaches the take-off (0) and the speed change (1) in one navigator step; its MAVLink mission
+    # manager sends MISSION_ITEM_REACHED for the seq_reached it finds when it polls mission_result
+    # (mavlink_mission.cpp, MavlinkMissionManager::send()), so it names 0 only when a poll fell between the two
+    # publications (one make test run in several): then 0 comes within a tenth of a second of 1
+    reached = px4["reached"]
+    if reached[:2] == [0, 1]:
+        assert px4["reached s"][1] - px4["reached s"][0] <= 0.2, px4["reached s"]
+        reached = reached[1:]
+    assert reached == [1, 2, 3], f"PX4 modes {flights['px4'].modes}; its console:\n{px4_console_since(vehicles, console_from)}"
+    assert plant["reached"] == reached
     assert plant["end north m"] == pytest.approx(px4["end north m"], abs=1.5)
     assert px4["disarmed s"] is not None and plant["disarmed s"] is not None
     # simulation time from arming to disarming after the landing (docs/parity/mission.md): PX4
