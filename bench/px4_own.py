@@ -173,7 +173,13 @@ def figures(flight: OwnFlight, trajectory) -> dict:  # noqa: ANN001 - a Trajecto
 
 
 def fly_px4_own(mission: Path, folder: Path, speed: float = 1.0) -> dict:
-    """One flight of ``mission`` on a fresh PX4 SITL with PX4's own controller: ``figures``."""
+    """One flight of ``mission`` on a fresh PX4 SITL with PX4's own controller: ``figures``.
+
+    Raises
+    ------
+    offboard.errors.MissionFormatError
+        The mission file cannot be flown (named in one line), before any PX4 is started.
+    """
     from offboard.missions import load_mission
 
     trajectory = load_mission(mission).trajectory
@@ -192,6 +198,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mission", type=Path, default=MISSIONS / "paper-helix.toml", help="a TOML mission (default the paper helix)")
     parser.add_argument("--repeat", type=int, default=1, help="flights, each on a fresh PX4 (default 1)")
     args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error(f"--repeat must be at least 1, got {args.repeat}")
+    if not (math.isfinite(args.speed) and args.speed > 0):
+        parser.error(f"--speed must be > 0, got {args.speed}")
+    from offboard.errors import UserError
+    from offboard.missions import load_mission
+
+    try:
+        load_mission(args.mission)
+    except UserError as exc:  # a bad file: one line, before any PX4 is started
+        print(f"px4_own: {exc}", file=sys.stderr)
+        return 2
     if px4_launcher() is None:
         print(f"px4_own: {SKIP_REASON}", file=sys.stderr)
         return 2

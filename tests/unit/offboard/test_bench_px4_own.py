@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bench.design import MISSIONS, _own_lines
-from bench.px4_own import OwnFlight, figures
+from bench.px4_own import OwnFlight, figures, main
 from offboard.missions import load_mission
 
 HELIX = load_mission(MISSIONS / "paper-helix.toml").trajectory
@@ -56,3 +56,16 @@ def test_own_lines_set_px4s_own_controller_beside_the_designed_law_on_the_same_m
         "PX4's own moving RMS 1.030 m, hold RMS 0.444 m, hold tilt 2.4 deg"
     ]
     assert _own_lines([row("designed", "real time", 0.097, 0.071, 5.2)]) == []
+
+
+def test_a_bad_mission_or_argument_is_one_line_before_any_px4_starts(tmp_path, capsys):
+    (tmp_path / "bad.toml").write_text("x = [\n")
+    assert main(["--mission", str(tmp_path / "bad.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("px4_own: ") and "bad.toml" in err[0] and "TOML" in err[0]
+    assert main(["--mission", str(tmp_path / "missing.toml")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    for args in (["--repeat", "0"], ["--speed", "-1"], ["--speed", "nan"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(args)
+        assert exit_.value.code == 2 and args[0] in capsys.readouterr().err
