@@ -95,8 +95,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "1.5 m above its take-off point, where PX4's EKF2 aligns its heading from the magnetometer (a "
                           "turning vehicle is then given a heading that lags the turn); auto: where the vehicle publishes an "
                           "EKF2 fusing a magnetometer (default: auto)")
-    ctl.add_argument("--output", choices=OUTPUTS, default="attitude",
-                     help="SET_ATTITUDE_TARGET (what PX4 accepts), or SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques)")
+    ctl.add_argument("--output", choices=OUTPUTS, default=None,
+                     help="SET_ATTITUDE_TARGET with an attitude or body rates (what PX4 accepts), or "
+                          "SET_ACTUATOR_CONTROL_TARGET (eq. 16 torques) (default: what the controller file's gains were "
+                          "designed for, its [law] setpoint_output; else attitude)")
     ctl.add_argument("--model", choices=VEHICLE_MODELS, default="rigid-body",
                      help="what the vehicle is: a rigid body (ZYX angles, W_eta zyx) or sitl-plant --model paper (the file's W_eta)")
     ctl.add_argument("--controller", type=Path, default=None, metavar="FILE|paper|se3|px4",
@@ -160,9 +162,31 @@ def _check(args: argparse.Namespace) -> None:
         if value is not None and not 1 <= value <= 255:
             raise FlyArgumentError(f"--{name.replace('_', '-')}: must be 1..255, got {value}")
     kind = _baseline(args)
-    if kind is not None and (args.output != "attitude" or args.model != "rigid-body"):
+    if kind is not None and (args.output not in (None, "attitude") or args.model != "rigid-body"):
         raise FlyArgumentError(f"--controller {kind}: flies --output attitude on a --model rigid-body vehicle only "
                                f"(it gives an attitude target, thrust and yaw-rate feed-forward)")
+
+
+def flown_output(asked: str | None, designed: str | None, controller_file: Path | None) -> str:
+    """The setpoint a flight sends: ``--output`` (``asked``, None when not given), else the one the
+    controller file's gains were designed for (``designed``, its ``[law] setpoint_output``), else
+    the attitude.
+
+    Raises
+    ------
+    FlyArgumentError
+        ``--output`` asks for another setpoint than the file's gains were designed for: they
+        would close a loop their design never saw (an attitude design's kx7..kx10 are Table I's,
+        and a rates design's position gains were chosen around the law's own angle stage).
+    """
+    if asked is None:
+        return designed or "attitude"
+    if designed is not None and asked != designed:
+        tune = "offboard tune --setpoint-output " + ("attitude" if asked == "attitude" else "rates")
+        raise FlyArgumentError(f"--output {asked}: the gains of {controller_file} were designed for --output {designed} (its "
+                               f"[law] setpoint_output); fly it with --output {designed}" +
+                               (f", or design a file for {asked}: {tune}" if asked in ("attitude", "rates") else ""))
+    return asked
 
 
 def _baseline(args: argparse.Namespace) -> str | None:
@@ -243,6 +267,7 @@ def run(args: argparse.Namespace) -> int:
     kind = ControllerKind(_baseline(args) or ControllerKind.PAPER)
     from_file = args.controller is not None and str(args.controller) not in (PAPER_KEYWORD, *BASELINE_KEYWORDS)
     base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
+    args.output = flown_output(args.output, base.setpoint_output, args.controller if from_file else None)
     latency = 0.0 if args.lockstep and args.design_latency is None else args.design_latency
     choice = ControllerChoice(
         base=base,
@@ -393,6 +418,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
             "linear_drag_n_s_m": c.linear_drag_n_s_m, "velocity_from_position_s": c.velocity_from_position_s,
             "velocity_from_position_identify": c.velocity_from_position_identify,
             "velocity_integral_hold_s": c.velocity_integral_hold_s,
+            "setpoint_output": c.setpoint_output,
             "thrust_min_n": c.limits.thrust_min_n, "thrust_max_n": c.limits.thrust_max_n,
             "tilt_max_deg": None if c.limits.tilt_max_rad is None else math.degrees(c.limits.tilt_max_rad),
             "tilt_cone": c.limits.tilt_cone, "speed_xy_max_m_s": c.limits.speed_xy_max_m_s,

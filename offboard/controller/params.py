@@ -20,6 +20,9 @@ PAPER_CONTROLLER_FILE = Path(__file__).parent / "paper.toml"
 
 GAIN_NAMES = tuple(f"kx{i}" for i in range(1, 13))
 
+#: The setpoints a design can be made for (``offboard tune --setpoint-output``, ``offboard fly --output``).
+DESIGNED_OUTPUTS = ("attitude", "rates")
+
 
 @dataclass(frozen=True)
 class ControllerGains:
@@ -172,6 +175,11 @@ class ControllerParams:
         Choose that T from the estimates' own noise in flight (``ConsistentVelocity(identify=True)``:
         the steady-state Kalman filter of their velocity bias, from 5 s of samples on),
         ``velocity_from_position_s`` until then. False, the default: T as given.
+    setpoint_output : str or None
+        The setpoint the gains were designed for (``offboard tune --setpoint-output``):
+        ``"attitude"`` (the autopilot's attitude loop closed around them) or ``"rates"`` (the
+        law's kx7..kx10 close it around the autopilot's rate loop). ``offboard fly`` flies a file
+        with that output, and refuses another. None, the default (Table I's file): not said.
     """
 
     sample_time_s: float = 0.05
@@ -195,6 +203,7 @@ class ControllerParams:
     velocity_integral_hold_s: float = 0.0
     velocity_from_position_s: float = 0.0
     velocity_from_position_identify: bool = False
+    setpoint_output: str | None = None
 
     def __post_init__(self) -> None:
         for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "drag_to_thrust_m"):
@@ -226,6 +235,8 @@ class ControllerParams:
             raise ValueError(f"tilt_lead must be >= 0, got {self.tilt_lead}")
         if len(self.reference_lead_s2) != 2 or not all(math.isfinite(v) for v in self.reference_lead_s2):
             raise ValueError(f"reference_lead_s2 must be 2 finite numbers, got {self.reference_lead_s2}")
+        if self.setpoint_output is not None and self.setpoint_output not in DESIGNED_OUTPUTS:
+            raise ValueError(f"setpoint_output must be one of {DESIGNED_OUTPUTS} or None, got {self.setpoint_output!r}")
         if self.euler_rate_form not in EULER_RATE_FORMS:
             raise ValueError(f"euler_rate_form must be one of {EULER_RATE_FORMS}, got {self.euler_rate_form!r}")
         object.__setattr__(self, "euler_rate_form", EulerRateForm(self.euler_rate_form))  # a caller's word: its enum
@@ -271,6 +282,7 @@ def controller_from_table(f: Fields) -> ControllerParams:
         velocity_integral_hold_s=law.number("velocity_integral_hold_s", 0.0, ge=0),
         velocity_from_position_s=law.number("velocity_from_position_s", 0.0, ge=0),
         velocity_from_position_identify=law.boolean("velocity_from_position_identify", False),
+        setpoint_output=law.string("setpoint_output", choices=DESIGNED_OUTPUTS) if law.has("setpoint_output") else None,
         mass_kg=model.number("mass_kg", gt=0),
         arm_length_m=model.number("arm_length_m", gt=0),
         inertia_kg_m2=model.vector("inertia_kg_m2", 3, gt=0),  # type: ignore[arg-type]

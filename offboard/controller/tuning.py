@@ -136,7 +136,8 @@ def tuned_params(base: ControllerParams, design: Design, params: Mapping[str, fl
                              vertical_velocity_integral_gain_per_s2=float(v.velocity_integral_per_s2),
                              reference_lead_s2=tuple(round(v, 6) for v in design.reference_lead_s2),
                              velocity_integral_hold_s=round(step_hold_s(design), 4) if h.velocity_integral_per_s2 else 0.0,
-                             velocity_from_position_s=VELOCITY_FROM_POSITION_S)
+                             velocity_from_position_s=VELOCITY_FROM_POSITION_S,
+                             setpoint_output="attitude" if angle is None else "rates")
 
 
 def design_summary(design: Design) -> list[str]:
@@ -213,6 +214,8 @@ def controller_file_text(params: ControllerParams, design: Design, *, source: st
         *(f"#   {line}" for line in design_summary(design)),
         "",
         "[law]",
+        *([f"# the setpoint these gains were designed for: offboard fly flies them with --output {params.setpoint_output}",
+           f'setpoint_output = "{params.setpoint_output}"'] if params.setpoint_output is not None else []),
         f"sample_time_s = {_fmt(params.sample_time_s)}",
         f"yaw_aware = {'true' if params.yaw_aware else 'false'}",
         f"integral_gain_per_s = {_fmt(params.integral_gain_per_s)}",

@@ -304,7 +304,8 @@ def flight_controller(
     changes: dict[str, object] = {}
     for key in ("sample_time_s", "mass_kg", "arm_length_m", "gravity_m_s2", "euler_rate_form", "drag_to_thrust_m", "yaw_aware",
                 "integral_gain_per_s", "integral_limit_m_s", "velocity_integral_gain_per_s2", "velocity_integral_limit_m_s2",
-                "tilt_lead", "linear_drag_n_s_m", "velocity_from_position_s", "velocity_integral_hold_s"):  # fmt: skip
+                "tilt_lead", "linear_drag_n_s_m", "velocity_from_position_s", "velocity_integral_hold_s",
+                "setpoint_output"):  # fmt: skip
         if key in recorded and recorded[key] is not None:
             changes[key] = recorded[key]
     # a flight recorded before the key existed flew one velocity integral gain on every axis

@@ -339,6 +339,18 @@ def test_the_body_rate_output_flies_its_own_design(tmp_path):
     peak = re.search(r"Flown, the paper's quad ([0-9.]+)° at most \(lockstep, the test above\)", doc)
     assert peak and float(peak[1]) == round(float(tilt.max()), 1), "the doc's peak tilt at the helix's end"
     assert tilt.max() < 36.0
+    # the same design as a file (offboard tune --setpoint-output rates) says what it is for: flown
+    # without --output, it flies the body rates, the same flight (lockstep)
+    rates_file = tmp_path / "rates.toml"
+    made = subprocess.run([PY, "-m", "offboard.cli", "tune", "--vehicle", str(PAPER_VEHICLE_FILE), "--setpoint-output", "rates",
+                           "--output", str(rates_file)], capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    from_file = fly(tmp_path, HELIX, fly_args=("--controller", str(rates_file)), name="rates-file")
+    assert from_file.returncode == 0, from_file.stderr
+    assert from_file.summary["output"] == "rates" and from_file.summary["controller"]["setpoint_output"] == "rates"
+    s_file = series(from_file)
+    assert len(s_file["t_s"]) == len(t)
+    assert np.max(np.abs(error_3d(s_file) - err)) < 1e-3, "the file flies the design offboard fly makes"
     # Table I's gains keep 13 deg of phase margin on this loop: they diverged in the helix's 2 m step until the
     # rates were bounded by the tilt; bounded (their file has no rate_carry_s: the rate stops with the sample)
     # they ring out there far past the bound the designed law keeps, and recover

@@ -15,6 +15,7 @@ from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
 from offboard.controller.design import AxisGains, MarginSpec, analyse_axis, axis_plants
 from offboard.controller.tuning import design_for_vehicle, vehicle_values
 from offboard.demo import free_udp_ports, stop_process
+from offboard.missions import MISSIONS_DIR
 from sitl_plant.params import plant_params
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, load_vehicle
 from helpers.flights import ENV, PY
@@ -45,6 +46,7 @@ def test_tune_a_vehicle_file_writes_the_designed_controller(tmp_path, capsys):
     assert (g.kx7, g.kx8) == (0.7, 0.67)  # Table I's: the autopilot closes the attitude loop
     assert params.tilt_lead == float(h.lead) and params.reference_lead_s2 == pytest.approx(design.reference_lead_s2, abs=1e-6)
     assert params.limits.tilt_cone and params.limits.speed_down_max_m_s == 1.5
+    assert params.setpoint_output == "attitude"  # what it was designed for: offboard fly flies it so
     # ... and offboard fly --controller FILE flies it with those bounds (it once dropped all but the tilt and thrust)
     from offboard.codec import Scaling
     from offboard.flight import ControllerChoice, resolve_controller
@@ -222,3 +224,32 @@ def test_tune_for_a_body_rate_output_designs_the_angle_gains_too(tmp_path, capsy
     lines = err.strip().splitlines()
     assert lines[0].startswith("angles (rates) kx7 = kx9") and "phase margin" in lines[0]
     assert "kx1..kx10 designed" in out.read_text() and "fly it with --output rates" in out.read_text()
+    assert params.setpoint_output == "rates"  # offboard fly flies it with --output rates, and refuses another
+
+
+def test_a_files_designed_setpoint_is_what_fly_flies_and_another_is_refused_in_one_line(tmp_path, capsys):
+    """A controller file says what its gains were designed for (``[law] setpoint_output``):
+    ``offboard fly`` flies that output when --output is not given, and refuses another before it
+    connects (a rates design flown through the attitude loop, or an attitude design's Table I angle
+    gains closing the rates loop, is a loop no design saw)."""
+    from offboard.commands.fly import FlyArgumentError, flown_output
+
+    assert flown_output(None, "rates", tmp_path / "r.toml") == "rates"
+    assert flown_output(None, None, None) == "attitude"  # Table I's file says nothing: the attitude
+    assert flown_output("actuator", None, None) == "actuator"
+    assert flown_output("rates", "rates", tmp_path / "r.toml") == "rates"
+    with pytest.raises(FlyArgumentError, match=r"--output attitude: the gains of .*r\.toml were designed for --output rates"):
+        flown_output("attitude", "rates", tmp_path / "r.toml")
+    rates = PAPER_CONTROLLER_FILE.read_text().replace("[law]", '[law]\nsetpoint_output = "rates"', 1)
+    (tmp_path / "r.toml").write_text(rates)
+    assert load_controller(tmp_path / "r.toml").setpoint_output == "rates"
+    (port,) = free_udp_ports(1)
+    code = main(["fly", str(MISSIONS_DIR / "paper-helix.toml"), "--controller", str(tmp_path / "r.toml"), "--output", "attitude",
+                 "--connect", f"udpin:127.0.0.1:{port}", "--run-dir", str(tmp_path / "run")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "were designed for --output rates" in err and "offboard tune --setpoint-output attitude" in err
+    assert not (tmp_path / "run").exists()  # refused before anything was flown or written
+    (tmp_path / "bad.toml").write_text(rates.replace('"rates"', '"thrust"'))
+    with pytest.raises(ValueError, match=r"bad\.toml.*setpoint_output.*attitude, rates"):
+        load_controller(tmp_path / "bad.toml")
