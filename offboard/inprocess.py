@@ -382,6 +382,14 @@ class Scenario:
         object.__setattr__(self, "model", VehicleModel(self.model))  # a word from a file: its enum
         object.__setattr__(self, "drive", Drive(self.drive))
         steps_per_period(self.controller.sample_time_s, self.physics_dt_s)
+        # a designed controller flies the loop its design modelled (offboard fly refuses another output likewise)
+        designed = self.controller.setpoint_output
+        if designed == "rates":
+            raise ValueError('the controller\'s gains were designed for body-rate setpoints ([law] setpoint_output = "rates"), '
+                             "which no in-process drive flies: fly them over MAVLink, offboard fly --output rates")
+        if designed == "attitude" and self.drive != Drive.PX4:
+            raise ValueError('the controller\'s gains were designed for an autopilot\'s attitude loop ([law] setpoint_output = '
+                             f'"attitude"): fly them with drive = "px4", the loop their design models, not "{self.drive}"')
 
     @property
     def flight_duration_s(self) -> float:

@@ -12,6 +12,7 @@ from offboard.model.vehicle import VEHICLE_MODELS
 from offboard.inprocess import SCENARIO_DRIVES, run_scenario
 from offboard.metrics import check_tracking, format_table, summarize
 from offboard.record import FlightStatus
+from offboard.errors import ParameterFileError
 from offboard.scenario import load_scenario
 from offboard.model.clihelp import HelpFormatter
 from offboard.model.paths import output_folder
@@ -44,7 +45,10 @@ def run(args: argparse.Namespace) -> int:
     if overrides:
         from dataclasses import replace
 
-        scenario = replace(scenario, **overrides)
+        try:
+            scenario = replace(scenario, **overrides)
+        except ValueError as exc:  # a cross-field check (Scenario.__post_init__) the override fails
+            raise ParameterFileError(f"{args.scenario}: with {' '.join(f'--{k} {v}' for k, v in overrides.items())}: {exc}") from None
     show_progress = not args.quiet and not args.json and sys.stderr.isatty()
 
     def progress(fraction: float) -> None:

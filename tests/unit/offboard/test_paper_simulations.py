@@ -183,6 +183,12 @@ def test_simulate_command_exit_code_says_it_diverged(tmp_path, capsys):
         (('sensors = "clean"', 'sensors = "sonar"'), "scenario.sensors"),
         (("kx5 = 0.9", "kx5 = 1.5"), "controller.gains.kx5: must lie in (0, 1), got 1.5"),
         (("seed = 1", "seed = 1\nspeed = 3"), "scenario.speed: unknown field"),
+        (("sample_time_s = 0.05", 'sample_time_s = 0.05\nsetpoint_output = "up"'), "controller.law.setpoint_output: expected one of"),
+        # a controller designed for another loop than the drive flies (offboard fly refuses another output likewise)
+        (("sample_time_s = 0.05", 'sample_time_s = 0.05\nsetpoint_output = "rates"'),
+         "designed for body-rate setpoints ([law] setpoint_output = \"rates\"), which no in-process drive flies"),
+        (("sample_time_s = 0.05", 'sample_time_s = 0.05\nsetpoint_output = "attitude"'),
+         'designed for an autopilot\'s attitude loop ([law] setpoint_output = "attitude"): fly them with drive = "px4"'),
     ],
 )
 def test_bad_scenario_files_give_one_line(tmp_path, capsys, edit, message):
@@ -198,6 +204,20 @@ def test_bad_scenario_files_give_one_line(tmp_path, capsys, edit, message):
     assert main(["simulate", str(path), "--no-plots", "--run-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_a_drive_override_the_controller_was_not_designed_for_is_one_line(tmp_path, capsys):
+    """``--drive`` over a scenario whose controller says what it was designed for: the same check
+    as the file's own drive, in one line naming the override."""
+    text = (MISSIONS / "paper-sim1.toml").read_text().replace("sample_time_s = 0.05", 'sample_time_s = 0.05\nsetpoint_output = "attitude"', 1)
+    text = text.replace('drive = "inner-loop"', 'drive = "px4"', 1).replace('model = "paper"', 'model = "rigid-body"', 1)
+    text = text.replace('"../sitl_plant/', f'"{MISSIONS.parent}/sitl_plant/').replace('mission = "paper-helix.toml"', f'mission = "{MISSIONS / "paper-helix.toml"}"')
+    path = tmp_path / "designed.toml"
+    path.write_text(text)
+    assert load_scenario(path).drive == "px4"  # the loop it was designed for: loads
+    assert main(["simulate", str(path), "--drive", "held-torque", "--no-plots", "--run-dir", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "with --drive held-torque: " in err[0] and 'fly them with drive = "px4"' in err[0], err
 
 
 def test_a_mission_given_as_a_scenario_says_what_to_do(capsys):
