@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rerun.add_argument("--model", choices=("rigid-body", "paper"), default=None,
                        help="what the vehicle was (offboard fly --model; default: summary.json's, else rigid-body)")
     rerun.add_argument("--thrust-max-n", type=float, default=None, metavar="N",
-                       help="thrust at normalised 1 when the log holds no SIM_THR_MAX (a real PX4)")
+                       help="thrust at normalised 1 when the log holds neither SIM_THR_MAX nor SIH_T_MAX (a real airframe)")
     stream = parser.add_argument_group("stream")
     stream.add_argument("--to", default=None, metavar="URL",
                         help="re-send the vehicle's messages to this pymavlink address (e.g. udpout:127.0.0.1:14550) and exit")
@@ -344,7 +344,8 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     if trajectory is None:
         raise ReplayArgumentError("--rerun needs the mission that was flown: --mission FILE")
     if not math.isfinite(thrust_max):
-        raise ReplayArgumentError("--rerun: the log holds no SIM_THR_MAX (the vehicle's thrust scaling); pass --thrust-max-n N")
+        raise ReplayArgumentError("--rerun: the log holds no SIM_THR_MAX or SIH_T_MAX (the vehicle's thrust scaling); pass "
+                                  "--thrust-max-n N")
     vehicle = int(record.meta["vehicle_sysid"])
     params_log = scan.params.get(vehicle, {})
     try:

@@ -65,6 +65,7 @@ class PredictedState:
     body_rate_frd_rad_s: np.ndarray
     quat_wxyz: np.ndarray
     position_time_boot_ms: float | None = None
+    horizon_s: float = 0.0  # how far ahead (s): the latency, moved by the measurement's age
 
 
 #: the horizons' grid (s): 1 ms of horizon is at most a few tenths of a millimetre and a
@@ -162,4 +163,4 @@ class LatencyPredictor:
         euler = np.array([r[2], -f[2], yaw])
         rates = np.array([r[3], -f[3], r_rate])
         return PredictedState(pos_ned, vel_ned, euler, rates, np.asarray(quat_from_euler(*euler), dtype=float),
-                              getattr(state, "position_time_boot_ms", None))  # fmt: skip
+                              getattr(state, "position_time_boot_ms", None), horizon)  # fmt: skip

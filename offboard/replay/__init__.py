@@ -10,7 +10,8 @@ One idea a module, in the order the data flows:
   ``offboard.metrics`` and ``offboard.plots`` take;
 - ``report``: the log's own figures (sources and loss, message rates, events);
 - ``stream``: the logged messages re-sent in their original timing;
-- ``rerun``: the controller re-run on the recorded telemetry, against the logged commands.
+- ``rerun``: the controller re-run on the recorded telemetry, against the logged commands;
+- ``prediction``: how well a flight's latency prediction predicted what the vehicle then reported.
 
 ``offboard/commands/replay.py`` is the argv edge. The names below are the public API
 (``from offboard.replay import TlogReader``); docs/replay.md describes the command.
@@ -26,6 +27,7 @@ from offboard.replay.record import (
     sample_numbers,
     setpoints_for,
 )
+from offboard.replay.prediction import PredictionCheck, check_prediction
 from offboard.replay.report import LogReport, MessageRate, SourceStats, format_log_report, log_report
 from offboard.replay.rerun import RERUN_FIELDS, RerunResult, flight_controller, format_rerun, rerun_controller, rerun_panels
 from offboard.replay.scan import (
@@ -44,6 +46,7 @@ from offboard.replay.stream import stream_log
 
 __all__ = [
     "OFFBOARD_MODE_NAME",
+    "PredictionCheck",
     "RERUN_FIELDS",
     "Damage",
     "Event",
@@ -60,6 +63,7 @@ __all__ = [
     "_telemetry_rows",
     "arm_accepted",
     "build_record",
+    "check_prediction",
     "flight_controller",
     "format_log_report",
     "format_rerun",

@@ -129,14 +129,18 @@ def mode_phases(scan: LogScan, sysid: int, t0_s: float, clock_rate: float = 1.0)
 
 def logged_scale(params: dict[str, float], thrust_max_n: float | None = None) -> tuple[float, float, float]:
     """(thrust [N], roll/pitch torque [N m], yaw torque [N m]) at normalised 1, as the vehicle
-    published them in the log (``SIM_THR_MAX``, ``SIM_TQ_RP_MAX``, ``SIM_TQ_Y_MAX``), NaN where
-    it did not; ``thrust_max_n`` instead of the log's thrust (a real PX4 publishes none).
+    published them in the log (``SIM_THR_MAX``, ``SIM_TQ_RP_MAX``, ``SIM_TQ_Y_MAX``; PX4 SITL's SIH:
+    ``SIH_T_MAX`` x ``CA_ROTOR_COUNT``, as ``offboard fly`` reads it), NaN where it did not;
+    ``thrust_max_n`` instead of the log's thrust (a real airframe publishes none).
 
     Plain numbers, NaN allowed: a record names what the log cannot tell as NaN, while
     ``offboard.codec.Scaling`` (what a command is encoded with) must know the thrust.
     """
+    from offboard.controller.tuning import vehicle_values  # SIH_* under sitl-plant's names
+
+    thrust = vehicle_values(params).get("SIM_THR_MAX", math.nan)
     return (
-        params.get("SIM_THR_MAX", math.nan) if thrust_max_n is None else thrust_max_n,
+        thrust if thrust_max_n is None else thrust_max_n,
         params.get("SIM_TQ_RP_MAX", math.nan),
         params.get("SIM_TQ_Y_MAX", math.nan),
     )

@@ -24,6 +24,7 @@ from offboard.flight import ControllerChoice, resolve_controller
 from offboard.model.rotations import euler_from_quat
 from offboard.model.vehicle import VehicleModel
 from offboard.record import FlightRecord, RecordBuilder, control_row
+from offboard.replay.prediction import PredictionCheck, check_prediction
 from offboard.replay.record import _telemetry_rows, setpoints_for
 from offboard.replay.scan import LogScan
 from offboard.flight.heading_hold import TakeoffHeadingHold
@@ -53,6 +54,9 @@ class RerunResult:
         angle references, eq. 16 torques, tau_tilde), as ``offboard fly`` records a flight.
     gaps : int
         Missing samples in the log (the controller in flight stepped on them; the re-run cannot).
+    prediction : PredictionCheck or None
+        Of a flight that predicted its state over the latency: how close that prediction came to
+        what the vehicle reported then (``offboard.replay.prediction``).
     """
 
     output: SetpointOutput
@@ -62,6 +66,7 @@ class RerunResult:
     rerun: np.ndarray
     record: FlightRecord
     gaps: int
+    prediction: PredictionCheck | None = None
 
     @property
     def difference(self) -> np.ndarray:
@@ -104,6 +109,7 @@ class RerunResult:
             "max_difference": self.max_difference,
             "first_mismatch": None if first is None else dict(zip(("t_s", "field", "logged", "rerun"), first)),
             "missing_samples": self.gaps,
+            "prediction": None if self.prediction is None else self.prediction.to_dict(),
         }
 
 
@@ -194,6 +200,7 @@ def rerun_controller(
     logged = setpoints.values[rows]
     logged = logged[:, 1:9] if output == "attitude" else logged[:, 0:4]
     rerun = np.full(logged.shape, np.nan, dtype=np.float32)
+    states = []  # as the flight's predictor saw them, for the prediction's check
     for k in range(len(rows)):
         a, p = att[k], pos[k]
         measured = codec.measured_state(
@@ -209,6 +216,7 @@ def rerun_controller(
             age = float(telemetry_age_s[k]) if telemetry_age_s is not None else math.nan
             if math.isfinite(age):
                 measured = replace(measured, age_s=age)
+            states.append(measured)
             ahead_n, ahead_n1 = ahead.pair(t + predictor.latency_s)
             if heading_hold is not None:
                 ahead_n, ahead_n1 = heading_hold.apply(ahead_n), heading_hold.apply(ahead_n1)
@@ -223,8 +231,14 @@ def rerun_controller(
     steps = np.diff(np.rint(t_all / to).astype(np.int64)) if len(t_all) > 1 else np.zeros(0, dtype=np.int64)
     gaps = int(np.sum(np.maximum(steps - 1, 0)))
     rerun_record = builder.build(phases=record.phases, meta={**record.meta, "rerun": True})
+    check = None
+    if predictor is not None:  # the flight's prediction against what the vehicle reported then, its setpoints in flight
+        headings = np.array([float(m.euler_rad[2]) if params.yaw_aware else 0.0 for m in states])
+        check = check_prediction(LatencyPredictor(inner, to, params.mass_kg, params.gravity_m_s2), states,
+                                 logged[:, 0:4].astype(float), logged[:, 7].astype(float) * scaling.thrust_max_n, headings,
+                                 att_table, pos_table)  # fmt: skip
     return RerunResult(sent, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
-                       rerun_record, gaps)  # fmt: skip
+                       rerun_record, gaps, check)  # fmt: skip
 
 
 def format_rerun(result: RerunResult, label: str) -> str:
@@ -246,6 +260,8 @@ def format_rerun(result: RerunResult, label: str) -> str:
     first = result.first_mismatch()
     if first is not None:
         lines.append(f"  first difference at t = {first[0]:.2f} s in {first[1]}: logged {first[2]:.7g}, re-run {first[3]:.7g}")
+    if result.prediction is not None:
+        lines.append(f"  {result.prediction.describe()}")
     return "\n".join(lines)
 
 
