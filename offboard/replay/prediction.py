@@ -90,8 +90,9 @@ def check_prediction(predictor: LatencyPredictor, measured: list, setpoints: np.
                      headings_rad: np.ndarray, attitude: np.ndarray, position: np.ndarray) -> PredictionCheck | None:  # fmt: skip
     """Carry each sample's ``measured`` state (a ``StateEstimate`` with ``time_boot_ms``,
     ``position_time_boot_ms`` and, in real time, ``age_s``) over the flight's latency with the
-    setpoints in flight (``setpoints``: each sample's logged quaternion, w x y z; ``thrust_n``;
-    the heading its tilt was written about), and compare with the telemetry at the horizon.
+    setpoints in flight (``setpoints``: each sample's logged quaternion, w x y z; ``thrust_n``, as
+    sent: within the vehicle's range; the heading its tilt was written about), and compare with
+    the telemetry at the horizon.
 
     ``attitude``: rows (time_boot_ms, roll, pitch, yaw, ...); ``position``: rows (time_boot_ms,
     x, y, z, vx, vy, vz, ...), as ``LogScan`` tables. None when no sample's horizon lies within
@@ -131,10 +132,10 @@ def check_prediction(predictor: LatencyPredictor, measured: list, setpoints: np.
 def _by_time(table: np.ndarray) -> np.ndarray:
     """The rows in time order, one per stamp (the first logged)."""
     table = np.asarray(table, dtype=float)
-    if not len(table):
-        return table.reshape(0, max(table.shape[-1] if table.ndim == 2 else 0, 7))
-    _, first = np.unique(table[:, 0], return_index=True)
-    return table[np.sort(first)][np.argsort(table[np.sort(first), 0], kind="stable")]
+    if table.ndim != 2 or not len(table):
+        return np.zeros((0, 7))
+    _, first = np.unique(table[:, 0], return_index=True)  # sorted by stamp
+    return table[first]
 
 
 __all__ = ["PredictionCheck", "check_prediction", "setpoint_tilt_about", "thrust_axis"]

@@ -12,6 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from offboard import codec
 from offboard.clockrate import STALLED_RATE, ClockRateMeter
+from offboard.controller.tuning import vehicle_values
 from offboard.errors import LogFormatError
 from offboard.model.rotations import euler_from_quat
 from offboard.record import COLUMNS, FlightRecord, FlightStatus
@@ -136,8 +137,6 @@ def logged_scale(params: dict[str, float], thrust_max_n: float | None = None) ->
     Plain numbers, NaN allowed: a record names what the log cannot tell as NaN, while
     ``offboard.codec.Scaling`` (what a command is encoded with) must know the thrust.
     """
-    from offboard.controller.tuning import vehicle_values  # SIH_* under sitl-plant's names
-
     thrust = vehicle_values(params).get("SIM_THR_MAX", math.nan)
     return (
         thrust if thrust_max_n is None else thrust_max_n,
