@@ -15,11 +15,12 @@ Pure numpy over arrays from the log; no files, no clock.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from offboard.controller.prediction import LatencyPredictor
+from offboard.trajectory.base import Phase
 
 
 @dataclass(frozen=True)
@@ -47,23 +48,30 @@ class PredictionCheck:
     position_rms_measured_m: float
     velocity_rms_measured_m_s: float
     tilt_rms_measured_deg: float
+    phases: tuple[tuple[str, PredictionCheck], ...] = ()
 
-    def to_dict(self) -> dict[str, float | int]:
+    def to_dict(self) -> dict:
         """The figures for summary.json (rounded: they are RMS figures, not bit-exact values)."""
         return {"latency_s": round(self.latency_s, 6), "samples": self.samples,
                 "position_rms_m": round(self.position_rms_m, 6), "velocity_rms_m_s": round(self.velocity_rms_m_s, 6),
                 "tilt_rms_deg": round(self.tilt_rms_deg, 4),
                 "position_rms_measured_m": round(self.position_rms_measured_m, 6),
                 "velocity_rms_measured_m_s": round(self.velocity_rms_measured_m_s, 6),
-                "tilt_rms_measured_deg": round(self.tilt_rms_measured_deg, 4)}  # fmt: skip
+                "tilt_rms_measured_deg": round(self.tilt_rms_measured_deg, 4),
+                "phases": {name: check.to_dict() for name, check in self.phases}}  # fmt: skip
 
     def describe(self) -> str:
-        """One line: the predicted state's differences, the measured state's in brackets."""
-        return (f"prediction over {self.latency_s * 1000:.0f} ms, against what the vehicle reported then ({self.samples} "
-                f"samples; the measured state's in brackets): position {self.position_rms_m * 1000:.1f} mm RMS "
-                f"({self.position_rms_measured_m * 1000:.1f}), velocity {self.velocity_rms_m_s * 1000:.1f} mm/s "
-                f"({self.velocity_rms_measured_m_s * 1000:.1f}), thrust axis {self.tilt_rms_deg:.2f} deg "
-                f"({self.tilt_rms_measured_deg:.2f})")  # fmt: skip
+        """A line for the flight, then one a phase: the predicted state's differences, the
+        measured state's in brackets."""
+        lines = [f"prediction over {self.latency_s * 1000:.0f} ms, against what the vehicle reported then (the measured "
+                 f"state's in brackets): {self._figures()} over the flight ({self.samples} samples)"]
+        lines += [f"  {name}: {check._figures()}" for name, check in self.phases]
+        return "\n".join(lines)
+
+    def _figures(self) -> str:
+        return (f"position {self.position_rms_m * 1000:.1f} mm RMS ({self.position_rms_measured_m * 1000:.1f}), velocity "
+                f"{self.velocity_rms_m_s * 1000:.1f} mm/s ({self.velocity_rms_measured_m_s * 1000:.1f}), thrust axis "
+                f"{self.tilt_rms_deg:.2f} deg ({self.tilt_rms_measured_deg:.2f})")  # fmt: skip
 
 
 def thrust_axis(roll_rad: np.ndarray | float, pitch_rad: np.ndarray | float, yaw_rad: np.ndarray | float) -> np.ndarray:
@@ -87,7 +95,8 @@ def setpoint_tilt_about(q_wxyz: np.ndarray, heading_rad: float) -> tuple[float, 
 
 
 def check_prediction(predictor: LatencyPredictor, measured: list, setpoints: np.ndarray, thrust_n: np.ndarray,
-                     headings_rad: np.ndarray, attitude: np.ndarray, position: np.ndarray) -> PredictionCheck | None:  # fmt: skip
+                     headings_rad: np.ndarray, attitude: np.ndarray, position: np.ndarray, *, t_s: np.ndarray | None = None,
+                     phases: list[Phase] | tuple[Phase, ...] = ()) -> PredictionCheck | None:  # fmt: skip
     """Carry each sample's ``measured`` state (a ``StateEstimate`` with ``time_boot_ms``,
     ``position_time_boot_ms`` and, in real time, ``age_s``) over the flight's latency with the
     setpoints in flight (``setpoints``: each sample's logged quaternion, w x y z; ``thrust_n``, as
@@ -95,16 +104,18 @@ def check_prediction(predictor: LatencyPredictor, measured: list, setpoints: np.
     the telemetry at the horizon.
 
     ``attitude``: rows (time_boot_ms, roll, pitch, yaw, ...); ``position``: rows (time_boot_ms,
-    x, y, z, vx, vy, vz, ...), as ``LogScan`` tables. None when no sample's horizon lies within
-    the log.
+    x, y, z, vx, vy, vz, ...), as ``LogScan`` tables. With ``t_s`` (each sample's mission time)
+    the figures of each of the mission's ``phases`` too (``PredictionCheck.phases``: a step, a
+    turn, a hold predict differently). None when no sample's horizon lies within the log.
     """
     att = _by_time(attitude)
     pos = _by_time(position)
     if len(att) < 2 or len(pos) < 2:
         return None
     yaw_unwrapped = np.unwrap(att[:, 3])
-    rows = []
-    for state, q, thrust, heading in zip(measured, setpoints, thrust_n, headings_rad):
+    rows, times = [], []
+    t_all = np.full(len(measured), np.nan) if t_s is None else np.asarray(t_s, dtype=float)
+    for state, q, thrust, heading, t in zip(measured, setpoints, thrust_n, headings_rad, t_all):
         ahead = predictor.predict(state)
         horizon_ms = 1000.0 * ahead.horizon_s
         t_att = float(state.time_boot_ms) + horizon_ms
@@ -123,10 +134,18 @@ def check_prediction(predictor: LatencyPredictor, measured: list, setpoints: np.
         rows.append((float(np.linalg.norm(ahead.pos_ned_m - then_pos)), float(np.linalg.norm(state.pos_ned_m - then_pos)),
                      float(np.linalg.norm(ahead.vel_ned_m_s - then_vel)), float(np.linalg.norm(state.vel_ned_m_s - then_vel)),
                      float(angles[0]), float(angles[1])))  # fmt: skip
+        times.append(t)
     if not rows:
         return None
-    r = np.sqrt(np.mean(np.square(np.array(rows)), axis=0))
-    return PredictionCheck(predictor.latency_s, len(rows), float(r[0]), float(r[2]), float(r[4]), float(r[1]), float(r[3]), float(r[5]))
+    table, when = np.array(rows), np.array(times)
+
+    def summed(keep: np.ndarray) -> PredictionCheck:
+        r = np.sqrt(np.mean(np.square(table[keep]), axis=0))
+        return PredictionCheck(predictor.latency_s, int(np.count_nonzero(keep)), float(r[0]), float(r[2]), float(r[4]), float(r[1]),
+                               float(r[3]), float(r[5]))  # fmt: skip
+
+    each = tuple((ph.name, summed(k)) for ph in phases if (k := (when >= ph.start_s) & (when < ph.end_s)).any())
+    return replace(summed(np.ones(len(table), bool)), phases=each)
 
 
 def _by_time(table: np.ndarray) -> np.ndarray:

@@ -236,7 +236,7 @@ def rerun_controller(
         headings = np.array([float(m.euler_rad[2]) if params.yaw_aware else 0.0 for m in states])
         check = check_prediction(LatencyPredictor(inner, to, params.mass_kg, params.gravity_m_s2), states,
                                  logged[:, 0:4].astype(float), logged[:, 7].astype(float) * scaling.thrust_max_n, headings,
-                                 att_table, pos_table)  # fmt: skip
+                                 att_table, pos_table, t_s=t_all, phases=record.phases)  # fmt: skip
     return RerunResult(sent, RERUN_FIELDS[output], np.asarray(t_all, dtype=float), logged.astype(np.float32), rerun,
                        rerun_record, gaps, check)  # fmt: skip
 
@@ -261,7 +261,7 @@ def format_rerun(result: RerunResult, label: str) -> str:
     if first is not None:
         lines.append(f"  first difference at t = {first[0]:.2f} s in {first[1]}: logged {first[2]:.7g}, re-run {first[3]:.7g}")
     if result.prediction is not None:
-        lines.append(f"  {result.prediction.describe()}")
+        lines += [f"  {line}" for line in result.prediction.describe().splitlines()]
     return "\n".join(lines)
 
 

@@ -13,6 +13,7 @@ from offboard.controller.prediction import LatencyPredictor
 from offboard.frames import setpoint_attitude
 from offboard.model.vehicle import PAPER_VEHICLE_FILE, VehicleModel, load_vehicle
 from offboard.replay.prediction import check_prediction, setpoint_tilt_about, thrust_axis
+from offboard.trajectory.base import Phase
 from sitl_plant.params import plant_params
 
 TO = 0.05
@@ -70,6 +71,36 @@ def test_a_vehicle_coasting_level_is_predicted_exactly_and_the_measured_state_is
     assert check.position_rms_measured_m == pytest.approx(np.linalg.norm(v) * latency, rel=1e-9)
     assert check.velocity_rms_measured_m_s < 1e-12
     assert "prediction over 120 ms" in check.describe() and check.to_dict()["samples"] == check.samples
+    assert check.phases == ()  # no phases asked for
+
+
+def test_each_phase_of_the_mission_gets_its_own_figures():
+    """A vehicle level at 1 m/s until 10 s, then level at 3 m/s (a step of the telemetry's speed,
+    which no setpoint explains): the prediction is exact within each phase and off across the
+    step; the phases' figures say where."""
+    latency = 0.1
+    model = _model(latency)
+    stamps = np.arange(0, 20_000, 10)
+    speed = np.where(stamps < 10_000, 1.0, 3.0)
+    north = np.cumsum(speed * 0.01) - speed[0] * 0.01
+    attitude = np.column_stack([stamps, np.zeros((len(stamps), 3))])
+    position = np.column_stack([stamps, north, np.zeros(len(stamps)), np.full(len(stamps), -5.0), speed, np.zeros((len(stamps), 2))])
+    keep = stamps % 50 == 0
+    samples = [_State(int(t), position[i, 1:4], position[i, 4:7], np.zeros(3), np.zeros(3), int(t)) for i, t in enumerate(stamps) if keep[i]]
+    n = len(samples)
+    hover_q = np.tile(np.asarray(setpoint_attitude(0.0, 0.0, 0.0, 0.0, VehicleModel.RIGID_BODY), dtype=float), (n, 1))
+    phases = (Phase("slow", 0.0, 9.8), Phase("step", 9.8, 10.2), Phase("fast", 10.2, 30.0), Phase("never", 40.0, 50.0))
+    check = check_prediction(LatencyPredictor(model, TO, 0.5, 9.81), samples, hover_q, np.full(n, 0.5 * 9.81), np.zeros(n),
+                             attitude, position, t_s=stamps[keep] / 1000.0, phases=phases)  # fmt: skip
+    assert check is not None
+    found = dict(check.phases)
+    assert list(found) == ["slow", "step", "fast"]  # a phase with no sample is left out
+    assert sum(c.samples for c in found.values()) == check.samples
+    assert found["slow"].velocity_rms_m_s < 1e-9 and found["fast"].velocity_rms_m_s < 1e-9
+    # the 2 m/s the telemetry jumped by, which the prediction of the two samples whose horizon crosses 10 s could not know
+    assert found["step"].velocity_rms_m_s == pytest.approx(2.0 * math.sqrt(2 / 8))
+    assert set(check.to_dict()["phases"]) == {"slow", "step", "fast"}
+    assert [line.split(":")[0].strip() for line in check.describe().splitlines()[1:]] == ["slow", "step", "fast"]
 
 
 def test_no_sample_within_the_log_is_no_check():
