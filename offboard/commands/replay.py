@@ -159,6 +159,15 @@ def _heading_hold_as_flown(summary: dict | None):  # -> TakeoffHeadingHold | Non
     return TakeoffHeadingHold.as_flown(math.radians(float(heading)), None if released is None else float(released))
 
 
+def _observed_as_flown(summary: dict | None) -> bool:
+    """Whether the flight's prediction observed the rate loop (summary.json's ``observed_rate_loop``;
+    absent in flights before the observer, which took it at hover)."""
+    observed = (summary or {}).get("observed_rate_loop")
+    if observed is not None and not isinstance(observed, bool):
+        raise ReplayArgumentError(f"--rerun: summary.json: observed_rate_loop {observed!r} is not true, false or null")
+    return bool(observed)
+
+
 def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tuple[float | None, np.ndarray | None, str]:
     """The latency the flight predicted its state over (summary.json's ``predicted_latency_s``),
     the telemetry ages it handed the prediction at each of ``record``'s samples (series.csv's
@@ -168,7 +177,7 @@ def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tupl
         return None, None, ""
     if not isinstance(latency, (int, float)) or isinstance(latency, bool) or not (math.isfinite(latency) and latency >= 0):
         raise ReplayArgumentError(f"--rerun: summary.json: predicted_latency_s {latency!r} is not a latency (s, >= 0)")
-    note = f"; state predicted over {latency * 1000:.0f} ms"
+    note = f"; state predicted over {latency * 1000:.0f} ms" + (", the rate loop observed" if _observed_as_flown(summary) else "")
     series = log.parent / "series.csv"
     try:
         with series.open() as fh:
@@ -380,6 +389,7 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
         latency, ages, age_note = _predicted_latency_as_flown(args.log, summary_json, record)
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind,
                                      heading_hold=_heading_hold_as_flown(summary_json), predicted_latency_s=latency,
+                                     observed_rate_loop=args.controller is None and _observed_as_flown(summary_json),
                                      vehicle_params=params_log, telemetry_age_s=ages)  # fmt: skip
     origin += age_note
     label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"

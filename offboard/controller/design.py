@@ -117,6 +117,11 @@ class InnerLoopModel:
         The law is handed the state predicted ``latency_s`` ahead (``latency_predictor``: the
         measured state carried over the latency by this model, with the setpoints in flight)
         instead of the measured one; an attitude output only.
+    observe : bool
+        With ``predict``: the rate loop's integral and the motors' torque, which no telemetry
+        carries, are observed from how the tilt and the body rate moved over the last sample
+        against this model (``attitude_observer``, ``observed_plant``) instead of being taken at
+        hover.
     """
 
     roll: TiltLoop
@@ -127,6 +132,7 @@ class InnerLoopModel:
     drag_per_s: float = 0.0
     angle_gains: AxisGains | None = None
     predict: bool = False
+    observe: bool = False
 
     def __post_init__(self) -> None:
         for name in ("thrust_time_constant_s", "latency_s", "drag_per_s"):
@@ -407,13 +413,73 @@ def latency_predictor(a: np.ndarray, b: np.ndarray, sample_time_s: float, latenc
     return mx, mu
 
 
+#: A horizontal axis's attitude states within ``tilt_axis_plant``'s: tilt, body rate, the rate
+#: loop's integral and the motors' torque. A system of their own (the position and the velocity do
+#: not act back on them), whose first two are measured.
+ATTITUDE_STATES = (2, 3, 4, 5)
+
+
+def attitude_observer(a: np.ndarray, b: np.ndarray, interval_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Phi, Gamma, K) of the observer of a horizontal axis's rate-loop integral and motor torque
+    over ``interval_s`` between two measurements (``tilt_axis_plant``'s ``a``, ``b``).
+
+    Over the interval the attitude states (``ATTITUDE_STATES``) go ``x <- Phi x + Gamma u`` for a
+    held input; the estimate at the interval's start (the measured tilt and rate, the observed
+    integral and torque) carried so is corrected by ``K (y - y_model)``, y the tilt and rate
+    measured at its end. K is deadbeat, ``K = Phi_uu Phi_mu^-1``: whatever the integral and the
+    torque were off at the start is gone at the end, so the estimate has no memory of its own
+    beyond one interval, and a model error costs accuracy over an interval, never a drift.
+    """
+    keep = list(ATTITUDE_STATES)
+    phi, gamma = _zoh(a[np.ix_(keep, keep)], b[keep], interval_s)
+    gain = phi[2:, 2:] @ np.linalg.inv(phi[:2, 2:])
+    return phi, gamma, gain
+
+
+def observed_plant(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, drag_per_s: float = 0.0,
+                   believed: tuple[np.ndarray, np.ndarray] | None = None) -> DiscretePlant:  # fmt: skip
+    """``predicted_plant`` of a horizontal axis whose rate-loop integral and motor torque are
+    observed (``attitude_observer`` over a sample) instead of taken at hover: the two estimates
+    are two more states, updated each sample from the last sample's measured tilt and rate, the
+    estimates, the setpoints that acted and the measurement now; the law is handed the state
+    predicted from the measured states and the estimates. ``believed``: the (A, B) the observer
+    and the prediction run, when not the vehicle's own (a model error)."""
+    plant = discretise(a, b, sample_time_s, latency_s, tilt_state=TILT_STATE, drag_per_s=drag_per_s)
+    a_m, b_m = (a, b) if believed is None else believed
+    model = discretise(a_m, b_m, sample_time_s, latency_s, tilt_state=TILT_STATE, drag_per_s=drag_per_s)
+    n, size = a.shape[0], plant.phi.shape[0]
+    unmeasured = [j for j in range(n) if j not in HORIZONTAL_MEASURED]
+    keep = np.eye(size)  # the measured states and the delay line
+    keep[unmeasured, unmeasured] = 0.0
+    put = np.zeros((size, len(unmeasured)))  # the estimates into their states
+    put[unmeasured, range(len(unmeasured))] = 1.0
+    read = np.zeros((2, size))  # the measured tilt and rate
+    read[[0, 1], [TILT_STATE, RATE_STATE]] = 1.0
+    _, _, gain = attitude_observer(a_m, b_m, sample_time_s)
+    phi, gamma, phi_m, gamma_m = plant.phi, plant.gamma, model.phi, model.gamma
+    # z(n) = put' X^(n|n-1) + K (read X(n) - read X^(n|n-1)),  X^(n|n-1) = phi_m (keep X(n-1) + put z(n-1)) + gamma_m u(n-1)
+    big = size + len(unmeasured)
+    big_phi = np.zeros((big, big))
+    big_gamma = np.zeros((big, 1))
+    big_phi[:size, :size], big_gamma[:size] = phi, gamma
+    big_phi[size:, :size] = put.T @ phi_m @ keep + gain @ (read @ phi - read @ phi_m @ keep)
+    big_phi[size:, size:] = put.T @ phi_m @ put - gain @ read @ phi_m @ put
+    big_gamma[size:] = put.T @ gamma_m + gain @ (read @ gamma - read @ gamma_m)
+    mx, mu = latency_predictor(a_m, b_m, sample_time_s, latency_s, tuple(range(n)))
+    estimate = np.concatenate([keep, put], axis=1)  # (size, big): the state the predictor is handed
+    c = plant.c[:, :n] @ np.concatenate([mx, mu], axis=1) @ estimate
+    return DiscretePlant(big_phi, big_gamma, c, drag_per_s, lookahead_s=latency_s)
+
+
 def predicted_plant(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, measured: tuple[int, ...], *,
-                    tilt_state: int | None = None, drag_per_s: float = 0.0) -> DiscretePlant:  # fmt: skip
+                    tilt_state: int | None = None, drag_per_s: float = 0.0,
+                    believed: tuple[np.ndarray, np.ndarray] | None = None) -> DiscretePlant:  # fmt: skip
     """``discretise``'s plant with the law fed the predicted state (``latency_predictor``): its
-    output is (p, v, tilt) of ``Mx x + Mu (delay line)``, the delay line being the plant's own."""
+    output is (p, v, tilt) of ``Mx x + Mu (delay line)``, the delay line being the plant's own.
+    ``believed``: the (A, B) the prediction runs, when not the vehicle's own (a model error)."""
     plant = discretise(a, b, sample_time_s, latency_s, tilt_state=tilt_state, drag_per_s=drag_per_s)
     n = a.shape[0]
-    mx, mu = latency_predictor(a, b, sample_time_s, latency_s, measured)
+    mx, mu = latency_predictor(*((a, b) if believed is None else believed), sample_time_s, latency_s, measured)
     ahead = np.concatenate([mx, mu], axis=1)  # (n, size): the predicted physical state
     return replace(plant, c=plant.c[:, :n] @ ahead, lookahead_s=latency_s)
 
@@ -943,6 +1009,12 @@ def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePl
     command; through the autopilot's attitude loop, or with ``model.angle_gains`` through the
     law's own angle stage and the autopilot's rate loop (``rate_output_plant``)."""
     drag = model.drag_per_s
+    if model.predict and model.observe and model.angle_gains is None:  # predicted, the rate loops observed
+        north, east = (observed_plant(*tilt_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, drag_per_s=drag)
+                       for loop in (model.pitch, model.roll))  # fmt: skip
+        up = predicted_plant(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s, VERTICAL_MEASURED,
+                             drag_per_s=drag)  # fmt: skip
+        return north, east, up
     if model.predict and model.angle_gains is None:  # the law fed the state predicted over the latency
         north, east = (predicted_plant(*tilt_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, HORIZONTAL_MEASURED,
                                        tilt_state=TILT_STATE, drag_per_s=drag) for loop in (model.pitch, model.roll))  # fmt: skip

@@ -12,13 +12,21 @@ for, and the design keeps its bandwidth (4.1 s at 114 ms).
 
 - forward (the pitch loop) and right (the roll loop), in the heading frame: position, velocity,
   tilt (``-pitch`` forward, ``roll`` right: ``v_dot = g tilt``) and its rate (``-q``, ``p``);
-  the rate loop's integral and the motors' torque, not measured, are taken at hover;
+  the rate loop's integral and the motors' torque, not measured, are observed (below) or, without
+  ``model.observe``, taken at hover;
 - up (the thrust's lag): position and velocity; the lagged acceleration taken at hover;
 - the setpoints still in flight: the last ``m + 1`` samples' (``L = m To + delta``), as the model's
   input, ``g tilt_sp`` per horizontal axis and ``u cos(roll_sp) cos(pitch_sp) / m - g`` up.
 
-It keeps no model state between samples beyond those setpoints (a Smith predictor in finite
-form): a model error costs accuracy over one latency, never a drift.
+It keeps no model state between samples beyond those setpoints and the observer's last
+measurement (a Smith predictor in finite form): a model error costs accuracy over one latency
+and a sample, never a drift.
+
+**The rate loop observed** (``model.observe``, ``design.attitude_observer``). Each sample the
+last measured tilt and rate, with the integral and torque observed then, are carried by the
+model through the setpoints that acted since to the new measurement's instant, and what they
+miss of the measured tilt and rate is put down to the integral and the torque by the deadbeat
+gain: an estimate depends on two measurements and the setpoints between them, nothing older.
 
 **The measurement's age.** Sampled on our own clock, a sample reads the telemetry that came last,
 and how long ago it came changes from sample to sample: at 100 Hz telemetry and 20 Hz samples, a
@@ -48,6 +56,7 @@ from offboard.controller.design import (
     HORIZONTAL_MEASURED,
     VERTICAL_MEASURED,
     InnerLoopModel,
+    attitude_observer,
     latency_predictor,
     tilt_axis_plant,
     vertical_plant,
@@ -94,6 +103,7 @@ class LatencyPredictor:
         if not (mass_kg > 0.0 and sample_time_s > 0.0):
             raise ValueError(f"mass_kg and sample_time_s must be > 0, got {mass_kg}, {sample_time_s}")
         self.latency_s = model.latency_s
+        self.sample_time_s = sample_time_s
         self.mass_kg = mass_kg
         self.gravity_m_s2 = gravity_m_s2
         drag = model.drag_per_s
@@ -105,19 +115,34 @@ class LatencyPredictor:
         self._horizons = [self.latency_s + k * HORIZON_STEP_S for k in range(-steps, steps + 1)
                           if self.latency_s + k * HORIZON_STEP_S > 0.0]  # fmt: skip
         self._centre = next(i for i, h in enumerate(self._horizons) if abs(h - self.latency_s) < HORIZON_STEP_S / 2)
-        tables = [[latency_predictor(a, b, sample_time_s, h, measured) for h in self._horizons] for (a, b), measured in axes]
+        self.observe = model.observe
+        # the horizontal axes' Mx with every state's column: the observed integral and torque act
+        # through the last two (without the observer their estimates stay at hover's zero)
+        known = tuple(range(axes[0][0][0].shape[0]))
+        tables = [[latency_predictor(a, b, sample_time_s, h, known if self.observe and i < 2 else measured) for h in self._horizons]
+                  for i, ((a, b), measured) in enumerate(axes)]  # fmt: skip
         self.in_flight = max(mu.shape[1] for axis in tables for _, mu in axis)  # m + 1 setpoints at the longest horizon
         # per horizon: (Mx, Mu) of forward, right, up, Mu padded with zero columns to in_flight
         self._tables = [tuple((mx, np.pad(mu, ((0, 0), (0, self.in_flight - mu.shape[1])))) for mx, mu in
                               (axis[i] for axis in tables)) for i in range(len(self._horizons))]  # fmt: skip
-        self._inputs: deque[tuple[float, float, float]] = deque(maxlen=self.in_flight)
+        # the observer's steps on the horizons' grid, from half a sample to two (an interval
+        # outside that, a gap in the telemetry, restarts the estimates at hover)
+        self._step_count = int(round(sample_time_s / HORIZON_STEP_S))
+        self._observer = ([{k: attitude_observer(a, b, k * HORIZON_STEP_S) for k in range(1, 2 * self._step_count + 1)}
+                           for (a, b), _ in axes[:2]] if self.observe else [])  # fmt: skip
+        # the setpoints the observer's last interval may reach back to: a latency, two samples and an age
+        self._inputs: deque[tuple[float, float, float]] = deque(maxlen=self.in_flight + 3)
         self.reset()
 
     def reset(self) -> None:
         """No setpoint in flight: the vehicle holds hover's (zero inputs); no age seen yet."""
         self._inputs.clear()
-        self._inputs.extend([(0.0, 0.0, 0.0)] * self.in_flight)
+        self._inputs.extend([(0.0, 0.0, 0.0)] * (self.in_flight + 3))
         self._mean_age_s: float | None = None
+        #: the observer's last measurement: tilt and rate forward and right, its age (s), and the
+        #: observed integral and torque then (hover's zero until a second measurement)
+        self._last: tuple[np.ndarray, np.ndarray, float] | None = None
+        self._observed = np.zeros((2, 2))
 
     def horizon_s(self, age_s: float | None) -> float:
         """The horizon a measurement ``age_s`` old is predicted over (module docstring), on the
@@ -152,8 +177,13 @@ class LatencyPredictor:
         fwd = np.array([c * pos[0] + s * pos[1], c * vel[0] + s * vel[1], -pitch, -q_rate, 0.0, 0.0])
         right = np.array([-s * pos[0] + c * pos[1], -s * vel[0] + c * vel[1], roll, p_rate, 0.0, 0.0])
         up = np.array([-pos[2], -vel[2], 0.0])
-        inputs = np.array(self._inputs)  # (m + 1, 3): u(n-1) ... u(n-m-1)
-        horizon = self.horizon_s(getattr(state, "age_s", None))
+        history = np.array(self._inputs)  # u(n-1), u(n-2), ...
+        inputs = history[: self.in_flight]  # (m + 1, 3): u(n-1) ... u(n-m-1)
+        age_s = getattr(state, "age_s", None)
+        horizon = self.horizon_s(age_s)
+        if self.observe:
+            age = max(0.0, age_s) if age_s is not None and math.isfinite(age_s) else 0.0
+            fwd[4:], right[4:] = self._observe(np.array([fwd[2:4], right[2:4]]), age, history)
         (fx, fu), (rx, ru), (ux, uu) = self._tables[self._index(horizon)]
         f = fx @ fwd + fu @ inputs[:, 0]
         r = rx @ right + ru @ inputs[:, 1]
@@ -164,3 +194,47 @@ class LatencyPredictor:
         rates = np.array([r[3], -f[3], r_rate])
         return PredictedState(pos_ned, vel_ned, euler, rates, np.asarray(quat_from_euler(*euler), dtype=float),
                               getattr(state, "position_time_boot_ms", None), horizon)  # fmt: skip
+
+    def _observe(self, measured: np.ndarray, age_s: float, history: np.ndarray) -> np.ndarray:
+        """The rate loops' integral and torque now, forward and right (rows), from the tilt and rate
+        ``measured`` now (rows: forward, right) ``age_s`` old (``design.attitude_observer``).
+
+        On the sample's clock (this sample at 0) the last measurement was taken at ``-To - its
+        age``, this one at ``-age``, and the setpoint of sample n + k acted over ``[k To + l, (k+1)
+        To + l)`` with ``l`` the latency less the usual age (the instant ``predict`` carries a
+        state to). The last estimate is carried over the interval through those setpoints and
+        corrected by what was measured now.
+        """
+        last = self._last
+        if last is None:
+            self._last = (measured, self._observed, age_s)
+            return self._observed
+        step, count = HORIZON_STEP_S, self._step_count
+        start = int(round((-self.sample_time_s - last[2]) / step))
+        end = int(round(-age_s / step))
+        interval = end - start
+        if interval <= 0:  # the same measurement again: the same estimate
+            self._last = (last[0], last[1], last[2] + self.sample_time_s)
+            return self._observed
+        if interval > 2 * count:  # a gap in the telemetry: start again from hover's
+            self._observed = np.zeros((2, 2))
+            self._last = (measured, self._observed, age_s)
+            return self._observed
+        offset = int(round((self.latency_s - (self._mean_age_s or 0.0)) / step))
+        estimate = np.concatenate([last[0], last[1]], axis=1)  # rows forward, right: tilt, rate, integral, torque
+        t = start
+        while t < end:
+            k = (t - offset) // count  # the setpoint acting at t: sample n + k's, u(n-1) in slot 0
+            until = min((k + 1) * count + offset, end)
+            slot = min(max(-1 - k, 0), len(history) - 1)
+            for axis in (0, 1):
+                phi, gamma, _ = self._observer[axis][until - t]
+                estimate[axis] = phi @ estimate[axis] + gamma[:, 0] * history[slot, axis]
+            t = until
+        observed = estimate[:, 2:].copy()
+        if interval >= count // 2:  # a shorter interval says too little of the two: carried only
+            for axis in (0, 1):
+                observed[axis] += self._observer[axis][interval][2] @ (measured[axis] - estimate[axis, :2])
+        self._observed = observed
+        self._last = (measured, observed, age_s)
+        return observed

@@ -79,12 +79,13 @@ def vehicle_values(params: Mapping[str, float]) -> dict[str, float]:
 
 def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, latency_s: float = 0.0,
                        spec: MarginSpec | None = None, velocity_integral: bool = True, body_rates: bool = False,
-                       predict: bool = False) -> Design:  # fmt: skip
+                       predict: bool = False, observe: bool = False) -> Design:  # fmt: skip
     """The design for a vehicle's parameters (``design.inner_loop_from_params``, ``design_gains``),
     with the velocity integral unless ``velocity_integral`` is False; with ``body_rates``, for a
     body-rate output (the law's angle gains designed too); with ``predict`` (an attitude output
     and a latency > 0), for the law handed the state predicted over the latency
-    (``offboard.controller.prediction``).
+    (``offboard.controller.prediction``), with ``observe`` its rate loop observed
+    (``InnerLoopModel.observe``).
 
     Raises
     ------
@@ -95,7 +96,7 @@ def design_for_vehicle(params: Mapping[str, float], *, sample_time_s: float, lat
     """
     model: InnerLoopModel = inner_loop_from_params(params, latency_s)
     if predict and latency_s > 0.0 and not body_rates:
-        model = replace(model, predict=True)
+        model = replace(model, predict=True, observe=observe)
     return design_gains(model, sample_time_s, spec, velocity_integral=velocity_integral, body_rates=body_rates)
 
 

@@ -65,6 +65,10 @@ class ControllerChoice:
         With ``tuned``, an attitude output and a latency > 0: hand the law the state predicted
         over the latency and design the gains for that (``offboard.controller.prediction``;
         ``--no-predict``: the measured state, the gains designed for the latency).
+    observe : bool
+        With ``predict``: observe the autopilot's rate-loop integral and motor torque from how the
+        tilt and the body rate moved over the last sample (``InnerLoopModel.observe``;
+        ``--no-observe``: taken at hover).
     kind : ControllerKind
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
@@ -83,11 +87,17 @@ class ControllerChoice:
     velocity_integral: bool = True
     body_rates: bool = False
     predict: bool = True
+    observe: bool = True
 
     @property
     def predicts(self) -> bool:
         """Whether the flight hands the law the predicted state (``predict``'s conditions)."""
         return self.predict and self.tuned and not self.body_rates and (self.latency_s or 0.0) > 0.0
+
+    @property
+    def observes(self) -> bool:
+        """Whether the prediction observes the rate loop (``observe``, when it ``predicts``)."""
+        return self.observe and self.predicts
 
     def __post_init__(self) -> None:
         if self.kind not in CONTROLLER_KINDS:
@@ -216,12 +226,13 @@ def resolve_controller(
         try:
             design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
                                         velocity_integral=choice.velocity_integral, body_rates=choice.body_rates,
-                                        predict=choice.predicts)  # fmt: skip
+                                        predict=choice.predicts, observe=choice.observes)  # fmt: skip
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None
         params = tuned_params(params, design, vehicle)
-        predicted = ", the law handed the state predicted over it" if design.model.predict else ""
+        predicted = (", the law handed the state predicted over it" + (", the rate loop observed" if design.model.observe else "")
+                     if design.model.predict else "")  # fmt: skip
         notes.append(f"gains designed for the vehicle's inner loop ({design.model.source}, latency "
                      f"{(choice.latency_s or 0.0) * 1000:.0f} ms{predicted}; docs/controller-design.md):")
         notes.extend(f"  {line}" for line in design_summary(design))

@@ -104,6 +104,8 @@ class FlightResult:
     heading_resets: list[dict[str, object]] = field(default_factory=list)
     #: the latency the law's state was predicted over (s; None: the measured state)
     predicted_latency_s: float | None = None
+    #: whether that prediction observed the rate loop's integral and torque (None: not predicted)
+    observed_rate_loop: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -218,6 +220,7 @@ class Flight:
         #: with a latency prediction the law sees the state L ahead, and the references L ahead with it
         self.lookahead_s = 0.0
         self.predicted_latency_s: float | None = None  # the latency the state was predicted over (None: not predicted)
+        self.observed_rate_loop: bool | None = None  # whether that prediction observed the rate loop (None: not predicted)
         self._attitude_heard_s: float | None = None  # when the latest ATTITUDE came (our clock)
         self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
@@ -292,6 +295,7 @@ class Flight:
             heading_resets=[{"t_s": self._mission_time_of(boot_ms), "time_boot_ms": boot_ms, "deg": deg}
                             for boot_ms, deg in self.heading_resets.resets],
             predicted_latency_s=self.predicted_latency_s,
+            observed_rate_loop=self.observed_rate_loop,
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -375,10 +379,12 @@ class Flight:
                       f"COM_OF_LOSS_T {p['COM_OF_LOSS_T']:g} s: its failsafe may act first")
         predictor = None
         if choice.predicts and cfg.output == SetpointOutput.ATTITUDE:
-            model = inner_loop_from_params(vehicle_values(client.vehicle_params), choice.latency_s or 0.0)
+            model = replace(inner_loop_from_params(vehicle_values(client.vehicle_params), choice.latency_s or 0.0),
+                            observe=choice.observes)  # fmt: skip
             predictor = LatencyPredictor(model, self.params.sample_time_s, self.params.mass_kg, self.params.gravity_m_s2)
             self.lookahead_s = predictor.latency_s
             self.predicted_latency_s = choice.latency_s or 0.0
+            self.observed_rate_loop = choice.observes
         self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model, predictor=predictor)
         self.sampler.mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:

@@ -131,6 +131,7 @@ def rerun_controller(
     kind: ControllerKind = ControllerKind.PAPER,
     heading_hold: TakeoffHeadingHold | None = None,
     predicted_latency_s: float | None = None,
+    observed_rate_loop: bool = False,
     vehicle_params: Mapping[str, float] | None = None,
     telemetry_age_s: np.ndarray | None = None,
 ) -> RerunResult:
@@ -168,6 +169,9 @@ def rerun_controller(
         ``predicted_latency_s``; an attitude output of the paper's law): the same
         ``LatencyPredictor``, built from ``vehicle_params`` (the vehicle's, as logged), and the
         references taken that far ahead, as ``offboard fly`` does. None: the measured state.
+    observed_rate_loop : bool
+        Whether that prediction observed the rate loop (summary.json's ``observed_rate_loop``;
+        flights before it did not).
     telemetry_age_s : ndarray or None
         Per sample of ``record``, the telemetry's age the flight handed the prediction (series.csv's
         ``telemetry_age_s``; NaN: none), which the log does not carry to the microsecond.
@@ -190,7 +194,8 @@ def rerun_controller(
     predictor = None
     if predicted_latency_s is not None and predicted_latency_s > 0.0 and sent is SetpointOutput.ATTITUDE \
             and kind is ControllerKind.PAPER:  # fmt: skip
-        inner = inner_loop_from_params(vehicle_values(dict(vehicle_params or {})), predicted_latency_s)
+        inner = replace(inner_loop_from_params(vehicle_values(dict(vehicle_params or {})), predicted_latency_s),
+                        observe=observed_rate_loop)  # fmt: skip
         predictor = LatencyPredictor(inner, to, params.mass_kg, params.gravity_m_s2)
     controller = make_controller(kind, params, vehicle_model=model, predictor=predictor)
     t_all = record["t_s"]
