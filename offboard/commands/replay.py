@@ -19,6 +19,7 @@ import argparse
 import json
 import math
 import sys
+from collections import deque
 import time
 from pathlib import Path
 
@@ -188,9 +189,12 @@ def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tupl
         data = None
     if data is None or not len(data):
         return float(latency), None, note + " (no readable series.csv with the telemetry's ages beside the log: predicted over the latency alone)"
-    ages_by_stamp = dict(zip(data[:, header.index("time_boot_ms")].astype(np.int64).tolist(), data[:, header.index("telemetry_age_s")].tolist()))
+    # by stamp, in order: two samples that read the same telemetry share its stamp, each with its own age
+    ages_by_stamp: dict[int, deque[float]] = {}
+    for stamp, age in zip(data[:, header.index("time_boot_ms")].astype(np.int64).tolist(), data[:, header.index("telemetry_age_s")].tolist()):
+        ages_by_stamp.setdefault(stamp, deque()).append(age)
     stamps = np.asarray(record.meta["time_boot_ms"], dtype=np.int64).tolist()
-    ages = np.array([ages_by_stamp.get(stamp, math.nan) for stamp in stamps], dtype=float)
+    ages = np.array([queue.popleft() if (queue := ages_by_stamp.get(stamp)) else math.nan for stamp in stamps], dtype=float)
     return float(latency), ages, note + " and the telemetry's ages from series.csv"
 
 
