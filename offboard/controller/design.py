@@ -381,7 +381,8 @@ def discretise(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: fl
 #: The states of each axis's model the offboard measures (ATTITUDE, LOCAL_POSITION_NED): position,
 #: velocity, tilt and body rate of a horizontal axis (``tilt_axis_plant``), position and velocity of
 #: the vertical one (``vertical_plant``). The rate loop's integral, the motors' torque and the
-#: thrust's lag are not measured: the prediction takes them at hover (zero).
+#: thrust's lag are not measured: the prediction takes them at hover (zero), or observes the first
+#: two (``observed_plant``, ``attitude_observer``).
 HORIZONTAL_MEASURED = (0, 1, 2, 3)
 VERTICAL_MEASURED = (0, 1)
 
