@@ -331,9 +331,10 @@ def test_the_doc_quotes_what_a_model_error_costs_the_observed_and_the_hover_pred
 
 
 def test_a_flight_observes_the_rate_loop_unless_told_not_to_and_designs_for_what_it_does():
-    """``offboard fly``'s choice (``--no-observe`` sets ``observe`` False): predicting over 110 ms it
-    designs the observed loop's gains (those for no latency) and says so; told not to, the gains for
-    the rate loop at hover; in lockstep (no latency) there is nothing to predict or observe."""
+    """``offboard fly``'s choice (``--observe`` sets ``observe``; by default the rate loop is taken
+    at hover): predicting over 110 ms with it, it designs the observed loop's gains (those for no
+    latency) and says so; without, the gains for the rate loop at hover; in lockstep (no latency)
+    there is nothing to predict or observe."""
     from offboard.codec import Scaling
     from offboard.controller.params import PAPER_CONTROLLER_FILE, load_controller
     from offboard.flight.choice import ControllerChoice, resolve_controller
@@ -343,6 +344,7 @@ def test_a_flight_observes_the_rate_loop_unless_told_not_to_and_designs_for_what
     base = load_controller(PAPER_CONTROLLER_FILE)
     scaling = Scaling(vehicle["SIM_THR_MAX"])
     flown = {}
+    assert not ControllerChoice(base=base, tuned=True, latency_s=0.11).observes  # the default: at hover
     for observe, latency in ((True, 0.11), (False, 0.11), (True, 0.0)):
         choice = ControllerChoice(base=base, tuned=True, latency_s=latency, observe=observe)
         assert choice.observes == (observe and latency > 0)
