@@ -12,8 +12,8 @@ for, and the design keeps its bandwidth (4.1 s at 114 ms).
 
 - forward (the pitch loop) and right (the roll loop), in the heading frame: position, velocity,
   tilt (``-pitch`` forward, ``roll`` right: ``v_dot = g tilt``) and its rate (``-q``, ``p``);
-  the rate loop's integral and the motors' torque, not measured, are observed (below) or, without
-  ``model.observe``, taken at hover;
+  the rate loop's integral and the motors' torque, not measured, are taken at hover, or observed
+  with ``model.observe`` (below);
 - up (the thrust's lag): position and velocity; the lagged acceleration taken at hover;
 - the setpoints still in flight: the last ``m + 1`` samples' (``L = m To + delta``), as the model's
   input, ``g tilt_sp`` per horizontal axis and ``u cos(roll_sp) cos(pitch_sp) / m - g`` up.
@@ -125,8 +125,8 @@ class LatencyPredictor:
         # per horizon: (Mx, Mu) of forward, right, up, Mu padded with zero columns to in_flight
         self._tables = [tuple((mx, np.pad(mu, ((0, 0), (0, self.in_flight - mu.shape[1])))) for mx, mu in
                               (axis[i] for axis in tables)) for i in range(len(self._horizons))]  # fmt: skip
-        # the observer's steps on the horizons' grid, from half a sample to two (an interval
-        # outside that, a gap in the telemetry, restarts the estimates at hover)
+        # the observer's steps on the horizons' grid, up to two samples (a longer interval, a gap in
+        # the telemetry, restarts the estimates at hover; one under half a sample is carried uncorrected)
         self._step_count = int(round(sample_time_s / HORIZON_STEP_S))
         self._observer = ([{k: attitude_observer(a, b, k * HORIZON_STEP_S) for k in range(1, 2 * self._step_count + 1)}
                            for (a, b), _ in axes[:2]] if self.observe else [])  # fmt: skip
