@@ -55,6 +55,28 @@ def _unique_by_time(rows: list[tuple]) -> list[tuple]:
     return out
 
 
+def _distinct_commands(rows: list[tuple]) -> list[tuple]:
+    """Each command once, in ``time_boot_ms`` order (the log's among equal stamps).
+
+    A command is a sample of the controller, named by the telemetry stamp it answered. Two
+    samples may answer one stamp: a real-time sample that found no newer telemetry (a stream
+    slower than the sample rate, a late datagram) reads the last again, and its command differs
+    from the one before; both are kept, or a re-run would skip the second sample's step and
+    differ from there on. A row repeating an earlier one's stamp *and* fields is the same command
+    sent again (a client answering a repeated telemetry burst), dropped. Rows: (stamp, fields...,
+    source, log time, message number), as ``LogScan`` keeps them.
+    """
+    seen: set[tuple] = set()
+    out = []
+    for row in rows:
+        key = (row[0], *row[1:-3])
+        if key not in seen:
+            seen.add(key)
+            out.append(row)
+    out.sort(key=lambda r: r[0])
+    return out
+
+
 def _mission_window(scan: LogScan, sysid: int) -> tuple[float, float]:
     """Message numbers bounding the mission: the accepted arm of ``sysid`` (else the start) and
     the first MAV_CMD_NAV_LAND after it (else the end)."""
@@ -81,13 +103,13 @@ def setpoints_for(scan: LogScan, sysid: int) -> SetpointSeries:
         for row in rows:
             sources[row[-3]] = sources.get(row[-3], 0) + 1
         source = max(sources, key=sources.__getitem__)  # the controller (others: a GCS, a test)
-        # one command per telemetry stamp (a repeat answers a repeated burst), but not across the
-        # accepted arm: the mission's first sample may answer the very telemetry the last
-        # pre-mission setpoint did (no new stamp came while the vehicle armed: PX4 at --speed 4)
+        # every command the controller computed (``_distinct_commands``), the pre-mission ones apart:
+        # the mission's first sample may answer the very telemetry the last pre-mission setpoint
+        # did (no new stamp came while the vehicle armed: PX4 at --speed 4)
         arm = arm_accepted(scan, sysid)
         split = arm[0] if arm is not None else -1
         ours = [r for r in rows if r[-3] == source]
-        rows = _unique_by_time([r for r in ours if r[-1] < split]) + _unique_by_time([r for r in ours if r[-1] >= split])
+        rows = _distinct_commands([r for r in ours if r[-1] < split]) + _distinct_commands([r for r in ours if r[-1] >= split])
         return SetpointSeries(
             kind,
             np.array([r[0] for r in rows], dtype=np.int64),

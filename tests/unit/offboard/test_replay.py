@@ -480,3 +480,26 @@ def test_commands_were_sampled_on_the_vehicles_clock_where_it_ran_at_another_rat
     assert vehicle_clock_rate(log, 4000 + np.rint(np.arange(200) * 12.5)) is None  # real time
     assert vehicle_clock_rate(log, np.full(200, 4000)) is None  # a vehicle that waits (lockstep, stalled)
     assert vehicle_clock_rate(log[:40], 4000 + np.arange(40) * 50) is None  # under a second of the log: not measured
+
+
+# --- commands that answer one telemetry stamp -----------------------------------------------------
+
+
+def test_two_samples_that_read_one_telemetry_stamp_are_two_commands_and_a_resend_is_one(tmp_path):
+    """A real-time sample that found no newer telemetry answers the stamp the sample before it
+    answered, with a command of its own: both are the controller's samples (the log kept only the
+    first, and a real-time flight with its telemetry at 15 Hz and its samples at 20 Hz re-ran 91
+    of its 121 samples, 88 of them differently). The same command sent again is one."""
+    mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    sent = [(100, 0.50), (150, 0.51), (150, 0.52), (200, 0.53), (200, 0.53), (250, 0.54)]  # (stamp, thrust)
+    with open(tmp_path / "commands.tlog", "wb") as fh:
+        for k, (stamp, thrust) in enumerate(sent):
+            fh.write(struct.pack(">Q", EPOCH_US + k * 50_000))
+            fh.write(mavlink.MAVLink_set_attitude_target_message(stamp, VEHICLE, 1, 0b111, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust).pack(mav))
+            mav.seq = (mav.seq + 1) % 256
+    from offboard.replay.record import setpoints_for
+
+    series = setpoints_for(scan_log(TlogReader(tmp_path / "commands.tlog")), VEHICLE)
+    assert series.kind == "attitude"
+    assert series.time_boot_ms.tolist() == [100, 150, 150, 200, 250]
+    assert_allclose(series.values[:, -1], [0.50, 0.51, 0.52, 0.53, 0.54], rtol=1e-6)

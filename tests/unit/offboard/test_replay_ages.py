@@ -19,15 +19,18 @@ def _series(folder, rows):
 
 def test_two_samples_of_one_telemetry_stamp_each_keep_their_own_age(tmp_path):
     """A sample that read the telemetry the one before it read shares its stamp (a real-time
-    flight under load: 1.8 s and 1.85 s, both 2844 ms); the log keeps the first command of a
-    stamp, so the record's sample of that stamp is the first, and its age is the first's (it was
-    the second's, 0.1 ms against 7 ms, and the re-run differed from there)."""
+    flight under load: 1.8 s and 1.85 s, both 2844 ms); the record has a sample for each command,
+    and each gets its own age, in order (a dict by stamp gave both the second's, 0.1 ms against
+    7 ms, and the re-run differed from there). A log that holds only the first command of the
+    stamp gives it the first's."""
     log = _series(tmp_path, [(1.75, 2792, 0.009), (1.8, 2844, 0.007), (1.85, 2844, 0.0001), (1.9, 2944, 0.0071)])
-    record = SimpleNamespace(meta={"time_boot_ms": np.array([2792, 2844, 2944, 3044])})
+    record = SimpleNamespace(meta={"time_boot_ms": np.array([2792, 2844, 2844, 2944, 3044])})
     latency, ages, note = _predicted_latency_as_flown(log, {"predicted_latency_s": 0.01}, record)
     assert latency == 0.01
-    assert ages[:3].tolist() == [0.009, 0.007, 0.0071] and math.isnan(ages[3])
+    assert ages[:4].tolist() == [0.009, 0.007, 0.0001, 0.0071] and math.isnan(ages[4])
     assert "telemetry's ages from series.csv" in note and "observed" not in note
+    first_only = SimpleNamespace(meta={"time_boot_ms": np.array([2792, 2844, 2944])})
+    assert _predicted_latency_as_flown(log, {"predicted_latency_s": 0.01}, first_only)[1].tolist() == [0.009, 0.007, 0.0071]
 
 
 def test_the_observer_is_restored_as_flown_and_a_bad_value_is_one_line(tmp_path):
