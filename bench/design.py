@@ -9,9 +9,9 @@ at the same rate through the same attitude loop.
 - ``sitl-plant`` in lockstep: every bundled mission, every controller;
 - ``sitl-plant`` in real time (``make demo``'s setting): the paper helix, both controllers, with
   and without 50 +- 20 ms of delay each way (``bench/linkdelay.py``); with the delay, the design
-  for the latency it measured (TIMESYNC), the law handed the state predicted over it (the
-  default), predicted with the autopilot's rate loop observed (``--observe``) or the measured
-  state (``--no-predict``), and the design and prediction for a wrong 10 ms
+  for the latency it measured (TIMESYNC), the law handed the state predicted over it with the
+  autopilot's rate loop observed (the default), predicted with the rate loop taken at hover
+  (``--no-observe``) or the measured state (``--no-predict``), and the design and prediction for a wrong 10 ms
   (``--design-latency``); the baselines with the delay;
 - a real PX4 v1.16 SITL (SIH quadrotor) when one is found (``bench/px4sitl.py``): every bundled
   mission with the designed gains, the helix with Table I's, the helix and the square with the
@@ -182,9 +182,9 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
             ("paper", False, None, (), "real time"),
             (None, False, None, (), "real time"),
             ("paper", True, None, (), "real time, 50 +- 20 ms delay"),
-            (None, True, None, (), "real time, 50 +- 20 ms delay (latency measured, state predicted)"),
-            (None, True, None, ("--observe",), "real time, 50 +- 20 ms delay (latency measured, state predicted, rate loop "
-                                               "observed: --observe)"),
+            (None, True, None, (), "real time, 50 +- 20 ms delay (latency measured, state predicted, rate loop observed)"),
+            (None, True, None, ("--no-observe",), "real time, 50 +- 20 ms delay (latency measured, state predicted, rate loop "
+                                                  "at hover: --no-observe)"),
             (None, True, None, ("--no-predict",), "real time, 50 +- 20 ms delay (latency measured, measured state: --no-predict)"),
             (None, True, 0.01, (), "real time, 50 +- 20 ms delay, designed and predicted for 10 ms"),
             *((b, True, None, (), "real time, 50 +- 20 ms delay") for b in BASELINES),

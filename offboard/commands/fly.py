@@ -115,10 +115,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="hand the designed law the measured state, the gains designed for the latency (default, "
                           "with the attitude output and a latency: the state predicted over the latency by the "
                           "inner loop's model, the gains designed for that; docs/controller-design.md)")
-    ctl.add_argument("--observe", action="store_true",
-                     help="with the prediction, observe the autopilot's rate-loop integral and motor torque from how the "
-                          "tilt and body rate moved over the last sample, and design the gains for that (default: taken "
-                          "at hover; docs/controller-design.md, \"The rate loop observed\")")
+    ctl.add_argument("--no-observe", action="store_true",
+                     help="with the prediction, take the autopilot's rate-loop integral and motor torque at hover, and "
+                          "design the gains for that (default: observed from how the tilt and body rate moved against "
+                          "the inner loop's model, the gains designed for that; docs/controller-design.md, \"The rate "
+                          "loop observed\")")
     ctl.add_argument("--mass-from-vehicle", action="store_true", help="use the vehicle's SIM_MASS even with --controller")
     ctl.add_argument("--yaw-aware", action=argparse.BooleanOptionalAction, default=None,
                      help="horizontal law in the heading frame (default: the file's; without a file on for rigid-body)")
@@ -290,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
         velocity_integral=not args.no_integral,
         body_rates=args.output == "rates",
         predict=not args.no_predict,
-        observe=args.observe,
+        observe=not args.no_observe,
     )
     config = FlightConfig(
         output=args.output,
@@ -444,6 +445,8 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "predicted_latency_s": result.predicted_latency_s,
         # whether that prediction observed the autopilot's rate-loop integral and torque (null: not predicted)
         "observed_rate_loop": result.observed_rate_loop,
+        # how long the observer took to forget an error of its estimates (s; null: not observed)
+        "observer_memory_s": result.observer_memory_s,
         "notes": result.notes,
     }
 

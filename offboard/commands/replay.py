@@ -169,6 +169,17 @@ def _observed_as_flown(summary: dict | None) -> bool:
     return bool(observed)
 
 
+def _observer_memory_as_flown(summary: dict | None) -> float:
+    """The observer's memory the flight flew (summary.json's ``observer_memory_s``; absent in the
+    flights that observed before it, whose observer was deadbeat: 0)."""
+    memory = (summary or {}).get("observer_memory_s")
+    if memory is None:
+        return 0.0
+    if isinstance(memory, bool) or not isinstance(memory, (int, float)) or not (math.isfinite(memory) and memory >= 0):
+        raise ReplayArgumentError(f"--rerun: summary.json: observer_memory_s {memory!r} is not a time (s, >= 0)")
+    return float(memory)
+
+
 def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tuple[float | None, np.ndarray | None, str]:
     """The latency the flight predicted its state over (summary.json's ``predicted_latency_s``),
     the telemetry ages it handed the prediction at each of ``record``'s samples (series.csv's
@@ -178,7 +189,11 @@ def _predicted_latency_as_flown(log: Path, summary: dict | None, record) -> tupl
         return None, None, ""
     if not isinstance(latency, (int, float)) or isinstance(latency, bool) or not (math.isfinite(latency) and latency >= 0):
         raise ReplayArgumentError(f"--rerun: summary.json: predicted_latency_s {latency!r} is not a latency (s, >= 0)")
-    note = f"; state predicted over {latency * 1000:.0f} ms" + (", the rate loop observed" if _observed_as_flown(summary) else "")
+    observed = ""
+    if _observed_as_flown(summary):
+        memory = _observer_memory_as_flown(summary)
+        observed = f", the rate loop observed ({f'{memory:g} s of memory' if memory > 0 else 'deadbeat'})"
+    note = f"; state predicted over {latency * 1000:.0f} ms{observed}"
     series = log.parent / "series.csv"
     try:
         with series.open() as fh:
@@ -394,6 +409,7 @@ def _rerun(args: argparse.Namespace, scan, record, trajectory, summary_json: dic
     result = replay.rerun_controller(scan, record, params, trajectory, scaling, model, encoding, kind,
                                      heading_hold=_heading_hold_as_flown(summary_json), predicted_latency_s=latency,
                                      observed_rate_loop=args.controller is None and _observed_as_flown(summary_json),
+                                     observer_memory_s=_observer_memory_as_flown(summary_json),
                                      vehicle_params=params_log, telemetry_age_s=ages)  # fmt: skip
     origin += age_note
     label = f"controller: {origin}{'' if kind is ControllerKind.PAPER else f', {kind}'}; model {model}"

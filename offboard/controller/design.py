@@ -122,6 +122,10 @@ class InnerLoopModel:
         carries, are observed from how the tilt and the body rate moved over the last sample
         against this model (``attitude_observer``, ``observed_plant``) instead of being taken at
         hover.
+    observer_memory_s : float or None
+        How long the observer takes to forget an error of its estimates (``attitude_observer``'s
+        T); None: ``OBSERVER_MEMORY_SAMPLES`` of the law's sample time; 0: none (deadbeat, as
+        flights flew before the memory).
     """
 
     roll: TiltLoop
@@ -133,12 +137,19 @@ class InnerLoopModel:
     angle_gains: AxisGains | None = None
     predict: bool = False
     observe: bool = False
+    observer_memory_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("thrust_time_constant_s", "latency_s", "drag_per_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
+        if self.observer_memory_s is not None and not (math.isfinite(self.observer_memory_s) and self.observer_memory_s >= 0):
+            raise ValueError(f"observer_memory_s must be >= 0, got {self.observer_memory_s}")
+
+    def observer_memory_at(self, sample_time_s: float) -> float:
+        """The observer's memory T (s) at the law's sample time (``observer_memory_s``)."""
+        return OBSERVER_MEMORY_SAMPLES * sample_time_s if self.observer_memory_s is None else self.observer_memory_s
 
 
 def _param(params: Mapping[str, float], *names: str, default: float | None = None) -> float:
@@ -419,32 +430,50 @@ def latency_predictor(a: np.ndarray, b: np.ndarray, sample_time_s: float, latenc
 #: not act back on them), whose first two are measured.
 ATTITUDE_STATES = (2, 3, 4, 5)
 
+#: The observer's memory in samples of the law (``attitude_observer``'s T = this x To): the same
+#: 20 samples over which the prediction averages the telemetry's usual age
+#: (``prediction.AGE_AVERAGE_SAMPLES``), the link's timing noise averaged alike.
+OBSERVER_MEMORY_SAMPLES = 20
 
-def attitude_observer(a: np.ndarray, b: np.ndarray, interval_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+
+def attitude_observer(a: np.ndarray, b: np.ndarray, interval_s: float, memory_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Phi, Gamma, K) of the observer of a horizontal axis's rate-loop integral and motor torque
     over ``interval_s`` between two measurements (``tilt_axis_plant``'s ``a``, ``b``).
 
     Over the interval the attitude states (``ATTITUDE_STATES``) go ``x <- Phi x + Gamma u`` for a
     held input; the estimate at the interval's start (the measured tilt and rate, the observed
     integral and torque) carried so is corrected by ``K (y - y_model)``, y the tilt and rate
-    measured at its end. K is deadbeat, ``K = Phi_uu Phi_mu^-1``: whatever the integral and the
-    torque were off at the start is gone at the end, so the estimate has no memory of its own
-    beyond one interval, and a model error costs accuracy over an interval, never a drift.
+    measured at its end::
+
+        K = (1 - e^(-h / T)) Phi_uu Phi_mu^-1          h = interval_s, T = memory_s
+
+    The error of the estimates then goes ``e <- e^(-h/T) Phi_uu e`` an interval. Uncorrected
+    (T infinite) the inner loop's own dynamics forget it (the paper quad's Phi_uu over 50 ms has
+    eigenvalues 0.972 and -0.157: about 1.8 s); T shortens that, and T = 0 is the deadbeat
+    observer (``K = Phi_uu Phi_mu^-1``), the error gone at the interval's end. Deadbeat has no
+    memory, but it puts all of what the model missed of the measured tilt and rate on the two
+    estimates: over a link whose timing is off by milliseconds from sample to sample (when a
+    setpoint began to act, when a measurement was taken), that is noise, which the prediction
+    then carries over the latency (docs/controller-design.md, "The rate loop observed"). With T
+    the correction is spread over about T / h intervals and the noise averaged.
     """
+    if not (math.isfinite(memory_s) and memory_s >= 0.0):
+        raise ValueError(f"the observer's memory must be >= 0 s, got {memory_s}")
     keep = list(ATTITUDE_STATES)
     phi, gamma = _zoh(a[np.ix_(keep, keep)], b[keep], interval_s)
-    gain = phi[2:, 2:] @ np.linalg.inv(phi[:2, 2:])
+    spread = 1.0 - math.exp(-interval_s / memory_s) if memory_s > 0.0 else 1.0
+    gain = spread * phi[2:, 2:] @ np.linalg.inv(phi[:2, 2:])
     return phi, gamma, gain
 
 
 def observed_plant(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s: float, *, drag_per_s: float = 0.0,
-                   believed: tuple[np.ndarray, np.ndarray] | None = None) -> DiscretePlant:  # fmt: skip
+                   believed: tuple[np.ndarray, np.ndarray] | None = None, memory_s: float = 0.0) -> DiscretePlant:  # fmt: skip
     """``predicted_plant`` of a horizontal axis whose rate-loop integral and motor torque are
-    observed (``attitude_observer`` over a sample) instead of taken at hover: the two estimates
-    are two more states, updated each sample from the last sample's measured tilt and rate, the
-    estimates, the setpoints that acted and the measurement now; the law is handed the state
-    predicted from the measured states and the estimates. ``believed``: the (A, B) the observer
-    and the prediction run, when not the vehicle's own (a model error)."""
+    observed (``attitude_observer`` over a sample, with its ``memory_s``) instead of taken at
+    hover: the two estimates are two more states, updated each sample from the last sample's
+    measured tilt and rate, the estimates, the setpoints that acted and the measurement now; the
+    law is handed the state predicted from the measured states and the estimates. ``believed``:
+    the (A, B) the observer and the prediction run, when not the vehicle's own (a model error)."""
     plant = discretise(a, b, sample_time_s, latency_s, tilt_state=TILT_STATE, drag_per_s=drag_per_s)
     a_m, b_m = (a, b) if believed is None else believed
     model = discretise(a_m, b_m, sample_time_s, latency_s, tilt_state=TILT_STATE, drag_per_s=drag_per_s)
@@ -456,7 +485,7 @@ def observed_plant(a: np.ndarray, b: np.ndarray, sample_time_s: float, latency_s
     put[unmeasured, range(len(unmeasured))] = 1.0
     read = np.zeros((2, size))  # the measured tilt and rate
     read[[0, 1], [TILT_STATE, RATE_STATE]] = 1.0
-    _, _, gain = attitude_observer(a_m, b_m, sample_time_s)
+    _, _, gain = attitude_observer(a_m, b_m, sample_time_s, memory_s)
     phi, gamma, phi_m, gamma_m = plant.phi, plant.gamma, model.phi, model.gamma
     # z(n) = put' X^(n|n-1) + K (read X(n) - read X^(n|n-1)),  X^(n|n-1) = phi_m (keep X(n-1) + put z(n-1)) + gamma_m u(n-1)
     big = size + len(unmeasured)
@@ -1011,8 +1040,8 @@ def axis_plants(model: InnerLoopModel, sample_time_s: float) -> tuple[DiscretePl
     law's own angle stage and the autopilot's rate loop (``rate_output_plant``)."""
     drag = model.drag_per_s
     if model.predict and model.observe and model.angle_gains is None:  # predicted, the rate loops observed
-        north, east = (observed_plant(*tilt_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, drag_per_s=drag)
-                       for loop in (model.pitch, model.roll))  # fmt: skip
+        north, east = (observed_plant(*tilt_axis_plant(loop, drag_per_s=drag), sample_time_s, model.latency_s, drag_per_s=drag,
+                                      memory_s=model.observer_memory_at(sample_time_s)) for loop in (model.pitch, model.roll))  # fmt: skip
         up = predicted_plant(*vertical_plant(model.thrust_time_constant_s, drag), sample_time_s, model.latency_s, VERTICAL_MEASURED,
                              drag_per_s=drag)  # fmt: skip
         return north, east, up

@@ -24,9 +24,11 @@ and a sample, never a drift.
 
 **The rate loop observed** (``model.observe``, ``design.attitude_observer``). Each sample the
 last measured tilt and rate, with the integral and torque observed then, are carried by the
-model through the setpoints that acted since to the new measurement's instant, and what they
-miss of the measured tilt and rate is put down to the integral and the torque by the deadbeat
-gain: an estimate depends on two measurements and the setpoints between them, nothing older.
+model through the setpoints that acted since to the new measurement's instant, and a share of
+what they miss of the measured tilt and rate is put down to the integral and the torque: the
+deadbeat correction spread over the observer's memory T (``model.observer_memory_at``, 20
+samples: 1 s at To = 50 ms), so that the link's timing noise of one sample moves the estimates
+by a twentieth of what it would, and an error of theirs is forgotten within about T.
 
 **The measurement's age.** Sampled on our own clock, a sample reads the telemetry that came last,
 and how long ago it came changes from sample to sample: at 100 Hz telemetry and 20 Hz samples, a
@@ -54,6 +56,7 @@ from offboard.controller.command import StateEstimate
 from offboard.controller.design import (
     GRAVITY_M_S2,
     HORIZONTAL_MEASURED,
+    OBSERVER_MEMORY_SAMPLES,
     VERTICAL_MEASURED,
     InnerLoopModel,
     attitude_observer,
@@ -80,8 +83,9 @@ class PredictedState:
 #: the horizons' grid (s): 1 ms of horizon is at most a few tenths of a millimetre and a
 #: hundredth of a degree of the predicted state at the law's speeds
 HORIZON_STEP_S = 0.001
-#: samples over which the measurement's usual age is averaged (exponentially)
-AGE_AVERAGE_SAMPLES = 20
+#: samples over which the measurement's usual age is averaged (exponentially): the observer's
+#: memory, the link's timing averaged over one window
+AGE_AVERAGE_SAMPLES = OBSERVER_MEMORY_SAMPLES
 
 
 class LatencyPredictor:
@@ -128,7 +132,8 @@ class LatencyPredictor:
         # the observer's steps on the horizons' grid, up to two samples (a longer interval, a gap in
         # the telemetry, restarts the estimates at hover; one under half a sample is carried uncorrected)
         self._step_count = int(round(sample_time_s / HORIZON_STEP_S))
-        self._observer = ([{k: attitude_observer(a, b, k * HORIZON_STEP_S) for k in range(1, 2 * self._step_count + 1)}
+        self.observer_memory_s = model.observer_memory_at(sample_time_s)
+        self._observer = ([{k: attitude_observer(a, b, k * HORIZON_STEP_S, self.observer_memory_s) for k in range(1, 2 * self._step_count + 1)}
                            for (a, b), _ in axes[:2]] if self.observe else [])  # fmt: skip
         # the setpoints the observer's last interval may reach back to: a latency, two samples and an age
         self._inputs: deque[tuple[float, float, float]] = deque(maxlen=self.in_flight + 3)

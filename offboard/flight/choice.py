@@ -67,8 +67,8 @@ class ControllerChoice:
         ``--no-predict``: the measured state, the gains designed for the latency).
     observe : bool
         With ``predict``: observe the autopilot's rate-loop integral and motor torque from how the
-        tilt and the body rate moved over the last sample (``InnerLoopModel.observe``,
-        ``--observe``); without, taken at hover.
+        tilt and the body rate moved against the inner loop's model (``InnerLoopModel.observe``;
+        ``--no-observe``: taken at hover).
     kind : ControllerKind
         Which controller flies (``offboard.controllers``): ``paper`` (the law, with ``base``'s
         gains or the designed ones), ``se3`` or ``px4``; all believe the resolved parameters.
@@ -87,7 +87,7 @@ class ControllerChoice:
     velocity_integral: bool = True
     body_rates: bool = False
     predict: bool = True
-    observe: bool = False
+    observe: bool = True
 
     @property
     def predicts(self) -> bool:

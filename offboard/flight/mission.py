@@ -106,6 +106,8 @@ class FlightResult:
     predicted_latency_s: float | None = None
     #: whether that prediction observed the rate loop's integral and torque (None: not predicted)
     observed_rate_loop: bool | None = None
+    #: the observer's memory (s; None: not observed)
+    observer_memory_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -221,6 +223,7 @@ class Flight:
         self.lookahead_s = 0.0
         self.predicted_latency_s: float | None = None  # the latency the state was predicted over (None: not predicted)
         self.observed_rate_loop: bool | None = None  # whether that prediction observed the rate loop (None: not predicted)
+        self.observer_memory_s: float | None = None  # the observer's memory (None: not observed)
         self._attitude_heard_s: float | None = None  # when the latest ATTITUDE came (our clock)
         self.references_ahead = ReferencePairs(trajectory, self.to)
         self._landing_ms: int | None = None  # the vehicle's time when the landing's progress began
@@ -296,6 +299,7 @@ class Flight:
                             for boot_ms, deg in self.heading_resets.resets],
             predicted_latency_s=self.predicted_latency_s,
             observed_rate_loop=self.observed_rate_loop,
+            observer_memory_s=self.observer_memory_s,
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -385,6 +389,7 @@ class Flight:
             self.lookahead_s = predictor.latency_s
             self.predicted_latency_s = choice.latency_s or 0.0
             self.observed_rate_loop = choice.observes
+            self.observer_memory_s = predictor.observer_memory_s if choice.observes else None
         self.controller = make_controller(choice.kind, self.params, vehicle_model=cfg.model, predictor=predictor)
         self.sampler.mission_samples = int(round(self.trajectory.duration_s / self.to))
         if not measure_latency:

@@ -132,6 +132,7 @@ def rerun_controller(
     heading_hold: TakeoffHeadingHold | None = None,
     predicted_latency_s: float | None = None,
     observed_rate_loop: bool = False,
+    observer_memory_s: float = 0.0,
     vehicle_params: Mapping[str, float] | None = None,
     telemetry_age_s: np.ndarray | None = None,
 ) -> RerunResult:
@@ -172,6 +173,9 @@ def rerun_controller(
     observed_rate_loop : bool
         Whether that prediction observed the rate loop (summary.json's ``observed_rate_loop``;
         flights before it did not).
+    observer_memory_s : float
+        The observer's memory (summary.json's ``observer_memory_s``; 0, deadbeat, for the flights
+        that observed before it).
     telemetry_age_s : ndarray or None
         Per sample of ``record``, the telemetry's age the flight handed the prediction (series.csv's
         ``telemetry_age_s``; NaN: none), which the log does not carry to the microsecond.
@@ -195,7 +199,7 @@ def rerun_controller(
     if predicted_latency_s is not None and predicted_latency_s > 0.0 and sent is SetpointOutput.ATTITUDE \
             and kind is ControllerKind.PAPER:  # fmt: skip
         inner = replace(inner_loop_from_params(vehicle_values(dict(vehicle_params or {})), predicted_latency_s),
-                        observe=observed_rate_loop)  # fmt: skip
+                        observe=observed_rate_loop, observer_memory_s=observer_memory_s)  # fmt: skip
         predictor = LatencyPredictor(inner, to, params.mass_kg, params.gravity_m_s2)
     controller = make_controller(kind, params, vehicle_model=model, predictor=predictor)
     t_all = record["t_s"]

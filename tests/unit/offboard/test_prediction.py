@@ -234,47 +234,79 @@ def _march(a, b, x0, inputs, offset_s, stops_s, dt=1e-4):
     return out
 
 
-@pytest.mark.parametrize("latency_s", [0.03, 0.11])
-def test_the_observed_rate_loop_makes_the_prediction_the_models_truth(latency_s):
-    """docs/controller-design.md, "The rate loop observed": with the rate loop's integral and the
-    motors' torque observed (``InnerLoopModel.observe``), the state handed the law is the model's
-    own state at the instant the setpoint acts, from the second measurement on, though the
-    integral and torque start far from hover, the setpoints change every sample and the
-    measurements come 2 and 8 ms old by turns. Taken at hover (the prediction without the
-    observer) it is not."""
+def _observed_prediction_errors(latency_s: float, x0, observe: bool, memory_s: float | None, samples: int = 30) -> np.ndarray:
+    """Each sample's prediction against the continuous model's state at the instant its setpoint
+    acts (position, velocity, tilt and rate forward, in units of 1 mm, 1 cm/s, 1 mrad and
+    1 crad/s: the largest), from ``x0`` (p, v, tilt, rate, the rate loop's integral, torque), the
+    setpoints changing every sample and the measurements 2 and 8 ms old by turns. NaN for the
+    first two samples (the first measurement has no interval before it; the first setpoint acts
+    after the next)."""
     base = _plant_model(latency_s)
     a, b = D.tilt_axis_plant(base.pitch, 9.81, base.drag_per_s)
     rng = np.random.default_rng(11)
-    x0 = np.array([0.3, 0.5, 0.04, 0.2, 0.05, 0.004])  # p, v, tilt, rate, the rate loop's integral, torque
-    inputs = {j: float(rng.normal(scale=1.5)) for j in range(1, 40)}  # a_c (m/s^2) of sample j; hover's before 1
-    ages = [math.nan, 0.005] + [0.002, 0.008] * 20  # the first is the usual age: the average starts there
-    errors = {}
-    for observe in (True, False):
-        p = LatencyPredictor(replace(base, observe=observe), TO, mass_kg=0.5, gravity_m_s2=9.81)
-        offset = latency_s - 0.005  # the setpoint of sample j acts over [j To + L - usual age, ...)
-        stops = sorted({round(n * TO - ages[n], 4) for n in range(1, 30)} | {round(n * TO + offset, 4) for n in range(1, 30)})
-        truth = _march(a, b, x0, inputs, offset, [s for s in stops if s >= 0])
-        worst = 0.0
-        for n in range(1, 30):
-            x = truth[round(n * TO - ages[n], 4)]
-            state = replace_age(_state([x[0], 0.0, -5.0], [x[1], 0.0, 0.0], [0.0, -x[2], 0.0], [0.0, -x[3], 0.0]), ages[n])
-            ahead = p.predict(state)
-            p.record(0.5 * 9.81, 0.0, -inputs[n] / 9.81)  # forward's input is -g pitch_sp
-            then = truth[round(n * TO + offset, 4)]
-            got = np.array([ahead.pos_ned_m[0], ahead.vel_ned_m_s[0], -ahead.euler_rad[1], -ahead.body_rate_frd_rad_s[1]])
-            if n >= 3:  # the first measurement has no interval before it; the first setpoint acts after the next
-                worst = max(worst, float(np.max(np.abs(got - then[:4]) / np.array([1e-3, 1e-2, 1e-3, 1e-2]))))
-        errors[observe] = worst
+    inputs = {j: float(rng.normal(scale=1.5)) for j in range(1, samples + 10)}  # a_c (m/s^2) of sample j; hover's before 1
+    ages = [math.nan, 0.005] + [0.002, 0.008] * samples  # the first is the usual age: the average starts there
+    p = LatencyPredictor(replace(base, observe=observe, observer_memory_s=memory_s), TO, mass_kg=0.5, gravity_m_s2=9.81)
+    offset = latency_s - 0.005  # the setpoint of sample j acts over [j To + L - usual age, ...)
+    stops = sorted({round(n * TO - ages[n], 4) for n in range(1, samples)} | {round(n * TO + offset, 4) for n in range(1, samples)})
+    truth = _march(a, b, np.array(x0, dtype=float), inputs, offset, [s for s in stops if s >= 0])
+    errors = np.full(samples, np.nan)
+    for n in range(1, samples):
+        x = truth[round(n * TO - ages[n], 4)]
+        state = replace_age(_state([x[0], 0.0, -5.0], [x[1], 0.0, 0.0], [0.0, -x[2], 0.0], [0.0, -x[3], 0.0]), ages[n])
+        ahead = p.predict(state)
+        p.record(0.5 * 9.81, 0.0, -inputs[n] / 9.81)  # forward's input is -g pitch_sp
+        then = truth[round(n * TO + offset, 4)]
+        got = np.array([ahead.pos_ned_m[0], ahead.vel_ned_m_s[0], -ahead.euler_rad[1], -ahead.body_rate_frd_rad_s[1]])
+        if n >= 3:
+            errors[n] = float(np.max(np.abs(got - then[:4]) / np.array([1e-3, 1e-2, 1e-3, 1e-2])))
+    return errors
+
+
+#: p, v, tilt, rate, and the rate loop's integral and torque far from hover's
+FAR_FROM_HOVER = (0.3, 0.5, 0.04, 0.2, 0.05, 0.004)
+
+
+@pytest.mark.parametrize("latency_s", [0.03, 0.11])
+def test_the_deadbeat_observer_makes_the_prediction_the_models_truth(latency_s):
+    """docs/controller-design.md, "The rate loop observed": with the rate loop's integral and the
+    motors' torque observed by the deadbeat observer (memory 0, as flights observed before the
+    memory), the state handed the law is the model's own state at the instant the setpoint acts,
+    from the second measurement on, though the integral and torque start far from hover, the
+    setpoints change every sample and the measurements come 2 and 8 ms old by turns. Taken at
+    hover (the prediction without the observer) it is not."""
+    observed = np.nanmax(_observed_prediction_errors(latency_s, FAR_FROM_HOVER, True, 0.0))
+    at_hover = np.nanmax(_observed_prediction_errors(latency_s, FAR_FROM_HOVER, False, None))
     # observed: to rounding (the march is exact for inputs held over its steps); at hover, centimetres off
-    assert errors[True] < 1e-6, errors
-    assert errors[False] > 1.0, errors
+    assert observed < 1e-6 and at_hover > 1.0, (observed, at_hover)
+
+
+@pytest.mark.parametrize("latency_s", [0.03, 0.11])
+def test_the_observer_forgets_its_error_within_its_memory_and_is_exact_when_it_starts_right(latency_s):
+    """The observer as flown (``OBSERVER_MEMORY_SAMPLES`` of memory: 1 s at 50 ms): from the
+    integral and torque far from hover its prediction starts as far off as at hover, and the error
+    falls by e within about the memory (the slowest mode of e^(-h/T) Phi_uu: 0.925 a sample for
+    the paper quad), under a tenth of itself within 3 s; started at the model's state (level and
+    at rest: the integral and torque at hover's zero when first measured) it is the model's truth
+    from the start, every sample."""
+    samples = 100
+    far = _observed_prediction_errors(latency_s, FAR_FROM_HOVER, True, None, samples)
+    early, late = np.nanmax(far[3:8]), np.nanmax(far[60:])
+    assert early > 1.0 and late < 0.1 * early, (early, late)
+    memory = D.OBSERVER_MEMORY_SAMPLES * TO
+    at_memory = np.nanmax(far[int(memory / TO) : int(memory / TO) + 5])
+    assert at_memory < 0.6 * early, (early, at_memory)  # e^-1 = 0.37 of it, with the torque's and the rounding's share
+    started_right = _observed_prediction_errors(latency_s, (0.3, 0.5, 0.0, 0.0, 0.0, 0.0), True, None, samples)  # level, at rest
+    assert np.nanmax(started_right) < 1e-6, np.nanmax(started_right)
 
 
 def test_with_the_rate_loop_observed_the_design_for_a_latency_is_the_design_for_none():
     """The observer (``design.observed_plant``) gives the law what knowing the integral and the
     torque gave it (``test_the_unmeasured_rate_integral_is_what_slows_the_predicted_design``): at
     every latency the design's gains, slowest pole and sensitivity peak are those for no latency,
-    and the closed loop's poles are the undelayed loop's with the rest at the origin."""
+    and the closed loop's poles are the undelayed loop's with the rest at the origin (deadbeat) or,
+    with the memory flown, the estimates' error modes (e^(-h/T) times Phi_uu's) inside the
+    slowest of them: the memory costs the design nothing."""
     spec = D.MarginSpec()
     none = D.design_gains(_plant_model(0.0), TO, spec, velocity_integral=True)
     for latency in (0.03, 0.11, 0.15):
@@ -293,6 +325,16 @@ def test_with_the_rate_loop_observed_the_design_for_a_latency_is_the_design_for_
     extra = len(p_obs) - len(p_none)  # two delay slots and the two estimates: at the origin
     assert extra == 4 and np.all(p_obs[:extra] < 1e-3)
     assert np.allclose(p_obs[extra:], p_none, atol=1e-3)  # (zeros of high multiplicity come out near 1e-4)
+    memory = model.observer_memory_at(TO)
+    assert memory == pytest.approx(D.OBSERVER_MEMORY_SAMPLES * TO)
+    remembering = D.observed_plant(a, b, TO, 0.11, drag_per_s=model.drag_per_s, memory_s=memory)
+    poles = np.linalg.eigvals(D.closed_loop_matrix(remembering, none.north.gains, TO))
+    phi, _, gain = D.attitude_observer(a, b, TO, memory)
+    modes = np.linalg.eigvals(phi[2:, 2:] - gain @ phi[:2, 2:])
+    assert np.allclose(modes, math.exp(-TO / memory) * np.linalg.eigvals(phi[2:, 2:]))
+    expected = np.concatenate([p_none, np.abs(modes), [0.0, 0.0]])
+    assert np.allclose(np.sort(np.abs(poles)), np.sort(expected), atol=1e-3)
+    assert np.max(np.abs(modes)) < none.north.spectral_radius  # 0.925 against 0.9488
 
 
 #: docs/controller-design.md's model errors: the vehicle's pitch loop against the one believed
@@ -304,7 +346,7 @@ MODEL_ERRORS = (("as modelled", {}), ("motor lag x 2", {"motor_time_constant_s":
 
 def test_the_doc_quotes_what_a_model_error_costs_the_observed_and_the_hover_prediction():
     """docs/controller-design.md, "The rate loop observed": the 110 ms designs (the rate loop taken
-    at hover, and observed) flown on a pitch loop other than the one they believe (paper quad): the
+    at hover, and observed with the memory flown) flown on a pitch loop other than the one they believe (paper quad): the
     slowest pole and the sensitivity peak of each, as the doc's table quotes them. Every case stays
     stable with a peak under 2.5."""
 
@@ -317,13 +359,15 @@ def test_the_doc_quotes_what_a_model_error_costs_the_observed_and_the_hover_pred
     hover = D.design_gains(replace(model, predict=True), TO, spec, velocity_integral=True).north.gains
     observed = D.design_gains(replace(model, predict=True, observe=True), TO, spec, velocity_integral=True).north.gains
     doc = " ".join((REPO / "docs" / "controller-design.md").read_text().split())
-    largest = np.max(np.abs(D.attitude_observer(*believed, TO)[2]))
-    assert f"with factors of up to {largest:.1f} (the paper quad, a 50 ms interval" in doc
+    memory = model.observer_memory_at(TO)  # as flown
+    deadbeat, spread = (np.max(np.abs(D.attitude_observer(*believed, TO, m)[2])) for m in (0.0, memory))
+    assert f"with factors of up to {deadbeat:.1f} (the paper quad, a 50 ms interval" in doc
+    assert f"its factors are up to {spread:.2f}" in doc
     for name, scale in MODEL_ERRORS:
         truth = D.tilt_axis_plant(replace(loop, **{k: getattr(loop, k) * f for k, f in scale.items()}), drag_per_s=drag)
         at_hover = D.analyse_axis(D.predicted_plant(*truth, TO, 0.110, D.HORIZONTAL_MEASURED, tilt_state=D.TILT_STATE, drag_per_s=drag,
                                                     believed=believed), hover, TO)  # fmt: skip
-        seen = D.analyse_axis(D.observed_plant(*truth, TO, 0.110, drag_per_s=drag, believed=believed), observed, TO)
+        seen = D.analyse_axis(D.observed_plant(*truth, TO, 0.110, drag_per_s=drag, believed=believed, memory_s=memory), observed, TO)
         assert seen.spectral_radius < 1.0 and seen.sensitivity_peak < 2.5, (name, seen)
         row = (f"| {name} | {at_hover.spectral_radius:.4f} | {at_hover.sensitivity_peak:.3f} | {seen.spectral_radius:.4f} | "
                f"{seen.sensitivity_peak:.3f} |")  # fmt: skip
@@ -331,7 +375,7 @@ def test_the_doc_quotes_what_a_model_error_costs_the_observed_and_the_hover_pred
 
 
 def test_a_flight_observes_the_rate_loop_unless_told_not_to_and_designs_for_what_it_does():
-    """``offboard fly``'s choice (``--observe`` sets ``observe``; by default the rate loop is taken
+    """``offboard fly``'s choice (``observe``, by default on; ``--no-observe``: the rate loop taken
     at hover): predicting over 110 ms with it, it designs the observed loop's gains (those for no
     latency) and says so; without, the gains for the rate loop at hover; in lockstep (no latency)
     there is nothing to predict or observe."""
@@ -344,7 +388,7 @@ def test_a_flight_observes_the_rate_loop_unless_told_not_to_and_designs_for_what
     base = load_controller(PAPER_CONTROLLER_FILE)
     scaling = Scaling(vehicle["SIM_THR_MAX"])
     flown = {}
-    assert not ControllerChoice(base=base, tuned=True, latency_s=0.11).observes  # the default: at hover
+    assert ControllerChoice(base=base, tuned=True, latency_s=0.11).observes  # the default: observed
     for observe, latency in ((True, 0.11), (False, 0.11), (True, 0.0)):
         choice = ControllerChoice(base=base, tuned=True, latency_s=latency, observe=observe)
         assert choice.observes == (observe and latency > 0)

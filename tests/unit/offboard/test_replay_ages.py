@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from offboard.commands.replay import ReplayArgumentError, _observed_as_flown, _predicted_latency_as_flown
+from offboard.commands.replay import ReplayArgumentError, _observed_as_flown, _observer_memory_as_flown, _predicted_latency_as_flown
 
 
 def _series(folder, rows):
@@ -39,7 +39,21 @@ def test_the_observer_is_restored_as_flown_and_a_bad_value_is_one_line(tmp_path)
     assert _observed_as_flown({"observed_rate_loop": True}) is True
     assert _observed_as_flown({"observed_rate_loop": None}) is False
     assert _observed_as_flown({}) is False  # a summary from before the observer: at hover, as it flew
-    _, _, note = _predicted_latency_as_flown(log, {"predicted_latency_s": 0.1, "observed_rate_loop": True}, record)
-    assert "state predicted over 100 ms, the rate loop observed" in note
+    _, _, note = _predicted_latency_as_flown(log, {"predicted_latency_s": 0.1, "observed_rate_loop": True, "observer_memory_s": 1.0}, record)
+    assert "state predicted over 100 ms, the rate loop observed (1 s of memory)" in note
     with pytest.raises(ReplayArgumentError, match="observed_rate_loop 'yes' is not true, false or null"):
         _observed_as_flown({"observed_rate_loop": "yes"})
+
+
+def test_the_observers_memory_is_restored_as_flown_and_a_bad_value_is_one_line(tmp_path):
+    """summary.json's ``observer_memory_s``: the memory flown; absent in the flights that
+    observed before it (deadbeat, memory 0), which re-run so and say so."""
+    log = _series(tmp_path, [(0.0, 100, 0.005)])
+    record = SimpleNamespace(meta={"time_boot_ms": np.array([100])})
+    assert _observer_memory_as_flown({"observer_memory_s": 1.0}) == 1.0
+    assert _observer_memory_as_flown({"observed_rate_loop": True}) == 0.0
+    _, _, note = _predicted_latency_as_flown(log, {"predicted_latency_s": 0.1, "observed_rate_loop": True}, record)
+    assert "the rate loop observed (deadbeat)" in note
+    for bad in ("1", -0.5, float("inf"), True):
+        with pytest.raises(ReplayArgumentError, match=r"observer_memory_s .* is not a time \(s, >= 0\)"):
+            _observer_memory_as_flown({"observer_memory_s": bad})
