@@ -335,6 +335,18 @@ def test_with_the_rate_loop_observed_the_design_for_a_latency_is_the_design_for_
     expected = np.concatenate([p_none, np.abs(modes), [0.0, 0.0]])
     assert np.allclose(np.sort(np.abs(poles)), np.sort(expected), atol=1e-3)
     assert np.max(np.abs(modes)) < none.north.spectral_radius  # 0.925 against 0.9488
+    # the figures docs/controller-design.md quotes ("The rate loop observed")
+    from helpers import REPO
+
+    doc = " ".join((REPO / "docs" / "controller-design.md").read_text().split())
+
+    def quoted(values: np.ndarray) -> str:
+        first, second = sorted(np.real(values), reverse=True)
+        return f"{first:.3f} and {second:.3f}".replace("-", "\u2212")
+
+    assert f"Φ_uu over 50 ms has eigenvalues {quoted(np.linalg.eigvals(phi[2:, 2:]))}," in doc
+    assert f"Φ_uu's eigenvalues ({quoted(modes)})," in doc
+    assert f"the error then goes by {np.max(np.abs(modes)):.3f} a sample" in doc
 
 
 #: docs/controller-design.md's model errors: the vehicle's pitch loop against the one believed
