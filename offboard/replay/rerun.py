@@ -132,7 +132,7 @@ def rerun_controller(
     heading_hold: TakeoffHeadingHold | None = None,
     predicted_latency_s: float | None = None,
     observed_rate_loop: bool = False,
-    observer_memory_s: float = 0.0,
+    observer_memory_s: float | None = None,
     vehicle_params: Mapping[str, float] | None = None,
     telemetry_age_s: np.ndarray | None = None,
 ) -> RerunResult:
@@ -173,9 +173,9 @@ def rerun_controller(
     observed_rate_loop : bool
         Whether that prediction observed the rate loop (summary.json's ``observed_rate_loop``;
         flights before it did not).
-    observer_memory_s : float
+    observer_memory_s : float or None
         The observer's memory (summary.json's ``observer_memory_s``; 0, deadbeat, for the flights
-        that observed before it).
+        that observed before it); None: ``offboard fly``'s (``InnerLoopModel.observer_memory_s``).
     telemetry_age_s : ndarray or None
         Per sample of ``record``, the telemetry's age the flight handed the prediction (series.csv's
         ``telemetry_age_s``; NaN: none), which the log does not carry to the microsecond.
