@@ -153,7 +153,18 @@ def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: floa
                 fly.kill()
                 fly.wait()
     result = figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
-    return {**result, "px4_sensors_stopped": px4_sensors_stopped(run_dir)}
+    return {**result, "px4_sensors_stopped": px4_sensors_stopped(run_dir), "px4_setpoint_latency": px4_setpoint_latency(run_dir)}
+
+
+def px4_setpoint_latency(run_dir: Path) -> dict | None:
+    """When the flight's setpoints reached PX4, in PX4's clock, from its own log (``bench/px4_log.py``);
+    None without pyulog, a log or a tlog."""
+    from bench.px4_log import latency_figures, setpoint_latencies_ms
+
+    try:
+        return latency_figures(setpoint_latencies_ms(run_dir / "flight.tlog", run_dir / "px4"))
+    except (ImportError, OSError, ValueError, KeyError):
+        return None
 
 
 def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # noqa: ANN001
@@ -339,6 +350,13 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _latency_words(latency: dict | None) -> str:
+    if not latency or not latency.get("paired"):
+        return ""
+    return (f"; setpoints reached PX4 {latency['p50_ms']:g} ms (p50), {latency['p90_ms']:g} ms (p90) after the "
+            f"ATTITUDE they answer, in its clock")
+
+
 def repeat_summary(flights: list[dict]) -> list[str]:
     """Lines for ``--px4-repeat``: each flight's figures and verdict, then how many of them met
     issue 11's real-PX4 targets (the helix's 0.10 m, the holds' 5 deg, both), with the ranges."""
@@ -347,7 +365,8 @@ def repeat_summary(flights: list[dict]) -> list[str]:
         misses = _misses(f)
         lines.append(f"{i:2d}  {f.get('status')}  moving RMS {_f(f.get('moving_rms_m'), '.3f')} m  hold tilt "
                      f"{_f(f.get('hold_tilt_max_deg'), '.2f')} deg  " + ("met" if not misses else "not met: " + ", ".join(misses))
-                     + (f" ({SENSORS_STOPPED})" if f.get("px4_sensors_stopped") else ""))  # fmt: skip
+                     + (f" ({SENSORS_STOPPED})" if f.get("px4_sensors_stopped") else "")
+                     + _latency_words(f.get("px4_setpoint_latency")))  # fmt: skip
     limit_m, limit_tilt = PX4_TARGET
 
     def count(values: list, limit: float) -> str:

@@ -62,6 +62,16 @@ def test_repeated_flights_are_judged_one_by_one_and_counted():
                          "every target met: 1 of 4 (1 with PX4's simulated sensors stopped: its px4.log says so)")
 
 
+def test_a_repeated_flight_says_when_its_setpoints_reached_px4_when_px4s_log_told():
+    latency = {"sent": 900, "paired": 800, "p50_ms": 4.0, "p90_ms": 12.0, "max_ms": 16.0}
+    flights = [{**_row("real PX4", "paper-helix.toml", "real time", 0.054, 3.51), "px4_setpoint_latency": latency},
+               {**_row("real PX4", "paper-helix.toml", "real time", 0.055, 3.4), "px4_setpoint_latency": None}]
+    lines = repeat_summary(flights)
+    assert lines[0].endswith("hold tilt 3.51 deg  met; setpoints reached PX4 4 ms (p50), 12 ms (p90) after the "
+                             "ATTITUDE they answer, in its clock")
+    assert lines[1].endswith("hold tilt 3.40 deg  met")
+
+
 def test_a_px4_whose_sensors_stopped_is_told_by_its_log(tmp_path):
     (tmp_path / "px4").mkdir()
     assert not px4_sensors_stopped(tmp_path)  # no log
