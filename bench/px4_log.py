@@ -7,8 +7,10 @@ SET_ATTITUDE_TARGET's ``time_boot_ms`` echoes the ATTITUDE it read, stamped by P
 taking the setpoint (the ``vehicle_attitude_setpoint`` record its MAVLink receiver publishes on
 receipt, stamped with PX4's ``hrt_absolute_time()``, the clock of ``time_boot_ms``). Both stamps
 are PX4's, so the difference holds at any ``--speed``: it is the latency in the vehicle's time,
-which the offboard cannot measure from its side once the vehicle's clock runs faster than its
-own (docs/controller-design.md, "PX4 at --speed 4").
+which the offboard's round trip does not give once the vehicle's clock runs faster than its
+own (docs/controller-design.md, "PX4 at --speed 4"). ``offboard fly`` measures the same latency
+over MAVLink from PX4's ATTITUDE_TARGET echo (``offboard.flight.echo``); PX4's own log is the
+independent check of that (``tests/e2e/test_px4_flight.py`` compares the two).
 
 Each setpoint is found in PX4's log by its quaternion, which PX4 copies float for float into
 ``q_d``: the first record with the same four floats after the previous match, within
@@ -31,6 +33,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from offboard.flight.echo import latency_figures as echo_latency_figures  # noqa: E402
 
 #: How long after the stamp it answers a setpoint may reach PX4 and still be paired with a record, ms.
 WINDOW_MS = 500.0
@@ -117,13 +125,9 @@ def setpoint_latencies_ms(flight_tlog: Path, px4_dir: Path) -> np.ndarray:
 
 
 def latency_figures(latencies_ms: np.ndarray) -> dict:
-    """Paired count and the latency's median, 90th percentile and largest, ms (None when none paired)."""
-    paired = latencies_ms[np.isfinite(latencies_ms)]
-    if paired.size == 0:
-        return {"sent": int(latencies_ms.size), "paired": 0, "p50_ms": None, "p90_ms": None, "max_ms": None}
-    p50, p90 = np.percentile(paired, [50, 90])
-    return {"sent": int(latencies_ms.size), "paired": int(paired.size), "p50_ms": round(float(p50), 2),
-            "p90_ms": round(float(p90), 2), "max_ms": round(float(paired.max()), 2)}  # fmt: skip
+    """How many setpoints were sent, and ``offboard.flight.echo.latency_figures`` of those paired
+    (the same figures ``offboard fly`` gives of the ATTITUDE_TARGET echo)."""
+    return {"sent": int(latencies_ms.size), **echo_latency_figures(latencies_ms.tolist())}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -508,6 +508,11 @@ class Autopilot:
 
     # -- events ----------------------------------------------------------------------------------
 
+    @property
+    def setpoint_time_s(self) -> float | None:
+        """When the latest offboard setpoint was taken (s of the vehicle's time; None: none yet)."""
+        return self._m.last_setpoint_s
+
     def on_setpoint(self, setpoint: Setpoint, now_s: float) -> bool:
         """Remember a setpoint (proof of life); returns whether it is flown now (Offboard)."""
         if isinstance(setpoint, AttitudeSetpoint) and not setpoint.is_setpoint:

@@ -300,6 +300,8 @@ class Plant:
         self.autopilot.set_origin(config.home.lat_deg, config.home.lon_deg, config.home.alt_m)
         self._mission_reports = Reporter()
         self._mission_streams: list[list[mavlink.MAVLink_message]] = [[], []]  # go out with the telemetry
+        #: the latest SET_ATTITUDE_TARGET taken, and its quaternion as it came (ATTITUDE_TARGET echoes it)
+        self._sent_attitude: tuple[Setpoint | None, tuple[float, ...]] = (None, ())
 
     # -- time ------------------------------------------------------------------------------------
 
@@ -440,6 +442,7 @@ class Plant:
             self._refuse(str(exc))
             return
         if not self._out_of_order(msg, int(msg.time_boot_ms)):
+            self._sent_attitude = (sp, tuple(float(v) for v in msg.q))  # as sent, for the ATTITUDE_TARGET echo
             self._on_setpoint(sp)
 
     def _on_actuator_target(self, index: int, msg: mavlink.MAVLink_message) -> None:
@@ -796,7 +799,7 @@ class Plant:
             return codec.servo_output_raw(t_us, self._motor_speeds(), self.vehicle.rotor_speed_max_rad_s, self.autopilot.armed)
         if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET:
             q, rates, thrust = self._attitude_target()
-            return codec.attitude_target(t_ms, q, rates, thrust)
+            return codec.attitude_target(self._attitude_target_ms(t_ms), q, rates, thrust)
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return codec.autopilot_version(self.config.sysid)
         return self._build_px4_extra(mid, t_ms, t_us)
@@ -861,6 +864,9 @@ class Plant:
         if isinstance(task, OffboardTask) and isinstance(task.setpoint, AttitudeSetpoint):
             sp = task.setpoint
             q = sp.q_wxyz if sp.q_wxyz is not None else tuple(float(v) for v in self._truth.quat_wxyz)
+            sent, sent_q = self._sent_attitude
+            if sent is sp and sp.q_wxyz is not None:
+                q = sent_q  # PX4 echoes the quaternion float for float as it came, not normalised
             rates = tuple(0.0 if r is None else r for r in sp.body_rates_frd_rad_s)
             return q, rates, min(max(sp.thrust_norm or 0.0, 0.0), 1.0)  # type: ignore[return-value]
         if isinstance(task, OffboardTask) and isinstance(task.setpoint, ActuatorSetpoint):
@@ -869,6 +875,16 @@ class Plant:
             px4 = self.loops.px4
             return px4._q_sp, (0.0, 0.0, 0.0), px4._thrust_n / thr_max
         return tuple(float(v) for v in self._truth.quat_wxyz), (0.0, 0.0, 0.0), 0.0  # type: ignore[return-value]
+
+    def _attitude_target_ms(self, now_ms: int) -> int:
+        """ATTITUDE_TARGET's time_boot_ms as PX4 stamps it: the attitude setpoint's own time
+        (PX4's ATTITUDE_TARGET.hpp sends vehicle_attitude_setpoint's timestamp), which for an
+        offboard attitude setpoint is when it was taken; a position mode makes one every tick."""
+        task = self.autopilot.task()
+        taken_s = self.autopilot.setpoint_time_s
+        if isinstance(task, OffboardTask) and isinstance(task.setpoint, AttitudeSetpoint) and taken_s is not None:
+            return int(round(taken_s * 1000.0))
+        return now_ms
 
     def status_line(self) -> str:
         """One line for the terminal: time, mode, arming, failsafe, where the vehicle is."""

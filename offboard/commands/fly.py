@@ -33,6 +33,7 @@ BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, HeadingHoldMode, LogClock, Progress, SampleClock
+from offboard.flight.echo import echo_words
 from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.model.clihelp import HelpFormatter
@@ -81,6 +82,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     link.add_argument("--keep-streams", action="store_true",
                       help="leave on the vehicle's streams we never read (default: switched off with "
                            "MAV_CMD_SET_MESSAGE_INTERVAL -1, as PX4's clients do)")
+    link.add_argument("--no-setpoint-echo", action="store_true",
+                      help="do not ask for the vehicle's ATTITUDE_TARGET (default: 10 Hz, paired with the attitude setpoints "
+                           "sent: when the vehicle took each, in its clock; not in lockstep)")
     link.add_argument("--land-timeout", type=float, default=60.0, metavar="S", help="wall-clock limit for the landing")
     guard = parser.add_argument_group("when the vehicle is handed to its own landing")
     guard.add_argument("--lost-track-m", type=float, default=LOST_TRACK_M, metavar="M",
@@ -304,6 +308,7 @@ def run(args: argparse.Namespace) -> int:
         land_timeout_s=args.land_timeout,
         telemetry_rate_hz=AUTO_TELEMETRY_RATE if args.telemetry_rate is None else (args.telemetry_rate or None),
         unread_streams_off=not args.keep_streams,
+        setpoint_echo=not args.no_setpoint_echo,
         lost_track_m=args.lost_track_m,
         watch_estimator=not args.ignore_estimator,
         takeoff_heading_hold=HeadingHoldMode(args.takeoff_heading_hold),
@@ -447,6 +452,9 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         "observed_rate_loop": result.observed_rate_loop,
         # how long the observer took to forget an error of its estimates (s; null: not observed)
         "observer_memory_s": result.observer_memory_s,
+        # when the vehicle took the setpoints, after the telemetry they answer, in its clock (its
+        # ATTITUDE_TARGET echo, offboard.flight.echo; null: not asked for)
+        "setpoint_echo": result.setpoint_echo,
         "notes": result.notes,
     }
 
@@ -482,6 +490,8 @@ def format_fly_lines(extra: dict, lockstep: bool = False, vehicle_clock: bool = 
         lines.append(f"link outages: {len(extra['link_outages_s'])} ({', '.join(f'{g:.2f} s' for g in extra['link_outages_s'])})")
     if extra["timesync"]:
         lines.append(format_timesync(extra["timesync"]["offset_ms"], extra["timesync"]["rtt_ms"]))
+    if extra.get("setpoint_echo") is not None:
+        lines.append(echo_words(extra["setpoint_echo"], extra.get("predicted_latency_s")))
     landing = "landed and disarmed" if extra["landed"] and extra["disarmed"] else (
         "landed, still armed" if extra["landed"] else "landing not confirmed")
     lines.append(f"{landing}; {extra['wall_time_s']:.1f} s wall in all")

@@ -105,6 +105,11 @@ class FlightConfig:
         Switch off (MAV_CMD_SET_MESSAGE_INTERVAL -1) PX4's default streams we never read
         (``codec.UNREAD_STREAMS``), as PX4's clients do: the vehicle then neither builds nor sends
         them, and we neither parse nor log them.
+    setpoint_echo : bool
+        Ask for the vehicle's ATTITUDE_TARGET (``echo.ECHO_RATE_HZ``, PX4's default on its API
+        link) and pair it with the attitude setpoints sent: the loop's latency in the vehicle's
+        clock (``offboard.flight.echo``). Attitude output, not in lockstep (where it is 0 by
+        construction); off, ATTITUDE_TARGET is switched off with the streams we never read.
     lost_track_m : float
         In flight: LOST_TRACK when the 3D error stays above this through
         ``metrics.LOST_TRACK_WINDOW_S`` and does not shrink (``guards.TrackGuard``; inf: never).
@@ -136,6 +141,7 @@ class FlightConfig:
     land_timeout_s: float = 60.0
     telemetry_rate_hz: float | str | None = AUTO_TELEMETRY_RATE
     unread_streams_off: bool = True
+    setpoint_echo: bool = True
     lost_track_m: float = LOST_TRACK_M
     watch_estimator: bool = True
     takeoff_heading_hold: HeadingHoldMode = HeadingHoldMode.AUTO
@@ -162,6 +168,11 @@ class FlightConfig:
         rate = self.telemetry_rate_hz
         if rate is not None and rate != AUTO_TELEMETRY_RATE and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
             raise ValueError(f"telemetry_rate_hz must be > 0, {AUTO_TELEMETRY_RATE!r} or None, got {rate!r}")
+
+    @property
+    def echoes_setpoints(self) -> bool:
+        """Whether the flight pairs its setpoints with the vehicle's ATTITUDE_TARGET (``setpoint_echo``)."""
+        return self.setpoint_echo and not self.lockstep and self.output == SetpointOutput.ATTITUDE
 
     def telemetry_rate_for(self, sample_time_s: float) -> float | None:
         """The ATTITUDE and LOCAL_POSITION_NED rate to ask for at sample time To (None: the vehicle's)."""

@@ -54,6 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
+from offboard.flight.echo import ECHO_RATE_HZ
 from offboard.flight.guards import EstimatorGuard, HeadingResetWatch, TrackGuard, sensor_health_changes
 from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, highest_down_m
 from offboard.flight.protocol import VehicleClient
@@ -108,6 +109,9 @@ class FlightResult:
     observed_rate_loop: bool | None = None
     #: the observer's memory (s; None: not observed)
     observer_memory_s: float | None = None
+    #: the setpoints' latency in the vehicle's clock from its ATTITUDE_TARGET echo
+    #: (``echo.latency_figures``; None: not asked for)
+    setpoint_echo: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -300,6 +304,7 @@ class Flight:
             predicted_latency_s=self.predicted_latency_s,
             observed_rate_loop=self.observed_rate_loop,
             observer_memory_s=self.observer_memory_s,
+            setpoint_echo=None if self.sampler.echo is None else self.sampler.echo.figures(),
         )  # fmt: skip
 
     # -- the sequence ----------------------------------------------------------------------------
@@ -419,7 +424,12 @@ class Flight:
         note: the flight goes on."""
         cfg = self.config
         rate_hz = cfg.telemetry_rate_for(self.to)
-        wanted: list[tuple[int, float | None]] = [(mid, None) for mid in codec.UNREAD_STREAMS] if cfg.unread_streams_off else []
+        echo = cfg.echoes_setpoints
+        wanted: list[tuple[int, float | None]] = [
+            (mid, None) for mid in codec.UNREAD_STREAMS if not (echo and mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET)
+        ] if cfg.unread_streams_off else []  # fmt: skip
+        if echo:  # the setpoints' echo, at PX4's own rate on its API link (offboard.flight.echo)
+            wanted.append((mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET, ECHO_RATE_HZ))
         if rate_hz is not None:
             wanted += [(mid, rate_hz) for mid in codec.SAMPLED_STREAMS]
             if cfg.watch_estimator:
@@ -619,6 +629,8 @@ class Flight:
         kind = msg.get_type()
         if kind in ("ATTITUDE", "LOCAL_POSITION_NED"):
             self._on_telemetry(msg)
+        elif kind == "ATTITUDE_TARGET" and self.sampler.echo is not None:
+            self.sampler.echo.echoed(msg.time_boot_ms, msg.q, msg.thrust)
         elif kind == "HEARTBEAT":
             self._on_heartbeat(msg)
         elif kind == "ESTIMATOR_STATUS":

@@ -34,6 +34,7 @@ from offboard.clockrate import ClockRateMeter
 from offboard.codec import MeasuredState
 from offboard.errors import LockstepMismatch
 from offboard.flight.config import FlightConfig, Link, SampleClock
+from offboard.flight.echo import SetpointEcho
 from offboard.flight.supervisor import Supervisor
 from offboard.record import RecordBuilder
 from pymavlink.dialects.v20 import common as mavlink
@@ -136,6 +137,8 @@ class Sampler:
         self.link = link
         self.config = config
         self.to = sample_time_s
+        #: the setpoints' echo (``offboard.flight.echo``; None: not asked for)
+        self.echo: SetpointEcho | None = SetpointEcho() if config.echoes_setpoints else None
         self.clock = clock
         self._supervisor = supervisor
         # the freshest telemetry
@@ -328,6 +331,8 @@ class Sampler:
             return False
         self.link.send(msg)
         self.samples_sent += 1
+        if self.echo is not None and msg.get_type() == "SET_ATTITUDE_TARGET":
+            self.echo.sent(msg.time_boot_ms, msg.q, msg.thrust)
         return True
 
     # -- the mission's window ------------------------------------------------------------------------

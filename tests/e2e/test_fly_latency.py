@@ -62,6 +62,14 @@ def test_over_a_delayed_link_the_predicted_state_holds_within_twice_the_undelaye
     # without delay the latency is one telemetry period and the loopback's round trip (~11 ms)
     said = re.search(r"latency (\d+) ms, the law handed the state predicted over it", clean_flown.stderr)
     assert said and int(said.group(1)) < 40, clean_flown.stderr
+    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.flight.echo):
+    # the measurement's way down and the setpoint's way up, ~2 x 50 ms, as the design's round trip
+    # says; without delay the plant takes an answer in the 4 ms tick it arrives in (0 ms at the median)
+    late_echo, clean_echo = late_flown.summary["setpoint_echo"], clean_flown.summary["setpoint_echo"]
+    print(f"\nsetpoint echo: {late_echo} over 50 +- 20 ms, {clean_echo} without")
+    assert late_echo["paired"] > 50 and 60.0 <= late_echo["p50_ms"] <= 160.0, late_echo
+    assert clean_echo["paired"] > 50 and clean_echo["p50_ms"] <= 10.0, clean_echo
+    assert "setpoint echo: the vehicle took the setpoints" in (late_flown.run_dir / "summary.txt").read_text()
     clean_rms, late_rms = _hold_rms(clean_flown), _hold_rms(late_flown)
     print(f"\nhold's second half: {late_rms:.5f} m over 50 +- 20 ms, {clean_rms:.5f} m without")
     assert math.isfinite(late_rms) and late_rms <= 2.0 * clean_rms
@@ -104,6 +112,14 @@ def test_with_no_observe_the_delayed_flight_takes_the_rate_loop_at_hover_and_its
     assert "the rate loop observed" not in late_flown.stderr
     assert late_flown.summary["observed_rate_loop"] is False and late_flown.summary["observer_memory_s"] is None
     assert clean_flown.summary["observed_rate_loop"] is True
+    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.flight.echo):
+    # the measurement's way down and the setpoint's way up, ~2 x 50 ms, as the design's round trip
+    # says; without delay the plant takes an answer in the 4 ms tick it arrives in (0 ms at the median)
+    late_echo, clean_echo = late_flown.summary["setpoint_echo"], clean_flown.summary["setpoint_echo"]
+    print(f"\nsetpoint echo: {late_echo} over 50 +- 20 ms, {clean_echo} without")
+    assert late_echo["paired"] > 50 and 60.0 <= late_echo["p50_ms"] <= 160.0, late_echo
+    assert clean_echo["paired"] > 50 and clean_echo["p50_ms"] <= 10.0, clean_echo
+    assert "setpoint echo: the vehicle took the setpoints" in (late_flown.run_dir / "summary.txt").read_text()
     clean_rms, late_rms = _hold_rms(clean_flown), _hold_rms(late_flown)
     print(f"\nat hover: hold's second half {late_rms:.5f} m over 50 +- 20 ms, {clean_rms:.5f} m without")
     assert math.isfinite(late_rms) and late_rms <= 2.0 * clean_rms

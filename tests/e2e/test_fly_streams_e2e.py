@@ -59,12 +59,21 @@ def test_keep_streams_leaves_them_on(tmp_path):
     assert {"ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "HIGHRES_IMU", "ODOMETRY"} <= set(last)
 
 
-def test_real_time_flight_switches_them_off_too(tmp_path):
+def test_real_time_flight_switches_them_off_too_but_for_the_setpoints_echo(tmp_path):
     flown = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 1.0, 1.5), lockstep=False)
     assert flown.returncode == 0, flown.stderr
     before, after, commands = _split_at_stream_setup(read_tlog(flown.tlog))
-    assert set(after) & UNREAD == set(), after
+    assert set(after) & UNREAD == {"ATTITUDE_TARGET"}, after  # read in real time: the setpoints' echo
+    assert after["ATTITUDE_TARGET"] >= 20 and flown.summary["setpoint_echo"]["paired"] >= 10, flown.summary["setpoint_echo"]
     assert {"ATTITUDE_QUATERNION", "HIGHRES_IMU"} <= set(before)
-    # real time: the smallest multiple of the 20 Hz sample rate at or above 100 Hz
+    # real time: the smallest multiple of the 20 Hz sample rate at or above 100 Hz; the echo at PX4's 10 Hz
     assert {int(m.param1): m.param2 for m in commands if m.param2 > 0} == {**{mid: 10_000.0 for mid in codec.SAMPLED_STREAMS},
-                                                                            mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000.0}
+                                                                            mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000.0,
+                                                                            mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: 100_000.0}
+    # --no-setpoint-echo: off with the rest
+    quiet = fly(tmp_path, hover_mission(tmp_path / "hover.toml", 1.0, 1.5), lockstep=False, name="quiet",
+                fly_args=("--no-setpoint-echo",))  # fmt: skip
+    assert quiet.returncode == 0, quiet.stderr
+    _, after, _ = _split_at_stream_setup(read_tlog(quiet.tlog))
+    assert set(after) & UNREAD == set(), after
+    assert quiet.summary["setpoint_echo"] is None

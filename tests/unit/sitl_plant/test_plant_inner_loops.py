@@ -394,3 +394,25 @@ def test_a_landing_without_a_position_is_blind_and_coasts_on_the_drag(gps):
         assert tilt_deg < 1.0  # level
     else:
         assert speed1 < 0.3 * speed0 and tilt_deg > 1.0  # braking
+
+
+def test_attitude_target_is_stamped_when_the_setpoint_was_taken_as_px4_stamps_it():
+    """PX4's ATTITUDE_TARGET carries vehicle_attitude_setpoint's own timestamp (its
+    ATTITUDE_TARGET.hpp), which in offboard its MAVLink receiver sets on each SET_ATTITUDE_TARGET,
+    and the quaternion float for float: a client pairs its setpoints with the echo and reads when
+    the vehicle took each (offboard.flight.echo; PX4 SITL: 4 ms median after the ATTITUDE
+    answered, tests/e2e/test_px4_flight.py). Outside offboard attitude it is the position mode's
+    setpoint of the tick."""
+    plant = make_plant()
+    target = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
+    echo = lambda: {m.get_type(): m for m in plant.telemetry(API, force=(target,))}["ATTITUDE_TARGET"]  # noqa: E731
+    assert echo().time_boot_ms == plant.time_ms  # in Hold, on the ground: the mode's own, now
+    take_off_and_switch_to_offboard(plant)
+    run(plant, 0.5, lambda: attitude_target(plant, roll=0.05, thrust=hover_thrust(plant)))
+    taken_ms = plant.time_ms
+    attitude_target(plant, roll=0.1, thrust=hover_thrust(plant))
+    sent_q = [float(np.float32(v)) for v in quat_from_euler(0.1, 0.0, 0.0)]
+    run(plant, 0.1)  # no newer setpoint: the echo keeps the time it was taken
+    msg = echo()
+    assert plant.time_ms >= taken_ms + 100 and msg.time_boot_ms == taken_ms
+    assert list(msg.q) == sent_q
