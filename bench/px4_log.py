@@ -9,7 +9,7 @@ receipt, stamped with PX4's ``hrt_absolute_time()``, the clock of ``time_boot_ms
 are PX4's, so the difference holds at any ``--speed``: it is the latency in the vehicle's time,
 which the offboard's round trip does not give once the vehicle's clock runs faster than its
 own (docs/controller-design.md, "PX4 at --speed 4"). ``offboard fly`` measures the same latency
-over MAVLink from PX4's ATTITUDE_TARGET echo (``offboard.flight.echo``); PX4's own log is the
+over MAVLink from PX4's ATTITUDE_TARGET echo (``offboard.echo``); PX4's own log is the
 independent check of that (``tests/e2e/test_px4_flight.py`` compares the two).
 
 Each setpoint is found in PX4's log by its quaternion, which PX4 copies float for float into
@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from offboard.flight.echo import latency_figures as echo_latency_figures  # noqa: E402
+from offboard.echo import latency_figures as echo_latency_figures  # noqa: E402
 
 #: How long after the stamp it answers a setpoint may reach PX4 and still be paired with a record, ms.
 WINDOW_MS = 500.0
@@ -125,7 +125,7 @@ def setpoint_latencies_ms(flight_tlog: Path, px4_dir: Path) -> np.ndarray:
 
 
 def latency_figures(latencies_ms: np.ndarray) -> dict:
-    """How many setpoints were sent, and ``offboard.flight.echo.latency_figures`` of those paired
+    """How many setpoints were sent, and ``offboard.echo.latency_figures`` of those paired
     (the same figures ``offboard fly`` gives of the ATTITUDE_TARGET echo)."""
     return {"sent": int(latencies_ms.size), **echo_latency_figures(latencies_ms.tolist())}
 

@@ -33,7 +33,7 @@ BASELINE_KEYWORDS = ("se3", "px4")
 from offboard.errors import UserError
 from offboard.signing import SigningKey, SigningKeyError, SigningSession, load_key
 from offboard.flight import AUTO_TELEMETRY_RATE, OUTPUTS, ControllerChoice, Flight, FlightConfig, FlightResult, HeadingHoldMode, LogClock, Progress, SampleClock
-from offboard.flight.echo import echo_words
+from offboard.echo import echo_words
 from offboard.metrics import LOST_TRACK_M, LOST_TRACK_WINDOW_S, check_tracking, format_table, summarize
 from offboard.record import FlightStatus
 from offboard.model.clihelp import HelpFormatter
@@ -453,7 +453,7 @@ def fly_summary(result: FlightResult, link_stats: dict, wall_s: float) -> dict:
         # how long the observer took to forget an error of its estimates (s; null: not observed)
         "observer_memory_s": result.observer_memory_s,
         # when the vehicle took the setpoints, after the telemetry they answer, in its clock (its
-        # ATTITUDE_TARGET echo, offboard.flight.echo; null: not asked for)
+        # ATTITUDE_TARGET echo, offboard.echo; null: not asked for)
         "setpoint_echo": result.setpoint_echo,
         "notes": result.notes,
     }

@@ -108,7 +108,7 @@ class FlightConfig:
     setpoint_echo : bool
         Ask for the vehicle's ATTITUDE_TARGET (``echo.ECHO_RATE_HZ``, PX4's default on its API
         link) and pair it with the attitude setpoints sent: the loop's latency in the vehicle's
-        clock (``offboard.flight.echo``). Attitude output, not in lockstep (where it is 0 by
+        clock (``offboard.echo``). Attitude output, not in lockstep (where it is 0 by
         construction); off, ATTITUDE_TARGET is switched off with the streams we never read.
     lost_track_m : float
         In flight: LOST_TRACK when the 3D error stays above this through

@@ -54,7 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
-from offboard.flight.echo import ECHO_RATE_HZ
+from offboard.echo import ECHO_RATE_HZ
 from offboard.flight.guards import EstimatorGuard, HeadingResetWatch, TrackGuard, sensor_health_changes
 from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, highest_down_m
 from offboard.flight.protocol import VehicleClient
@@ -428,7 +428,7 @@ class Flight:
         wanted: list[tuple[int, float | None]] = [
             (mid, None) for mid in codec.UNREAD_STREAMS if not (echo and mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET)
         ] if cfg.unread_streams_off else []  # fmt: skip
-        if echo:  # the setpoints' echo, at PX4's own rate on its API link (offboard.flight.echo)
+        if echo:  # the setpoints' echo, at PX4's own rate on its API link (offboard.echo)
             wanted.append((mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET, ECHO_RATE_HZ))
         if rate_hz is not None:
             wanted += [(mid, rate_hz) for mid in codec.SAMPLED_STREAMS]

@@ -34,7 +34,7 @@ from offboard.clockrate import ClockRateMeter
 from offboard.codec import MeasuredState
 from offboard.errors import LockstepMismatch
 from offboard.flight.config import FlightConfig, Link, SampleClock
-from offboard.flight.echo import SetpointEcho
+from offboard.echo import SetpointEcho
 from offboard.flight.supervisor import Supervisor
 from offboard.record import RecordBuilder
 from pymavlink.dialects.v20 import common as mavlink
@@ -137,7 +137,7 @@ class Sampler:
         self.link = link
         self.config = config
         self.to = sample_time_s
-        #: the setpoints' echo (``offboard.flight.echo``; None: not asked for)
+        #: the setpoints' echo (``offboard.echo``; None: not asked for)
         self.echo: SetpointEcho | None = SetpointEcho() if config.echoes_setpoints else None
         self.clock = clock
         self._supervisor = supervisor

@@ -1,12 +1,17 @@
-"""The report on the log itself: sources and their packet loss, message rates and gaps, events."""
+"""The report on the log itself: sources and their packet loss, message rates and gaps, events,
+and the setpoints' latency in the vehicle's clock where the log holds their ATTITUDE_TARGET echo."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+from offboard.echo import SetpointEcho, echo_words
 from offboard.replay.reader import Damage, TlogReader
 from offboard.replay.scan import Event, LogScan
+
+#: SET_ATTITUDE_TARGET's type_mask bit: the attitude ignored (body rates flown), nothing to echo
+_ATTITUDE_IGNORE = 128
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,9 @@ class LogReport:
     #: the record's seconds per second of the log: 1, or the vehicle's clock rate where the flight
     #: was sampled on it (events, gaps and rates are then on that clock; ``duration_s`` is the log's)
     clock_rate: float = 1.0
+    #: the setpoints' latency in the vehicle's clock from its ATTITUDE_TARGET echo
+    #: (``setpoint_echo``; None: no echo of a setpoint in the log)
+    setpoint_echo: dict | None = None
 
     def to_dict(self) -> dict:
         """The report for summary.json."""
@@ -75,6 +83,7 @@ class LogReport:
             "sources": [dict(vars(s), loss_percent=s.loss_percent) for s in self.sources],
             "rates": [vars(r) for r in self.rates],
             "events": [vars(e) for e in self.events],
+            "setpoint_echo": self.setpoint_echo,
         }
 
 
@@ -105,7 +114,34 @@ def log_report(reader: TlogReader, scan: LogScan, t0_log_s: float, clock_rate: f
         events=events,
         vehicle_sysid=vehicle,
         clock_rate=clock_rate,
+        setpoint_echo=setpoint_echo(scan, vehicle),
     )
+
+
+def setpoint_echo(scan: LogScan, vehicle: int | None) -> dict | None:
+    """The setpoints' latency in the vehicle's clock (``offboard.echo``, as ``offboard fly``
+    measures it in flight): the log's SET_ATTITUDE_TARGETs to ``vehicle`` that carry an attitude
+    and the vehicle's ATTITUDE_TARGETs, paired in the order logged (either side's tlog: the
+    offboard's, or a plant's). None where none pairs (a log of a flight that switched the echo
+    off, or of no offboard attitude setpoints)."""
+    if vehicle is None:
+        return None
+    sent = [r for r in scan.set_attitude.get(vehicle, []) if not int(r[1]) & _ATTITUDE_IGNORE]
+    echoes = scan.attitude_targets.get(vehicle, [])
+    if not sent or not echoes:
+        return None
+    # (tlog time, 0 for a setpoint and 1 for an echo: a setpoint before an echo logged at its instant)
+    order = sorted([(r[-2], 0, k) for k, r in enumerate(sent)] + [(r[-1], 1, k) for k, r in enumerate(echoes)])
+    echo = SetpointEcho()
+    for _, kind, k in order:
+        if kind == 0:
+            r = sent[k]
+            echo.sent(r[0], r[2:6], r[9])
+        else:
+            r = echoes[k]
+            echo.echoed(r[0], r[1:5], r[5])
+    figures = echo.figures()
+    return figures if figures["paired"] else None
 
 
 def format_log_report(report: LogReport, all_rates: bool = False) -> str:
@@ -131,6 +167,9 @@ def format_log_report(report: LogReport, all_rates: bool = False) -> str:
         rate = f"{r.rate_hz:>8.2f}" if math.isfinite(r.rate_hz) else f"{'-':>8}"
         at = f"{r.max_gap_at_s:>8.2f}" if math.isfinite(r.max_gap_at_s) else f"{'-':>8}"
         lines.append(f"{r.system:>3}/{r.component:<6} {r.message:<30} {r.count:>7} {rate} {r.max_gap_s:>10.3f} {at}")
+    if report.setpoint_echo is not None:
+        lines.append("")
+        lines.append(echo_words(report.setpoint_echo))
     if report.events:
         lines.append("")
         lines.append("events (t s, system):")

@@ -62,7 +62,7 @@ def test_over_a_delayed_link_the_predicted_state_holds_within_twice_the_undelaye
     # without delay the latency is one telemetry period and the loopback's round trip (~11 ms)
     said = re.search(r"latency (\d+) ms, the law handed the state predicted over it", clean_flown.stderr)
     assert said and int(said.group(1)) < 40, clean_flown.stderr
-    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.flight.echo):
+    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.echo):
     # the measurement's way down and the setpoint's way up, ~2 x 50 ms, as the design's round trip
     # says; without delay the plant takes an answer in the 4 ms tick it arrives in (0 ms at the median)
     late_echo, clean_echo = late_flown.summary["setpoint_echo"], clean_flown.summary["setpoint_echo"]
@@ -81,8 +81,11 @@ def test_over_a_delayed_link_the_predicted_state_holds_within_twice_the_undelaye
     earlier = capsys.readouterr().out  # what was printed so far, out of the JSON's way
     assert main(["replay", str(late_flown.run_dir / "flight.tlog"), "--rerun", "--json", "--no-plots",
                  "--run-dir", str(tmp_path / "rerun")]) in (0, 1)  # fmt: skip  (1: the link's gaps make the re-run differ)
-    check = json.loads(capsys.readouterr().out)["rerun"]["prediction"]
+    replayed = json.loads(capsys.readouterr().out)
+    check = replayed["rerun"]["prediction"]
     print(earlier, end="")
+    # the echo from the log is the echo the flight measured
+    assert replayed["log_report"]["setpoint_echo"] == late_echo
     print(f"prediction over {check['latency_s'] * 1000:.0f} ms: position {check['position_rms_m'] * 1000:.1f} mm "
           f"({check['position_rms_measured_m'] * 1000:.1f} measured), velocity {check['velocity_rms_m_s'] * 1000:.1f} mm/s "
           f"({check['velocity_rms_measured_m_s'] * 1000:.1f}), thrust axis {check['tilt_rms_deg']:.2f} deg "
@@ -112,7 +115,7 @@ def test_with_no_observe_the_delayed_flight_takes_the_rate_loop_at_hover_and_its
     assert "the rate loop observed" not in late_flown.stderr
     assert late_flown.summary["observed_rate_loop"] is False and late_flown.summary["observer_memory_s"] is None
     assert clean_flown.summary["observed_rate_loop"] is True
-    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.flight.echo):
+    # the loop's latency in the vehicle's clock, from its ATTITUDE_TARGET echo (offboard.echo):
     # the measurement's way down and the setpoint's way up, ~2 x 50 ms, as the design's round trip
     # says; without delay the plant takes an answer in the 4 ms tick it arrives in (0 ms at the median)
     late_echo, clean_echo = late_flown.summary["setpoint_echo"], clean_flown.summary["setpoint_echo"]

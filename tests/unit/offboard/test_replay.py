@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from offboard.cli import main
 from offboard.errors import LogFormatError
 from offboard.flight.guards import heading_reset_deg
+from offboard.replay.report import format_log_report
 from offboard.replay import (
     LoggedMessage,
     LogScan,
@@ -503,3 +504,48 @@ def test_two_samples_that_read_one_telemetry_stamp_are_two_commands_and_a_resend
     assert series.kind == "attitude"
     assert series.time_boot_ms.tolist() == [100, 150, 150, 200, 250]
     assert_allclose(series.values[:, -1], [0.50, 0.51, 0.52, 0.53, 0.54], rtol=1e-6)
+
+
+# --- the setpoints' echo ----------------------------------------------------------------------------
+
+
+def test_the_log_report_pairs_the_setpoints_with_the_vehicles_attitude_target_echo(tmp_path):
+    """A flight's tlog holds its SET_ATTITUDE_TARGETs and, in real time, the vehicle's
+    ATTITUDE_TARGET stamped when it took each (offboard.echo): the report gives the latency in the
+    vehicle's clock as ``offboard fly`` did in flight. A body-rate setpoint (attitude ignored) and
+    an echo of another module's attitude pair nothing; a log without echoes has no figure."""
+    ours = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
+    vehicle = mavlink.MAVLink(None, srcSystem=VEHICLE, srcComponent=1)
+
+    def q(roll: float) -> list[float]:
+        return [math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0]
+
+    frames = [(0, mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 129, MODE_OFFBOARD, 4, 3).pack(vehicle)),
+              (1, mavlink.MAVLink_attitude_message(1000, 0, 0, 0, 0, 0, 0).pack(vehicle)),
+              (2, mavlink.MAVLink_local_position_ned_message(1000, 0, 0, -2, 0, 0, 0).pack(vehicle))]  # the vehicle's
+    keep = (0, 30, 32, 82)  # with the setpoints alone: the heartbeat, ATTITUDE, LOCAL_POSITION_NED, SET_ATTITUDE_TARGET
+    for k in range(6):  # a setpoint every 50 ms answering telemetry of 1000 + 50 k; echoed every other one
+        stamp = 1000 + 50 * k
+        frames.append((k * 50_000, mavlink.MAVLink_set_attitude_target_message(stamp, VEHICLE, 1, 0b111, q(0.01 * k), 0, 0, 0, 0.5).pack(ours)))
+        if k % 2 == 0:
+            frames.append((k * 50_000 + 8_000, mavlink.MAVLink_attitude_target_message(stamp + 4 * (k + 1), 0, q(0.01 * k), 0, 0, 0, 0.5).pack(vehicle)))
+    frames.append((301_000, mavlink.MAVLink_set_attitude_target_message(1300, VEHICLE, 1, 0b10000111, q(0.5), 0, 0, 0, 0.5).pack(ours)))
+    frames.append((305_000, mavlink.MAVLink_attitude_target_message(1304, 0, q(0.5), 0, 0, 0, 0.5).pack(vehicle)))
+    frames.append((306_000, mavlink.MAVLink_attitude_target_message(1306, 0, q(0.9), 0, 0, 0, 0.5).pack(vehicle)))
+    with open(tmp_path / "echo.tlog", "wb") as fh:
+        for t_us, frame in frames:
+            fh.write(struct.pack(">Q", EPOCH_US + t_us) + frame)
+    reader = TlogReader(tmp_path / "echo.tlog")
+    scan = scan_log(reader)
+    report = log_report(reader, scan, scan.first_time_s)
+    assert report.setpoint_echo == {"paired": 3, "p50_ms": 12.0, "p90_ms": 18.4, "max_ms": 20.0}  # 4, 12, 20 ms
+    assert report.to_dict()["setpoint_echo"] == report.setpoint_echo
+    assert "setpoint echo: the vehicle took the setpoints 12 ms (median)" in format_log_report(report)
+    # the setpoints alone (an echo switched off): no figure, no line
+    with open(tmp_path / "alone.tlog", "wb") as fh:
+        for t_us, frame in frames:
+            if frame[7] in keep:
+                fh.write(struct.pack(">Q", EPOCH_US + t_us) + frame)
+    reader = TlogReader(tmp_path / "alone.tlog")
+    alone = log_report(reader, scan_log(reader), 0.0)
+    assert alone.setpoint_echo is None and "setpoint echo" not in format_log_report(alone)

@@ -400,7 +400,7 @@ def test_attitude_target_is_stamped_when_the_setpoint_was_taken_as_px4_stamps_it
     """PX4's ATTITUDE_TARGET carries vehicle_attitude_setpoint's own timestamp (its
     ATTITUDE_TARGET.hpp), which in offboard its MAVLink receiver sets on each SET_ATTITUDE_TARGET,
     and the quaternion float for float: a client pairs its setpoints with the echo and reads when
-    the vehicle took each (offboard.flight.echo; PX4 SITL: 4 ms median after the ATTITUDE
+    the vehicle took each (offboard.echo; PX4 SITL: 4 ms median after the ATTITUDE
     answered, tests/e2e/test_px4_flight.py). Outside offboard attitude it is the position mode's
     setpoint of the tick."""
     plant = make_plant()

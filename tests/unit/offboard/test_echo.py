@@ -1,11 +1,11 @@
-"""offboard.flight.echo: the setpoints paired with the vehicle's ATTITUDE_TARGET echo (the flights
+"""offboard.echo: the setpoints paired with the vehicle's ATTITUDE_TARGET echo (the flights
 against sitl-plant and PX4 are in tests/e2e: test_fly_latency.py, test_px4_flight.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from offboard.flight.echo import MAX_LATENCY_MS, PENDING, SetpointEcho, echo_words, latency_figures
+from offboard.echo import MAX_LATENCY_MS, PENDING, SetpointEcho, echo_words, latency_figures
 
 
 def q(roll: float) -> tuple[float, float, float, float]:
