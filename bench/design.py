@@ -57,7 +57,7 @@ PX4_OWN = "px4-own"
 def figures(run_dir: Path) -> dict:
     """The flight's figures from its summary.json and series.csv (module docstring)."""
     summary = json.loads((run_dir / "summary.json").read_text())
-    out = {"status": summary.get("status"), "exit_code": summary.get("exit_code")}
+    out = {"status": summary.get("status"), "exit_code": summary.get("exit_code"), "setpoint_echo": summary.get("setpoint_echo")}
     series = run_dir / "series.csv"
     if not series.is_file():
         return out
@@ -320,6 +320,12 @@ def _own_lines(flights: list[dict]) -> list[str]:
     return out
 
 
+def _echo_cell(echo: dict | None) -> str:
+    if not echo or not echo.get("paired"):
+        return "–"
+    return f"{echo['p50_ms']:g} / {echo['p90_ms']:g}"
+
+
 def markdown(result: dict) -> str:
     """The part's section of bench/RESULTS.md."""
     lines = [
@@ -331,16 +337,18 @@ def markdown(result: dict) -> str:
         "same SET_ATTITUDE_TARGET at the same rate; `px4-own` PX4's own position controller handed the reference",
         "(`bench/px4_own.py`). Moving RMS: 3D error while the reference moves, after 5 s",
         "(helix: 5-11.9 s); hold tilt and hold RMS: the second half of every hold whose reference is over 0.5 m "
-        "above the start (helix: the hold at 12 m, 18.5-25 s; a hold at ground level is a landing).",
+        "above the start (helix: the hold at 12 m, 18.5-25 s; a hold at ground level is a landing). Echo: when the",
+        "vehicle took the setpoints after the telemetry they answer, in its clock, median / 90th percentile, from its",
+        "ATTITUDE_TARGET (summary.json's `setpoint_echo`, docs/offboard.md; real time and the vehicle's clock, attitude output).",
         "",
-        "| vehicle | mission | controller | condition | status | moving RMS m | hold tilt max ° | hold RMS m | peak tilt ° |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| vehicle | mission | controller | condition | status | moving RMS m | hold tilt max ° | hold RMS m | peak tilt ° | echo ms |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for f in result["flights"]:
         lines.append(
             f"| {f['vehicle']} | {f['mission']} | {f['controller']} | {f['condition']} | {f.get('status')} | "
             f"{_f(f.get('moving_rms_m'), '.3f')} | {_f(f.get('hold_tilt_max_deg'), '.1f')} | {_f(f.get('hold_rms_m'), '.3f')} | "
-            f"{_f(f.get('peak_tilt_deg'), '.1f')} |"
+            f"{_f(f.get('peak_tilt_deg'), '.1f')} | {_echo_cell(f.get('setpoint_echo'))} |"
         )
     lines += _delay_lines(result["flights"])
     lines += _target_lines(result["flights"])

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.design import _target_lines, main, px4_sensors_stopped, repeat_summary
+from bench.design import _target_lines, main, markdown, px4_sensors_stopped, repeat_summary
 
 
 def _row(vehicle, mission, condition, moving, hold_tilt, peak=30.0, controller="designed", status="complete"):
@@ -86,3 +86,10 @@ def test_the_repeat_command_refuses_a_bad_count_in_one_line(capsys):
         main(["--px4-repeat", "0"])
     assert exit_info.value.code == 2
     assert "--px4-repeat must be >= 1" in capsys.readouterr().err
+
+
+def test_the_flights_table_gives_the_setpoints_echo_where_a_flight_measured_it():
+    echoed = {**_row("real PX4", "paper-helix.toml", "real time", 0.054, 3.5), "setpoint_echo": {"paired": 400, "p50_ms": 4.0, "p90_ms": 8.0, "max_ms": 16.0}}
+    lockstep = {**_row("sitl-plant", "paper-helix.toml", "lockstep", 0.02, 0.0), "setpoint_echo": None}
+    rows = [line for line in markdown({"flights": [echoed, lockstep], "px4": True}).splitlines() if line.startswith("| real PX4") or line.startswith("| sitl-plant")]
+    assert rows[0].endswith("| 4 / 8 |") and rows[1].endswith("| – |")
