@@ -1,23 +1,23 @@
 """When the vehicle took each setpoint, in its own clock: the ATTITUDE_TARGET echo.
 
-PX4 streams ATTITUDE_TARGET with the attitude setpoint it flies (its quaternion copied float for
-float, its thrust the norm of the thrust vector, which is the thrust sent), and the time it took it: ``time_boot_ms`` is the ``vehicle_attitude_setpoint``'s timestamp, which in
-offboard its MAVLink receiver sets on each SET_ATTITUDE_TARGET (PX4
+PX4 streams ATTITUDE_TARGET with the attitude setpoint it flies (the quaternion copied float for
+float; the thrust the norm of the thrust vector, which is the thrust sent) and the time it took
+it: ``time_boot_ms`` is the ``vehicle_attitude_setpoint``'s timestamp, which in offboard its
+MAVLink receiver sets on each SET_ATTITUDE_TARGET (PX4
 ``src/modules/mavlink/streams/ATTITUDE_TARGET.hpp``). Our SET_ATTITUDE_TARGET carries the stamp
-of the ATTITUDE it answers. A setpoint's echo, found by its quaternion, therefore gives the loop's
-latency in the vehicle's clock: from the instant the telemetry measured to the instant the vehicle
-took the answer, both stamps the vehicle's. The setpoint is found by its quaternion and thrust
-together: a still hover sends the same attitude many samples running, never the same thrust for long. It is the latency the law's prediction carries the
-state over, measured where it happens: at any ``--speed`` (where the offboard's own clock is not
-the vehicle's) and over any link, asymmetric ones included, where the offboard's round trip says
-only the sum of both ways.
+of the ATTITUDE it answers. A setpoint's echo, found by its quaternion and thrust together (a
+still hover sends the same attitude many samples running, rarely the same thrust), therefore
+gives the loop's latency in the vehicle's clock: from the instant the telemetry measured to the
+instant the vehicle took the answer, both stamps the vehicle's. It is the latency the law's
+prediction carries the state over, measured where it happens: at any ``--speed`` (where the
+offboard's own clock is not the vehicle's) and over any link, asymmetric ones included, where the
+offboard's round trip says only the sum of both ways.
 
 PX4's stream sends the latest setpoint taken, so at 10 Hz (its default on the API link) every
 other setpoint of a 20 Hz law is echoed. A setpoint equal to the one sent before it (attitude and
-thrust) cannot be told from it and is not paired; an echo of no setpoint of ours (another module's,
-a position mode's) pairs nothing.
-``bench/px4_log.py`` pairs the same setpoints against PX4's own log (ULog), and
-``tests/e2e/test_px4_flight.py`` checks that the two agree.
+thrust) cannot be told from it and is not paired; an echo of no setpoint of ours (another
+module's, a position mode's) pairs nothing. ``bench/px4_log.py`` pairs the same setpoints against
+PX4's own log (ULog), and ``tests/e2e/test_px4_flight.py`` checks that the two agree.
 """
 
 from __future__ import annotations
