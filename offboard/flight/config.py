@@ -109,7 +109,9 @@ class FlightConfig:
         Ask for the vehicle's ATTITUDE_TARGET (``echo.ECHO_RATE_HZ``, PX4's default on its API
         link) and pair it with the attitude setpoints sent: the loop's latency in the vehicle's
         clock (``offboard.echo``). Attitude output, not in lockstep (where it is 0 by
-        construction); off, ATTITUDE_TARGET is switched off with the streams we never read.
+        construction), and only from a vehicle whose HEARTBEAT says PX4 (whose ATTITUDE_TARGET
+        carries when it took the setpoint; sitl-plant's too); off, ATTITUDE_TARGET is switched off
+        with the streams we never read.
     lost_track_m : float
         In flight: LOST_TRACK when the 3D error stays above this through
         ``metrics.LOST_TRACK_WINDOW_S`` and does not shrink (``guards.TrackGuard``; inf: never).
@@ -169,10 +171,13 @@ class FlightConfig:
         if rate is not None and rate != AUTO_TELEMETRY_RATE and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
             raise ValueError(f"telemetry_rate_hz must be > 0, {AUTO_TELEMETRY_RATE!r} or None, got {rate!r}")
 
-    @property
-    def echoes_setpoints(self) -> bool:
-        """Whether the flight pairs its setpoints with the vehicle's ATTITUDE_TARGET (``setpoint_echo``)."""
-        return self.setpoint_echo and not self.lockstep and self.output == SetpointOutput.ATTITUDE
+    def echoes_setpoints(self, autopilot: int | None) -> bool:
+        """Whether the flight pairs its setpoints with the ATTITUDE_TARGET of a vehicle whose
+        HEARTBEAT names ``autopilot`` (MAV_AUTOPILOT): ``setpoint_echo``, the attitude output, not
+        in lockstep, and PX4, whose ATTITUDE_TARGET carries when it took the setpoint (ArduPilot
+        stamps it when it sends it: its echo would not be the latency)."""
+        return (self.setpoint_echo and not self.lockstep and self.output == SetpointOutput.ATTITUDE
+                and autopilot == mavlink.MAV_AUTOPILOT_PX4)  # fmt: skip
 
     def telemetry_rate_for(self, sample_time_s: float) -> float | None:
         """The ATTITUDE and LOCAL_POSITION_NED rate to ask for at sample time To (None: the vehicle's)."""

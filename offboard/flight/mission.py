@@ -54,7 +54,7 @@ from offboard.controllers import make_controller
 from offboard.errors import ClockMismatch, CommandRejected, LinkTimeout, MissionFormatError
 from offboard.flight.choice import VEHICLE_PARAMS, ControllerChoice, params_to_read, resolve_controller
 from offboard.flight.config import FlightConfig, FlightEnd, HeadingHoldMode, Link, SampleClock
-from offboard.echo import ECHO_RATE_HZ
+from offboard.echo import ECHO_RATE_HZ, SetpointEcho
 from offboard.flight.guards import EstimatorGuard, HeadingResetWatch, TrackGuard, sensor_health_changes
 from offboard.flight.heading_hold import EKF2_ALIGN_HEIGHT_M, TakeoffHeadingHold, alignment_delay_s, aligns_in_flight, highest_down_m
 from offboard.flight.protocol import VehicleClient
@@ -424,7 +424,11 @@ class Flight:
         note: the flight goes on."""
         cfg = self.config
         rate_hz = cfg.telemetry_rate_for(self.to)
-        echo = cfg.echoes_setpoints
+        echo = cfg.echoes_setpoints(self.client.autopilot)
+        self.sampler.echo = SetpointEcho() if echo else None
+        if cfg.echoes_setpoints(mavlink.MAV_AUTOPILOT_PX4) and not echo:
+            self._note("setpoint echo: not asked for (the vehicle's HEARTBEAT says it is not PX4, whose ATTITUDE_TARGET "
+                       "carries when it took the setpoint)")
         wanted: list[tuple[int, float | None]] = [
             (mid, None) for mid in codec.UNREAD_STREAMS if not (echo and mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET)
         ] if cfg.unread_streams_off else []  # fmt: skip

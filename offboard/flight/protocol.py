@@ -98,6 +98,8 @@ class VehicleClient:
         self._say = say
         self._boot_ms = boot_ms
         self.target: tuple[int, int] | None = None
+        #: the vehicle's autopilot as its HEARTBEAT says (MAV_AUTOPILOT; None: not found yet)
+        self.autopilot: int | None = None
         self.status: VehicleStatus | None = None
         self.vehicle_params: dict[str, float] = {}
         self.landed_state: int | None = None
@@ -126,6 +128,7 @@ class VehicleClient:
         elif kind == "HEARTBEAT" and codec.is_autopilot_heartbeat(msg):
             if self.config.target_system is None or source[0] == self.config.target_system:
                 self.target = source
+                self.autopilot = int(msg.autopilot)
                 if hasattr(self.link, "trusted"):
                     self.link.trusted = source  # only the vehicle's datagrams may move our link's peer
                 self.status = codec.vehicle_status(msg)

@@ -137,8 +137,9 @@ class Sampler:
         self.link = link
         self.config = config
         self.to = sample_time_s
-        #: the setpoints' echo (``offboard.echo``; None: not asked for)
-        self.echo: SetpointEcho | None = SetpointEcho() if config.echoes_setpoints else None
+        #: the setpoints' echo (``offboard.echo``; None: not asked for; the flight decides once
+        #: it knows the vehicle, ``FlightConfig.echoes_setpoints``)
+        self.echo: SetpointEcho | None = None
         self.clock = clock
         self._supervisor = supervisor
         # the freshest telemetry

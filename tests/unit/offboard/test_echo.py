@@ -65,3 +65,19 @@ def test_the_summary_line_says_the_figures_against_the_design():
     assert echo_words(figures, 0.0101) == (
         "setpoint echo: the vehicle took the setpoints 6 ms (median), 10.8 ms (90 %), at most 12 ms after the "
         "telemetry they answer, in its clock (4 ATTITUDE_TARGET echoes); the law was designed for 10 ms")
+
+
+def test_the_echo_is_asked_for_in_real_time_with_the_attitude_output_from_px4_only():
+    """PX4 (and sitl-plant, which says PX4) stamps ATTITUDE_TARGET with when it took the setpoint;
+    ArduPilot with when it sends it, whose echo would not be the latency."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from offboard.codec import SetpointOutput
+    from offboard.flight import FlightConfig
+
+    px4, ardupilot = mavlink.MAV_AUTOPILOT_PX4, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert FlightConfig().echoes_setpoints(px4)
+    assert not FlightConfig().echoes_setpoints(ardupilot) and not FlightConfig().echoes_setpoints(None)
+    assert not FlightConfig(lockstep=True).echoes_setpoints(px4)  # 0 by construction
+    assert not FlightConfig(output=SetpointOutput.RATES).echoes_setpoints(px4)  # PX4 echoes no attitude of it
+    assert not FlightConfig(setpoint_echo=False).echoes_setpoints(px4)
