@@ -130,8 +130,9 @@ def setpoint_echo(scan: LogScan, vehicle: int | None) -> dict | None:
     echoes = scan.attitude_targets.get(vehicle, [])
     if not sent or not echoes:
         return None
-    # (tlog time, 0 for a setpoint and 1 for an echo: a setpoint before an echo logged at its instant)
-    order = sorted([(r[-2], 0, k) for k, r in enumerate(sent)] + [(r[-1], 1, k) for k, r in enumerate(echoes)])
+    # in the order logged (the message's place in the log: the order the flight handled them, which
+    # two writes within one microsecond of the wall clock, or a clock stepped back, would not keep)
+    order = sorted([(r[-1], 0, k) for k, r in enumerate(sent)] + [(r[6], 1, k) for k, r in enumerate(echoes)])
     echo = SetpointEcho()
     for _, kind, k in order:
         if kind == 0:

@@ -164,7 +164,7 @@ class LogScan:
     heartbeat_kind: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)  # (type, autopilot)
     attitude: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, roll, pitch, yaw, p, q, r, t_s, n)
     local_position: dict[int, list[tuple]] = field(default_factory=dict)  # sysid -> (tb_ms, x, y, z, vx, vy, vz, t_s, n)
-    attitude_targets: dict[int, list[tuple]] = field(default_factory=dict)  # vehicle -> (tb_ms, q0..q3, thrust, t_s)
+    attitude_targets: dict[int, list[tuple]] = field(default_factory=dict)  # vehicle -> (tb_ms, q0..q3, thrust, n, t_s)
     position_targets: dict[int, list[tuple]] = field(default_factory=dict)  # vehicle -> (tb_ms, x, y, z, yaw, t_s)
     set_attitude: dict[int, list[tuple]] = field(default_factory=dict)  # target -> (tb_ms, mask, q0..q3, p, q, r, thrust, src, t_s, n)
     set_actuator: dict[int, list[tuple]] = field(default_factory=dict)  # target -> (tb_ms, c0..c3, src, t_s, n)
@@ -277,7 +277,7 @@ class LogScan:
 
     def _attitude_target(self, t_s: float, src: tuple[int, int], msg) -> None:
         q = msg.q
-        self.attitude_targets.setdefault(src[0], []).append((int(msg.time_boot_ms), q[0], q[1], q[2], q[3], msg.thrust, t_s))
+        self.attitude_targets.setdefault(src[0], []).append((int(msg.time_boot_ms), q[0], q[1], q[2], q[3], msg.thrust, self.messages, t_s))
 
     def _position_target(self, t_s: float, src: tuple[int, int], msg) -> None:
         mask = int(msg.type_mask)

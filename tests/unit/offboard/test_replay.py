@@ -512,8 +512,9 @@ def test_two_samples_that_read_one_telemetry_stamp_are_two_commands_and_a_resend
 def test_the_log_report_pairs_the_setpoints_with_the_vehicles_attitude_target_echo(tmp_path):
     """A flight's tlog holds its SET_ATTITUDE_TARGETs and, in real time, the vehicle's
     ATTITUDE_TARGET stamped when it took each (offboard.echo): the report gives the latency in the
-    vehicle's clock as ``offboard fly`` did in flight. A body-rate setpoint (attitude ignored) and
-    an echo of another module's attitude pair nothing; a log without echoes has no figure."""
+    vehicle's clock as ``offboard fly`` did in flight, in the order logged (the order the flight
+    handled them), not by the log's times. A body-rate setpoint (attitude ignored) and an echo of
+    another module's attitude pair nothing; a log without echoes has no figure."""
     ours = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
     vehicle = mavlink.MAVLink(None, srcSystem=VEHICLE, srcComponent=1)
 
@@ -527,8 +528,9 @@ def test_the_log_report_pairs_the_setpoints_with_the_vehicles_attitude_target_ec
     for k in range(6):  # a setpoint every 50 ms answering telemetry of 1000 + 50 k; echoed every other one
         stamp = 1000 + 50 * k
         frames.append((k * 50_000, mavlink.MAVLink_set_attitude_target_message(stamp, VEHICLE, 1, 0b111, q(0.01 * k), 0, 0, 0, 0.5).pack(ours)))
-        if k % 2 == 0:
-            frames.append((k * 50_000 + 8_000, mavlink.MAVLink_attitude_target_message(stamp + 4 * (k + 1), 0, q(0.01 * k), 0, 0, 0, 0.5).pack(vehicle)))
+        if k % 2 == 0:  # the second echo logged after its setpoint with an earlier time (a wall clock stepped back)
+            frames.append((k * 50_000 + (-1_000 if k == 2 else 8_000),
+                           mavlink.MAVLink_attitude_target_message(stamp + 4 * (k + 1), 0, q(0.01 * k), 0, 0, 0, 0.5).pack(vehicle)))
     frames.append((301_000, mavlink.MAVLink_set_attitude_target_message(1300, VEHICLE, 1, 0b10000111, q(0.5), 0, 0, 0, 0.5).pack(ours)))
     frames.append((305_000, mavlink.MAVLink_attitude_target_message(1304, 0, q(0.5), 0, 0, 0, 0.5).pack(vehicle)))
     frames.append((306_000, mavlink.MAVLink_attitude_target_message(1306, 0, q(0.9), 0, 0, 0, 0.5).pack(vehicle)))
