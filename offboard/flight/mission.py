@@ -322,6 +322,9 @@ class Flight:
         # stream from now on: a lockstep plant then never waits on us (no keepalives, same bytes
         # every run), and PX4 sees setpoints well before OFFBOARD is asked for
         self.supervisor.watching = True
+        # the setpoints' echo pairs every setpoint from the first (decided now the vehicle is known;
+        # the stream is asked for with the others, _configure_streams)
+        self.sampler.echo = SetpointEcho() if cfg.echoes_setpoints(client.autopilot) else None
         self.sampler.source = self._hold_source
 
     def _prepare(self) -> None:
@@ -424,8 +427,7 @@ class Flight:
         note: the flight goes on."""
         cfg = self.config
         rate_hz = cfg.telemetry_rate_for(self.to)
-        echo = cfg.echoes_setpoints(self.client.autopilot)
-        self.sampler.echo = SetpointEcho() if echo else None
+        echo = self.sampler.echo is not None  # decided once the vehicle was found (_connect)
         if cfg.echoes_setpoints(mavlink.MAV_AUTOPILOT_PX4) and not echo:
             self._note("setpoint echo: not asked for (the vehicle's HEARTBEAT says it is not PX4, whose ATTITUDE_TARGET "
                        "carries when it took the setpoint)")
