@@ -107,10 +107,17 @@ def sent_setpoints(flight_tlog: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def logged_setpoints(ulog: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(timestamps us, q_d) of ``vehicle_attitude_setpoint`` in a PX4 log."""
-    from pyulog import ULog
-
-    data = ULog(str(ulog), ["vehicle_attitude_setpoint"]).data_list
+    """(timestamps us, q_d) of ``vehicle_attitude_setpoint`` in a PX4 log; ValueError (one line)
+    for a file that is not one, or without pyulog."""
+    try:
+        from pyulog import ULog
+        from pyulog.exceptions import ULogException
+    except ImportError:
+        raise ValueError("reading PX4's log needs pyulog (make bench and make test install it)") from None
+    try:
+        data = ULog(str(ulog), ["vehicle_attitude_setpoint"]).data_list
+    except (ULogException, EOFError) as exc:
+        raise ValueError(f"{ulog}: not a PX4 log (ULog): {exc}") from None
     if not data:
         raise ValueError(f"{ulog}: no vehicle_attitude_setpoint in PX4's log")
     d = data[0].data

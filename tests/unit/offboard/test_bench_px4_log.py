@@ -64,3 +64,17 @@ def test_a_folder_without_one_px4_log_or_a_missing_run_is_one_line(tmp_path, cap
     assert main([str(tmp_path / "nowhere"), str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("px4_log: ")
+
+
+def test_a_file_that_is_not_a_px4_log_is_one_line(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    mav = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
+    log = TlogWriter(run / "flight.tlog")
+    log.write(0, mavlink.MAVLink_set_attitude_target_message(1000, 1, 1, 0, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0.5).pack(mav))
+    log.close()
+    (tmp_path / "px4" / "log" / "2026-12-05").mkdir(parents=True)
+    (tmp_path / "px4" / "log" / "2026-12-05" / "bad.ulg").write_bytes(b"junkjunkjunk")
+    assert main([str(run), str(tmp_path / "px4")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a PX4 log (ULog)" in err[0], err
