@@ -14,8 +14,10 @@ process group: SIGINT, then SIGKILL).
   the loop itself carried: 40 consecutive cycles of the best run's plant tlog (``recorded_cycles``),
   replayed in turn by the same two bare processes, each packing its side's recorded messages with
   pymavlink and parsing the other's: the bare floor against it is what the protocol costs, the loop
-  against it what the code costs (target: the loop >= 50 % of it). Then the same flight under
-  py-spy (sampling both processes from outside, waiting included): µs per cycle by part.
+  against it what the code costs (target: the loop >= 50 % of it). Then the same configuration
+  under py-spy (sampling both processes from outside, waiting included), over a 20-minute lockstep
+  hover (``PROFILE_SIM_S``: thousands of samples a process): µs per cycle by part, each part's
+  share of its process's samples times the profiled cycle (``breakdown``).
 - **Real time**: a 10 s helix at 50 Hz and 250 Hz control (``offboard fly --sample-time To
   --telemetry-rate``, the plant streaming at up to 250 Hz in 4 ms ticks). Sample period jitter
   ``|period - To|`` is the offboard's (its own clock); the telemetry-to-setpoint latency is
@@ -68,7 +70,11 @@ FLIGHT_TIMEOUT_S = 600.0
 #: time at ~730 cycles/s, the whole run ~2.5 min on 2 cores; ``--long-s`` for less).
 LONG_S = 3600.0
 STARTUP_S = 4.0  # wall seconds of a flight's start-up left out of the RSS growth fit
-PROFILE_HZ = 400  # py-spy samples per second (it reads the process from outside: no overhead inside)
+PROFILE_HZ = 250  # py-spy samples per second (it reads the process from outside, on the same 2 cores)
+#: The profiled flight: a lockstep hover this long (simulated s; 24 000 cycles, ~8 s of wall time
+#: profiled), so that each part's share rests on thousands of samples. The paper helix's 801
+#: cycles last a quarter of a second: 100 samples, most of them the start-up and the landing.
+PROFILE_SIM_S = 1200.0
 
 
 # --- processes ---------------------------------------------------------------------------------
@@ -518,8 +524,13 @@ def _frame(text: str) -> tuple[str, str]:
     return name, rest.rsplit(":", 1)[0]
 
 
-def breakdown(raw: Path, parts: tuple, scope: tuple[str, str], cycles: int, rate_hz: float) -> list[dict]:
-    """µs per cycle of each part from a py-spy raw profile (``--idle``: waiting counts too)."""
+def breakdown(raw: Path, parts: tuple, scope: tuple[str, str], cycle_us: float) -> dict:
+    """Where a process's flight loop spends a cycle, from a py-spy raw profile (``--idle``:
+    waiting counts too): each part's share of the samples in ``scope`` times the profiled run's
+    ``cycle_us`` (µs of wall time a cycle). Shares, not counts over py-spy's nominal rate: on 2
+    cores shared by two busy processes and two samplers, py-spy takes fewer samples than it
+    asks for, and a count would understate every part alike. Returns ``{"samples": n, "rows":
+    [{"part", "us_per_cycle"}, ...]}``."""
     counts = {label: 0 for label, _ in parts}
     other = 0
     for line in raw.read_text().splitlines():
@@ -541,10 +552,30 @@ def breakdown(raw: Path, parts: tuple, scope: tuple[str, str], cycles: int, rate
             other += int(n)
         else:
             counts[label] += int(n)
-    us = 1e6 / rate_hz / cycles
-    rows = [{"part": label, "us_per_cycle": c * us} for label, c in counts.items()]
-    rows.append({"part": "other (loop bookkeeping, interpreter)", "us_per_cycle": other * us})
-    return rows
+    total = sum(counts.values()) + other
+    if total == 0:
+        raise RuntimeError(f"{raw}: no py-spy sample inside {scope[0]} ({scope[1]})")
+    rows = [{"part": label, "us_per_cycle": c / total * cycle_us} for label, c in counts.items()]
+    rows.append({"part": "other (loop bookkeeping, interpreter)", "us_per_cycle": other / total * cycle_us})
+    return {"samples": total, "rows": rows}
+
+
+def profile(folder: Path) -> dict:
+    """Where a lockstep cycle's time goes: a ``PROFILE_SIM_S`` hover with py-spy sampling both
+    processes (``breakdown``); raises RuntimeError without py-spy."""
+    prof = fly(folder / "profiled", hover(folder, PROFILE_SIM_S), lockstep=True, profile=True, rss_interval_s=None)
+    d = Path(prof["run_dir"])
+    rate = _cycles_per_s(prof["summary"])
+    return {
+        "tool": "py-spy",
+        "sample_hz": PROFILE_HZ,
+        "sim_s": PROFILE_SIM_S,
+        "cycles_per_s_profiled": rate,
+        "cycles": int(prof["summary"]["loop"]["samples"]),
+        "plant_periods": plant_periods(d / "plant.tlog"),
+        "offboard": breakdown(d / "offboard.raw", OFFBOARD_PARTS, OFFBOARD_SCOPE, 1e6 / rate),
+        "plant": breakdown(d / "plant.raw", PLANT_PARTS, PLANT_SCOPE, 1e6 / rate),
+    }
 
 
 def plant_periods(tlog: Path) -> int:
@@ -755,18 +786,7 @@ def measure(quick: bool = False, long_s: float | None = None) -> dict:
         try:
             if quick:
                 raise RuntimeError("not profiled in a quick run")
-            prof = fly(folder / "profiled", PAPER_HELIX, lockstep=True, profile=True, rss_interval_s=None)
-            cycles = int(prof["summary"]["loop"]["samples"])
-            d = Path(prof["run_dir"])
-            result["profile"] = {
-                "tool": "py-spy",
-                "sample_hz": PROFILE_HZ,
-                "cycles_per_s_profiled": _cycles_per_s(prof["summary"]),
-                "cycles": cycles,
-                "plant_periods": plant_periods(d / "plant.tlog"),
-                "offboard": breakdown(d / "offboard.raw", OFFBOARD_PARTS, OFFBOARD_SCOPE, cycles, PROFILE_HZ),
-            }
-            result["profile"]["plant"] = breakdown(d / "plant.raw", PLANT_PARTS, PLANT_SCOPE, result["profile"]["plant_periods"], PROFILE_HZ)
+            result["profile"] = profile(folder)
         except (RuntimeError, OSError) as exc:
             result["profile"] = {"error": str(exc).splitlines()[0]}
         # real time at 50 Hz and 250 Hz
@@ -851,17 +871,25 @@ def markdown(result: dict) -> str:
     ]
     prof = result.get("profile", {})
     if "plant" in prof:
+        cycle_us = 1e6 / prof["cycles_per_s_profiled"]
         lines += [
-            f"Where the time goes: py-spy sampling both processes from outside at {prof['sample_hz']} Hz, waiting "
-            f"included (profiled run: {prof['cycles_per_s_profiled']:.0f} cycles/s). µs per cycle of each process's "
-            "flight loop (plant: all its lockstep periods; offboard: the mission's samples):",
+            f"Where the time goes: a lockstep hover of {prof['sim_s']:.0f} simulated s ({prof['cycles']} cycles, the "
+            f"helix's configuration) with py-spy sampling both processes from outside at {prof['sample_hz']} Hz, "
+            f"waiting included ({prof['plant']['samples']} samples inside the plant's loop, "
+            f"{prof['offboard']['samples']} inside the offboard's; profiled run: {prof['cycles_per_s_profiled']:.0f} "
+            f"cycles/s, {cycle_us:.0f} µs a cycle, the samplers sharing the 2 cores). Each part is its share of its "
+            "process's samples times that cycle, so each process's rows sum to it; a process's work is the cycle "
+            "less its waiting for the other's message:",
             "",
             "| process | part | µs/cycle |",
             "|---|---|---:|",
         ]
         for proc in ("plant", "offboard"):
-            for row in prof[proc]:
-                lines.append(f"| {proc} | {row['part']} | {row['us_per_cycle']:.0f} |")
+            rows = prof[proc]["rows"]
+            for row in rows:
+                lines.append(f"| {proc} | {row['part']} | {row['us_per_cycle']:.1f} |")
+            work = sum(r["us_per_cycle"] for r in rows if not r["part"].startswith("waiting"))
+            lines.append(f"| {proc} | **work (all but waiting)** | **{work:.1f}** |")
         lines.append("")
     elif "error" in prof:
         lines += [f"No profile: {prof['error']}.", ""]

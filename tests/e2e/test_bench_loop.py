@@ -7,6 +7,8 @@ import math
 import os
 import subprocess
 
+import pytest
+
 from bench import loop
 
 
@@ -31,11 +33,20 @@ def test_breakdown_attributes_samples_to_the_innermost_part(tmp_path):
         f"{root};Plant.advance (sitl_plant/server.py:264) 10\n"
         "<module> (sitl_plant/cli.py:1);import_stuff (x.py:1) 99\n"  # outside the loop: not counted
     )
-    rows = {r["part"]: r["us_per_cycle"] for r in loop.breakdown(raw, loop.PLANT_PARTS, loop.PLANT_SCOPE, cycles=10, rate_hz=1000)}
-    assert rows["waiting for the setpoint (select)"] == 4000.0
-    assert rows["PX4 loops in Python (position modes, or no numba)"] == 3000.0
-    assert rows["autopilot, truth state"] == 1000.0
-    assert sum(rows.values()) == 8000.0
+    profile = loop.breakdown(raw, loop.PLANT_PARTS, loop.PLANT_SCOPE, cycle_us=200.0)
+    rows = {r["part"]: r["us_per_cycle"] for r in profile["rows"]}
+    assert profile["samples"] == 80  # the 99 outside the loop are not counted
+    assert rows["waiting for the setpoint (select)"] == 100.0  # 40 of 80 samples: half the cycle
+    assert rows["PX4 loops in Python (position modes, or no numba)"] == 75.0
+    assert rows["autopilot, truth state"] == 25.0
+    assert sum(rows.values()) == 200.0  # the shares make up the cycle
+
+
+def test_breakdown_without_a_sample_in_the_loop_says_so(tmp_path):
+    raw = tmp_path / "plant.raw"
+    raw.write_text("<module> (sitl_plant/cli.py:1);import_stuff (x.py:1) 99\n")
+    with pytest.raises(RuntimeError, match="no py-spy sample inside run_lockstep"):
+        loop.breakdown(raw, loop.PLANT_PARTS, loop.PLANT_SCOPE, cycle_us=200.0)
 
 
 def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
@@ -77,5 +88,17 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     assert text.count("| floor: pymavlink ping-pong of the loop's own messages |") == 1
     assert "≥ 50 % of the floor of its own messages" in text
     assert text.count("each side sleeping in its wait at once |") == 2 and "polling its socket for up to 500 µs" in text
+    # the profile's table: each process's parts make up the profiled cycle, its work is all but the wait
+    result["profile"] = {
+        "tool": "py-spy", "sample_hz": 250, "sim_s": 1200.0, "cycles_per_s_profiled": 5000.0, "cycles": 24001, "plant_periods": 24100,
+        "plant": {"samples": 80, "rows": [{"part": "waiting for the setpoint (select)", "us_per_cycle": 150.0},
+                                          {"part": "autopilot, truth state", "us_per_cycle": 50.0}]},
+        "offboard": {"samples": 90, "rows": [{"part": "waiting for telemetry (select)", "us_per_cycle": 120.0},
+                                             {"part": "controller law", "us_per_cycle": 80.0}]},
+    }  # fmt: skip
+    text = loop.markdown(result)
+    assert "200 µs a cycle" in text and "80 samples inside the plant's loop, 90 inside the offboard's" in text
+    assert "| plant | **work (all but waiting)** | **50.0** |" in text
+    assert "| offboard | **work (all but waiting)** | **80.0** |" in text
     for pid in run["pids"]:
         assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
