@@ -26,8 +26,8 @@ is a landing, whose second half is the end of a descent and then the ground; on 
 hold at 12 m, 18.5-25 s); the RMS error there; the peak tilt of the flight.
 
 A real-PX4 figure moves from flight to flight with EKF2's errors; ``python bench/design.py
---px4-repeat N [--speed F] [--mission FILE]`` flies one mission N times and says how many flights
-met issue 11's targets.
+--px4-repeat N [--speed F] [--mission FILE] [-- OFFBOARD FLY OPTIONS]`` flies one mission N times
+and says how many flights met issue 11's targets.
 """
 
 from __future__ import annotations
@@ -137,13 +137,15 @@ def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep:
     return result
 
 
-def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: float = 1.0) -> dict:
+def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: float = 1.0, fly_args: tuple[str, ...] = ()) -> dict:
     """One flight against a real PX4 SITL (``bench/px4sitl.py``), in real time or ``speed`` times
-    faster (then on the vehicle's clock, ``offboard fly --clock vehicle``)."""
+    faster (then on the vehicle's clock, ``offboard fly --clock vehicle``), with ``fly_args`` more
+    ``offboard fly`` options."""
     from bench.px4sitl import running_px4
 
     run_dir.mkdir(parents=True, exist_ok=True)
     extra = (() if controller is None else ("--controller", controller)) + (("--clock", "vehicle") if speed != 1.0 else ())
+    extra += fly_args
     with running_px4(run_dir / "px4", speed=speed) as px4:
         fly = _fly(mission, run_dir, px4.api_listen_port, extra)
         try:
@@ -404,7 +406,7 @@ def px4_sensors_stopped(run_dir: Path) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python bench/design.py --px4-repeat N [--speed F] [--mission FILE]``: the same real-PX4
+    """``python bench/design.py --px4-repeat N [--speed F] [--mission FILE] [-- OFFBOARD FLY OPTIONS]``: the same real-PX4
     flight of the designed law N times (a fresh PX4 each), each judged against issue 11's targets:
     how often a flight meets them, where one ``make bench`` run flies it once."""
     import argparse
@@ -416,20 +418,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--px4-repeat", type=int, required=True, metavar="N", help="flights (each on a fresh PX4 SITL)")
     parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
     parser.add_argument("--mission", default="paper-helix.toml", choices=FLY_MISSIONS, help="a bundled mission")
+    parser.add_argument("fly_args", nargs="*", metavar="-- OFFBOARD FLY OPTIONS",
+                        help="more offboard fly options for every flight (after --), e.g. -- --clock vehicle")
     args = parser.parse_args(argv)
     if args.px4_repeat < 1 or not args.speed > 0:
         parser.error("--px4-repeat must be >= 1 and --speed > 0")
     if px4_launcher() is None:
         print(f"design: {SKIP_REASON}", file=sys.stderr)
         return 2
-    condition = "real time" if args.speed == 1.0 else f"--speed {args.speed:g}, vehicle clock"
+    condition = ("real time" if args.speed == 1.0 else f"--speed {args.speed:g}, vehicle clock") + "".join(f" {a}" for a in args.fly_args)
     flights = []
     folder = Path(tempfile.mkdtemp(prefix="bench-design-repeat-"))  # kept: each flight's logs and PX4's
     print(f"flights recorded in {folder}", flush=True)
     for i in range(args.px4_repeat):
         run_dir = folder / f"flight-{i + 1}"
         try:
-            result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed)
+            result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed, fly_args=tuple(args.fly_args))
         except KeyboardInterrupt:  # the flight's PX4 and offboard are stopped on the way out
             print(f"design: interrupted in flight {i + 1}; the flights so far are in {folder}", file=sys.stderr)
             return 130

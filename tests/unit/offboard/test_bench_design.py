@@ -88,6 +88,20 @@ def test_the_repeat_command_refuses_a_bad_count_in_one_line(capsys):
     assert "--px4-repeat must be >= 1" in capsys.readouterr().err
 
 
+def test_the_repeat_command_hands_offboard_fly_the_options_after_the_double_dash(monkeypatch, capsys, tmp_path):
+    import bench.design as design
+    import bench.px4sitl as px4sitl
+
+    flown = []
+    monkeypatch.setattr(px4sitl, "px4_launcher", lambda: "px4")
+    monkeypatch.setattr(design.tempfile, "mkdtemp", lambda prefix: str(tmp_path))
+    monkeypatch.setattr(design, "fly_px4", lambda mission, run_dir, **kw: flown.append(kw) or {"status": "complete", "moving_rms_m": 0.05,
+                                                                                              "hold_tilt_max_deg": 3.5, "peak_tilt_deg": 30.0})  # fmt: skip
+    assert main(["--px4-repeat", "2", "--", "--clock", "vehicle"]) == 0
+    assert flown == [{"controller": None, "speed": 1.0, "fly_args": ("--clock", "vehicle")}] * 2
+    assert "real PX4, paper-helix.toml, real time --clock vehicle, no controller file: " in capsys.readouterr().out
+
+
 def test_the_flights_table_gives_the_setpoints_echo_where_a_flight_measured_it():
     echoed = {**_row("real PX4", "paper-helix.toml", "real time", 0.054, 3.5), "setpoint_echo": {"paired": 400, "p50_ms": 4.0, "p90_ms": 8.0, "max_ms": 16.0}}
     lockstep = {**_row("sitl-plant", "paper-helix.toml", "lockstep", 0.02, 0.0), "setpoint_echo": None}
