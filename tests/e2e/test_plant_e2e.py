@@ -465,7 +465,11 @@ def test_sigint_exits_cleanly_and_keeps_the_log(start, tmp_path):
 def test_ctrl_c_while_starting_is_one_line(tmp_path):
     """Ctrl-C while the plant still starts, before its run loop takes SIGINT itself: one line and
     exit 130, no traceback (it printed numba's loader's). The vehicle file is a FIFO, so the plant
-    is caught reading it, past its imports: our end opens once the plant has opened it."""
+    is caught reading it, past its imports: our end opens once the plant has opened it, and the
+    signal goes once the kernel has it asleep in that read (its wchan). Sent as the open returned,
+    a SIGINT could land between Python's last look at its signals and the read, and the read, which
+    nothing then interrupts, would hold the KeyboardInterrupt back for good (3 runs in 25 hung so);
+    a regular file's read returns at once, so a user's Ctrl-C is never held."""
     fifo = tmp_path / "vehicle.toml"
     os.mkfifo(fifo)
     plant = subprocess.Popen([sys.executable, "-m", "sitl_plant.cli", "--vehicle", str(fifo), "--api-bind", "127.0.0.1:0",
@@ -480,7 +484,10 @@ def test_ctrl_c_while_starting_is_one_line(tmp_path):
             except OSError:
                 assert time.monotonic() < deadline and plant.poll() is None, "the plant never opened its vehicle file"
                 time.sleep(0.01)
-        plant.send_signal(signal.SIGINT)  # reading the file (we write nothing)
+        while "pipe_read" not in Path(f"/proc/{plant.pid}/wchan").read_text():  # asleep reading it (we write nothing)
+            assert time.monotonic() < deadline and plant.poll() is None, "the plant never blocked reading its vehicle file"
+            time.sleep(0.01)
+        plant.send_signal(signal.SIGINT)
         _, err = plant.communicate(timeout=30)
     finally:
         if fd is not None:
