@@ -17,7 +17,10 @@ process group: SIGINT, then SIGKILL).
   against it what the code costs (target: the loop >= 50 % of it). Then the same configuration
   under py-spy (sampling both processes from outside, waiting included), over a 20-minute lockstep
   hover (``PROFILE_SIM_S``: thousands of samples a process): µs per cycle by part, each part's
-  share of its process's samples times the profiled cycle (``breakdown``).
+  share of its process's samples times the profiled cycle (``breakdown``). And unperturbed: a
+  lockstep hover with both processes' tlogs stamped with the wall clock (``--log-clock wall`` on
+  both sides), the cycle cut into its four hand-overs (``hand_overs``: the telemetry's way, the
+  offboard's turn, the setpoint's way, the plant's turn).
 - **Real time**: a 10 s helix at 50 Hz and 250 Hz control (``offboard fly --sample-time To
   --telemetry-rate``, the plant streaming at up to 250 Hz in 4 ms ticks). Sample period jitter
   ``|period - To|`` is the offboard's (its own clock); the telemetry-to-setpoint latency is
@@ -75,6 +78,8 @@ PROFILE_HZ = 250  # py-spy samples per second (it reads the process from outside
 #: profiled), so that each part's share rests on thousands of samples. The paper helix's 801
 #: cycles last a quarter of a second: 100 samples, most of them the start-up and the landing.
 PROFILE_SIM_S = 1200.0
+#: The hand-overs' flight: a lockstep hover this long (simulated s), both tlogs on the wall clock.
+HANDOVER_SIM_S = 300.0
 
 
 # --- processes ---------------------------------------------------------------------------------
@@ -649,6 +654,70 @@ def setpoint_latency_ms(plant_tlog: Path) -> list[float]:
     return out
 
 
+def _first_logged(tlog: Path, kinds: tuple[str, ...]) -> dict[str, dict[int, float]]:
+    """From a wall-clock tlog: per message kind, when the first one of each ``time_boot_ms`` was
+    logged (s)."""
+    from pymavlink import mavutil
+
+    from offboard.model.tlog import LOCKSTEP_EPOCH_S
+
+    out: dict[str, dict[int, float]] = {kind: {} for kind in kinds}
+    log = mavutil.mavlink_connection(str(tlog), dialect="common")
+    while True:
+        msg = log.recv_match(type=list(kinds))
+        if msg is None:
+            break
+        if msg._timestamp < LOCKSTEP_EPOCH_S + 365 * 86400.0:  # a lockstep log of the vehicle's time
+            log.close()
+            raise RuntimeError(f"{tlog}: stamped with the vehicle's time, not the wall clock (--log-clock wall)")
+        out[msg.get_type()].setdefault(int(msg.time_boot_ms), msg._timestamp)
+    log.close()
+    return out
+
+
+#: The four hand-overs of a lockstep cycle answering the ATTITUDE stamped T, each from one wall-clock
+#: log entry to the next: (part, (log, kind, stamp) from, (log, kind, stamp) to); the stamp is T or
+#: the next period's.
+HAND_OVERS = (
+    ("telemetry on its way: the plant sends ATTITUDE T, the offboard has read and parsed it",
+     ("plant", "ATTITUDE", "T"), ("offboard", "ATTITUDE", "T")),
+    ("the offboard's turn: from that ATTITUDE to its SET_ATTITUDE_TARGET sent (reference, law, eq. 16, encoding)",
+     ("offboard", "ATTITUDE", "T"), ("offboard", "SET_ATTITUDE_TARGET", "T")),
+    ("the setpoint on its way: sent, then read and parsed by the plant",
+     ("offboard", "SET_ATTITUDE_TARGET", "T"), ("plant", "SET_ATTITUDE_TARGET", "T")),
+    ("the plant's turn: from the setpoint to the next ATTITUDE sent (physics, PX4's loops, telemetry)",
+     ("plant", "SET_ATTITUDE_TARGET", "T"), ("plant", "ATTITUDE", "next")),
+)  # fmt: skip
+
+
+def hand_overs(plant_tlog: Path, offboard_tlog: Path) -> dict:
+    """Where a lockstep cycle's wall time goes, from both processes' wall-clock tlogs
+    (``--log-clock wall`` on both sides): per ``HAND_OVERS`` part the median and 90th percentile
+    (µs) over the middle 80 % of the cycles, and the cycle's own. No sampler in either process."""
+    logs = {"plant": _first_logged(plant_tlog, ("ATTITUDE", "SET_ATTITUDE_TARGET")),
+            "offboard": _first_logged(offboard_tlog, ("ATTITUDE", "SET_ATTITUDE_TARGET"))}  # fmt: skip
+    stamps = sorted(logs["plant"]["ATTITUDE"])
+    nxt = dict(zip(stamps, stamps[1:]))
+
+    def logged(who: str, kind: str, which: str, t: int) -> float | None:
+        stamp = t if which == "T" else nxt.get(t)
+        return None if stamp is None else logs[who][kind].get(stamp)
+
+    rows: list[list[float]] = []
+    for t in stamps:
+        ends = [(logged(*start, t), logged(*end, t)) for _, start, end in HAND_OVERS]
+        if all(a is not None and b is not None for a, b in ends):
+            rows.append([(b - a) * 1e6 for a, b in ends])  # type: ignore[operator]
+    if len(rows) < 10:
+        raise RuntimeError(f"{plant_tlog}, {offboard_tlog}: {len(rows)} whole cycles in both logs (10 needed)")
+    cut = len(rows) // 10
+    middle = rows[cut : len(rows) - cut] if cut else rows
+    parts = [{"part": part, "p50_us": _percentile([r[i] for r in middle], 50.0), "p90_us": _percentile([r[i] for r in middle], 90.0)}
+             for i, (part, _, _) in enumerate(HAND_OVERS)]  # fmt: skip
+    cycle = [sum(r) for r in middle]
+    return {"cycles": len(middle), "parts": parts, "cycle_p50_us": _percentile(cycle, 50.0)}
+
+
 def real_time(folder: Path, rate_hz: float, seconds: float) -> dict:
     """One real-time flight at ``rate_hz`` control: the offboard's period jitter, the plant's
     telemetry-to-setpoint latency."""
@@ -782,6 +851,14 @@ def measure(quick: bool = False, long_s: float | None = None) -> dict:
             result["lockstep"]["reference_sim_cycles_per_s"] = _cycles_per_s(ref["summary"])
             result["lockstep"]["reference_sim_plant_hwm_kb"] = ref["hwm_kb"].get("plant")
         result["memory"] = {"paper_helix_hwm_kb": best["hwm_kb"]}
+        # the cycle's hand-overs, from both processes' own wall-clock logs (no sampler)
+        try:
+            ho = fly(folder / "hand-overs", hover(folder, 30.0 if quick else HANDOVER_SIM_S), lockstep=True, rss_interval_s=None,
+                     fly_args=("--log-clock", "wall"), plant_args=("--log-clock", "wall"))  # fmt: skip
+            result["hand_overs"] = {**hand_overs(Path(ho["run_dir"]) / "plant.tlog", Path(ho["run_dir"]) / "flight.tlog"),
+                                    "cycles_per_s": _cycles_per_s(ho["summary"]), "sim_s": 30.0 if quick else HANDOVER_SIM_S}  # fmt: skip
+        except (RuntimeError, OSError) as exc:
+            result["hand_overs"] = {"error": str(exc).splitlines()[0]}
         # profiled (py-spy, sampling from outside): where the time goes (not in a quick run)
         try:
             if quick:
@@ -893,6 +970,22 @@ def markdown(result: dict) -> str:
         lines.append("")
     elif "error" in prof:
         lines += [f"No profile: {prof['error']}.", ""]
+    ho = result.get("hand_overs", {})
+    if "parts" in ho:
+        lines += [
+            f"The cycle's hand-overs, unperturbed: a lockstep hover of {ho['sim_s']:.0f} simulated s "
+            f"({ho['cycles_per_s']:.0f} cycles/s) with both processes stamping their tlogs with the wall clock "
+            "(`--log-clock wall` on both sides: when each packet is sent, or read and parsed), over the middle "
+            f"{ho['cycles']} cycles. Each row runs from one log entry to the next; the four make up the cycle "
+            f"(median {ho['cycle_p50_us']:.0f} µs):",
+            "",
+            "| hand-over | p50 µs | p90 µs |",
+            "|---|---:|---:|",
+            *(f"| {p['part']} | {p['p50_us']:.0f} | {p['p90_us']:.0f} |" for p in ho["parts"]),
+            "",
+        ]
+    elif "error" in ho:
+        lines += [f"No hand-overs: {ho['error']}.", ""]
     lines += [
         "### Real-time loop",
         "",

@@ -137,6 +137,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="thrust at normalised 1, for a vehicle that does not publish SIM_THR_MAX (real PX4)")
     out = parser.add_argument_group("output")
     out.add_argument("--log", type=Path, default=None, metavar="FILE.tlog", help="tlog of every packet (default: RUN_DIR/flight.tlog)")
+    out.add_argument("--log-clock", choices=("sim", "wall"), default="sim",
+                     help="tlog timestamps in lockstep: the vehicle's time (the same log every run), or the wall clock "
+                          "when each packet is sent or handled (to measure the loop's hand-overs, as sitl-plant "
+                          "--log-clock wall); in real time always the wall clock")
     out.add_argument("--run-dir", type=Path, default=None, metavar="DIR",
                      help="folder for log, figures, CSV and summary (default: runs/fly-<mission>-<time>)")
     out.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -319,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
     created = [p for p in (run_dir, *run_dir.parents) if not p.exists()]  # ours to remove if nothing is flown
     output_folder(run_dir, "--run-dir")
     tlog = args.log if args.log is not None else run_dir / "flight.tlog"
-    log_clock = LogClock(args.lockstep)
+    log_clock = LogClock(args.lockstep, wall=args.log_clock == "wall")
     console = _Console(sys.stderr, args.quiet)
     # the files behind the flight, by their full paths, so that `offboard replay --rerun` finds them
     # from anywhere: the mission, and the controller file (None: the paper's gains believing the
@@ -367,9 +371,9 @@ def _fly(args: argparse.Namespace, mission, choice: ControllerChoice, config: Fl
 
     signing = None
     if args.signing_key is not None:
-        # the log's clock signs: simulation time in lockstep (the same bytes every run, nothing
+        # the log's simulation clock signs: simulation time in lockstep (the same bytes every run, nothing
         # persisted), the wall clock otherwise (the timestamp kept in the key file)
-        signing = SigningSession(_signing_key(args.signing_key), log_clock, key_path=None if args.lockstep else args.signing_key,
+        signing = SigningSession(_signing_key(args.signing_key), log_clock.sim_us, key_path=None if args.lockstep else args.signing_key,
                                  lockstep=args.lockstep)  # fmt: skip
     link = MavLink(args.connect, sysid=args.sysid, compid=args.compid, tlog_path=tlog, log_time_us=log_clock, signing=signing,
                    spin_s=LOCKSTEP_SPIN_S if args.lockstep else 0.0)  # fmt: skip

@@ -133,14 +133,22 @@ class Progress:
 
 
 class LogClock:
-    """The tlog's timestamps: wall time, or in lockstep the epoch plus the latest stamp seen."""
+    """The tlog's timestamps (µs): wall time, or in lockstep the epoch plus the latest stamp seen
+    (the same bytes every run); ``wall``: wall time in lockstep too (when each packet is sent or
+    handled, to measure the loop's hand-overs; ``offboard fly --log-clock wall``). ``sim_us`` is
+    the first kind whatever ``wall`` says: what signs in lockstep (``offboard.signing``)."""
 
-    def __init__(self, lockstep: bool, wall_us: Callable[[], int] | None = None) -> None:
+    def __init__(self, lockstep: bool, wall_us: Callable[[], int] | None = None, *, wall: bool = False) -> None:
         self.lockstep = lockstep
+        self.wall = wall
         self._wall_us = wall_us or (lambda: int(time.time() * 1e6))
         self.boot_ms = 0
 
     def __call__(self) -> int:
+        return self._wall_us() if self.wall else self.sim_us()
+
+    def sim_us(self) -> int:
+        """In lockstep the epoch plus the latest ``time_boot_ms`` seen, else the wall clock (µs)."""
         if self.lockstep:
             return LOCKSTEP_EPOCH_S * 1_000_000 + self.boot_ms * 1000
         return self._wall_us()

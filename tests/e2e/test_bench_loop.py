@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import subprocess
+import time
 
 import pytest
 
@@ -56,6 +57,8 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     cycles = loop.recorded_cycles(tlog)
     assert len(cycles) == loop.RECORDED_CYCLES
     assert loop.plant_periods(tlog) >= run["summary"]["loop"]["samples"]
+    with pytest.raises(RuntimeError, match="not the wall clock"):  # lockstep logs of the vehicle's time
+        loop.hand_overs(tlog, tmp_path / "flight" / "flight.tlog")
     stamps = [c["t_ms"] for c in cycles]
     assert stamps == list(range(stamps[0], stamps[0] + 50 * len(stamps), 50))  # consecutive lockstep periods
     mix = loop.mix_floor(tlog, cycles=30, warmup=5)
@@ -96,9 +99,31 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
         "offboard": {"samples": 90, "rows": [{"part": "waiting for telemetry (select)", "us_per_cycle": 120.0},
                                              {"part": "controller law", "us_per_cycle": 80.0}]},
     }  # fmt: skip
+    result["hand_overs"] = {"sim_s": 300.0, "cycles_per_s": 4000.0, "cycles": 4800, "cycle_p50_us": 250.0,
+                            "parts": [{"part": p, "p50_us": 60.0, "p90_us": 70.0} for p, _, _ in loop.HAND_OVERS]}  # fmt: skip
     text = loop.markdown(result)
+    assert "over the middle 4800 cycles" in text and "(median 250 µs)" in text
+    assert f"| {loop.HAND_OVERS[3][0]} | 60 | 70 |" in text
     assert "200 µs a cycle" in text and "80 samples inside the plant's loop, 90 inside the offboard's" in text
     assert "| plant | **work (all but waiting)** | **50.0** |" in text
     assert "| offboard | **work (all but waiting)** | **80.0** |" in text
     for pid in run["pids"]:
         assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read()
+
+
+def test_the_hand_overs_come_from_both_processes_wall_clock_logs(tmp_path):
+    """Issue 16: where a lockstep cycle's time goes, from the two tlogs stamped with the wall clock
+    (``--log-clock wall`` on both sides), with no sampler in either process."""
+    before = time.time()
+    loop.fly(tmp_path / "flight", loop.hover(tmp_path, 3.0), lockstep=True, rss_interval_s=None,
+             fly_args=("--log-clock", "wall"), plant_args=("--log-clock", "wall"))  # fmt: skip
+    after = time.time()
+    d = tmp_path / "flight"
+    for tlog in (d / "plant.tlog", d / "flight.tlog"):
+        stamps = list(loop._first_logged(tlog, ("ATTITUDE",))["ATTITUDE"].values())
+        assert stamps and before <= min(stamps) and max(stamps) <= after  # the wall clock, as the flight ran
+    ho = loop.hand_overs(d / "plant.tlog", d / "flight.tlog")
+    assert ho["cycles"] >= 40  # a 3 s hover's 60 samples and more, the middle 80 % of them
+    for part in ho["parts"]:
+        assert 0.0 < part["p50_us"] <= part["p90_us"] < 1e6
+    assert ho["cycle_p50_us"] > max(part["p50_us"] for part in ho["parts"])

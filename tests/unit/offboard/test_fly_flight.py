@@ -667,3 +667,17 @@ def test_a_vehicle_without_a_stream_is_one_note_naming_it():
     notes = [e for e in events if "SET_MESSAGE_INTERVAL refused" in e]
     assert len(notes) == 1 and "VIBRATION off: DENIED" in notes[0] and "1 stream" in notes[0], notes
     assert link.plant.streams[API].interval_us[mavlink.MAVLINK_MSG_ID_ODOMETRY] == -1
+
+
+def test_the_log_clock_is_the_vehicles_time_in_lockstep_unless_asked_for_the_wall_clock():
+    from offboard.flight import LogClock
+    from offboard.model.tlog import LOCKSTEP_EPOCH_S
+
+    epoch_us = LOCKSTEP_EPOCH_S * 1_000_000
+    sim, wall = LogClock(True, lambda: 123), LogClock(True, lambda: 123, wall=True)
+    for clock in (sim, wall):
+        clock.boot_ms = 2500
+    assert sim() == sim.sim_us() == epoch_us + 2_500_000  # the same log every run
+    assert wall() == 123 and wall.sim_us() == epoch_us + 2_500_000  # stamps the wall clock, signs the vehicle's time
+    real_time = LogClock(False, lambda: 456)
+    assert real_time() == real_time.sim_us() == 456
