@@ -577,25 +577,9 @@ def profile(folder: Path) -> dict:
         "sim_s": PROFILE_SIM_S,
         "cycles_per_s_profiled": rate,
         "cycles": int(prof["summary"]["loop"]["samples"]),
-        "plant_periods": plant_periods(d / "plant.tlog"),
         "offboard": breakdown(d / "offboard.raw", OFFBOARD_PARTS, OFFBOARD_SCOPE, 1e6 / rate),
         "plant": breakdown(d / "plant.raw", PLANT_PARTS, PLANT_SCOPE, 1e6 / rate),
     }
-
-
-def plant_periods(tlog: Path) -> int:
-    """Lockstep periods the plant ran: its tlog's last timestamp (2020-01-01 + simulation time)."""
-    data = tlog.read_bytes()
-    i, last = 0, 0
-    while i + 9 < len(data):
-        stamp = int.from_bytes(data[i : i + 8], "big")
-        magic, length = data[i + 8], data[i + 9]
-        size = length + (12 + (13 if magic == 0xFD and i + 10 < len(data) and data[i + 10] & 1 else 0) if magic == 0xFD else 8)
-        i += 8 + size
-        last = stamp
-    from offboard.model.tlog import LOCKSTEP_EPOCH_S
-
-    return round((last - LOCKSTEP_EPOCH_S * 1_000_000) / 1e6 / LOCKSTEP_PERIOD_S)
 
 
 # --- real time ------------------------------------------------------------------------------------

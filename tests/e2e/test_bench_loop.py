@@ -56,7 +56,6 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     tlog = tmp_path / "flight" / "plant.tlog"
     cycles = loop.recorded_cycles(tlog)
     assert len(cycles) == loop.RECORDED_CYCLES
-    assert loop.plant_periods(tlog) >= run["summary"]["loop"]["samples"]
     with pytest.raises(RuntimeError, match="not the wall clock"):  # lockstep logs of the vehicle's time
         loop.hand_overs(tlog, tmp_path / "flight" / "flight.tlog")
     stamps = [c["t_ms"] for c in cycles]
@@ -93,7 +92,7 @@ def test_the_second_floor_replays_the_loops_own_messages(tmp_path):
     assert text.count("each side sleeping in its wait at once |") == 2 and "polling its socket for up to 500 µs" in text
     # the profile's table: each process's parts make up the profiled cycle, its work is all but the wait
     result["profile"] = {
-        "tool": "py-spy", "sample_hz": 250, "sim_s": 1200.0, "cycles_per_s_profiled": 5000.0, "cycles": 24001, "plant_periods": 24100,
+        "tool": "py-spy", "sample_hz": 250, "sim_s": 1200.0, "cycles_per_s_profiled": 5000.0, "cycles": 24001,
         "plant": {"samples": 80, "rows": [{"part": "waiting for the setpoint (select)", "us_per_cycle": 150.0},
                                           {"part": "autopilot, truth state", "us_per_cycle": 50.0}]},
         "offboard": {"samples": 90, "rows": [{"part": "waiting for telemetry (select)", "us_per_cycle": 120.0},
