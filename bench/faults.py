@@ -17,7 +17,6 @@ Real time, so trials run a few at a time (they wait more than they compute).
 from __future__ import annotations
 
 import argparse
-import json
 import random
 import signal
 import subprocess
@@ -33,6 +32,7 @@ if str(ROOT) not in sys.path:
 
 from bench.loop import PY, fly, hover  # noqa: E402
 from offboard.demo import free_udp_ports  # noqa: E402
+from offboard import jsonout  # noqa: E402
 from offboard.missions import MISSIONS_DIR  # noqa: E402
 from offboard.replay import TlogReader  # noqa: E402
 
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     result = measure(args.quick)
-    print(json.dumps(result, indent=1) if args.json else markdown(result))
+    print(jsonout.dumps(result, indent=1) if args.json else markdown(result))
     return 0
 
 

@@ -61,6 +61,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from offboard import jsonout  # noqa: E402
 from offboard.demo import free_udp_ports  # noqa: E402  (after the path is set)
 from offboard.model.busywait import LOCKSTEP_SPIN_S, poll_readable  # noqa: E402
 from offboard.model.vehicle import PAPER_VEHICLE_FILE  # noqa: E402
@@ -1057,7 +1058,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     result = measure(quick=args.quick, long_s=args.long_s)
     if args.json is not None:
-        args.json.write_text(json.dumps(result, indent=1))
+        args.json.write_text(jsonout.dumps(result, indent=1))
     print(markdown(result))
     return 0
 

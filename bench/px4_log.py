@@ -39,6 +39,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from offboard.echo import latency_figures as echo_latency_figures  # noqa: E402
+from offboard import jsonout  # noqa: E402
 
 #: How long after the stamp it answers a setpoint may reach PX4 and still be paired with a record, ms.
 WINDOW_MS = 500.0
@@ -153,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     designed = json.loads(summary.read_text()).get("predicted_latency_s") if summary.is_file() else None
     figures["designed_ms"] = None if designed is None else round(float(designed) * 1000.0, 2)
     if args.json:
-        print(json.dumps(figures))
+        print(jsonout.dumps(figures))
         return 0
     if figures["paired"] == 0:
         print(f"px4_log: none of the {figures['sent']} setpoints of {tlog} found in PX4's log", file=sys.stderr)

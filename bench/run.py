@@ -14,7 +14,6 @@ for the smoke test, not for figures.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -28,6 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python bench/run.py` from anywhere
     sys.path.insert(0, str(ROOT))
+
+from offboard import jsonout  # noqa: E402
 
 PARTS = ("speed", "loop", "tracking", "design", "sweep", "faults")
 
@@ -338,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     results["wall_s"] = time.perf_counter() - start
     command = "make bench" if output == (ROOT / "bench" / "RESULTS.md") and not args.quick and len(parts) == len(PARTS) \
         else "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:])  # fmt: skip
-    (output.parent / "results.json").write_text(json.dumps(results, indent=1, default=str))
+    (output.parent / "results.json").write_text(jsonout.dumps(results, indent=1, default=str))  # strict: no NaN
     write(results, output, command)
     _say(f"wrote {output} ({results['wall_s']:.0f} s)")
     return 0

@@ -34,6 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from offboard import jsonout  # noqa: E402
+
 SPEC = ROOT / "missions" / "sweep-table2.toml"
 # (full, quick)
 SIZES = {"flights": (10_000, 8), "one_at_a_time": (3, 1), "duration_s": (12.0, 0.3),
@@ -198,7 +200,6 @@ def markdown(r: dict) -> str:
 
 if __name__ == "__main__":
     import argparse
-    import json
 
     parser = argparse.ArgumentParser(prog="bench/sweep.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--flights", type=int, default=None)
@@ -210,5 +211,5 @@ if __name__ == "__main__":
         print(f"{fly_chunk_timed(args.chunk[0], args.chunk[1], args.flight_s):.6f}")
         sys.exit(0)
     result = measure(args.quick, args.flights, say=lambda text: print(text, file=sys.stderr, flush=True))
-    print(json.dumps(result, indent=1))
+    print(jsonout.dumps(result, indent=1))
     print(markdown(result))

@@ -33,7 +33,18 @@ def quick_run(tmp_path_factory):
         capture_output=True, text=True, timeout=600, cwd=REPO,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
-    return out, json.loads((out.parent / "results.json").read_text())
+    return out, json.loads((out.parent / "results.json").read_text(), parse_constant=_not_strict)
+
+
+def _not_strict(word: str) -> float:
+    raise ValueError(f"results.json is not strict JSON: {word}")  # NaN or Infinity (docs/json.md)
+
+
+def test_the_lockstep_cycles_hand_overs_are_measured(quick_run):
+    _, results = quick_run
+    ho = results["loop"]["hand_overs"]
+    assert ho["cycles"] > 0 and [p["part"] for p in ho["parts"]] == [part for part, _, _ in loop.HAND_OVERS]
+    assert all(_finite_positive(p["p50_us"]) and p["p50_us"] <= p["p90_us"] for p in ho["parts"])
 
 
 def test_report_has_every_section(quick_run):
