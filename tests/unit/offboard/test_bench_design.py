@@ -107,3 +107,34 @@ def test_the_flights_table_gives_the_setpoints_echo_where_a_flight_measured_it()
     lockstep = {**_row("sitl-plant", "paper-helix.toml", "lockstep", 0.02, 0.0), "setpoint_echo": None}
     rows = [line for line in markdown({"flights": [echoed, lockstep], "px4": True}).splitlines() if line.startswith("| real PX4") or line.startswith("| sitl-plant")]
     assert rows[0].endswith("| 4 / 8 |") and rows[1].endswith("| – |")
+
+
+def test_make_bench_flies_the_real_px4_helix_again_and_counts_its_flights(monkeypatch, tmp_path):
+    import bench.design as design
+    import bench.px4_own as px4_own
+
+    # the PX4 helix's holds in the order flown: the table's real-time and --speed 4 flights, then the repeats
+    tilts = iter([4.2, 5.3, 3.9, 4.98, 5.05, 4.1])
+    flown = []
+
+    def fly_px4(mission, run_dir, *, controller, speed=1.0, fly_args=()):
+        helix = mission.name == "paper-helix.toml" and controller is None
+        flown.append((mission.name, controller, speed))
+        return {"status": "complete", "moving_rms_m": 0.06, "peak_tilt_deg": 30.0,
+                "hold_tilt_max_deg": next(tilts) if helix else 3.0}  # fmt: skip
+
+    monkeypatch.setattr(design.tempfile, "mkdtemp", lambda prefix: str(tmp_path))
+    monkeypatch.setattr(design, "fly_plant", lambda *a, **kw: {"status": "complete"})
+    monkeypatch.setattr(design, "fly_px4", fly_px4)
+    monkeypatch.setattr(px4_own, "fly_px4_own", lambda *a: {"status": "complete"})
+    result = design.run(px4=True, say=lambda line: None)
+    helix = [(c, s) for m, c, s in flown if m == "paper-helix.toml" and c is None]
+    assert helix == [(None, 1.0), (None, 4.0)] + [(None, 1.0)] * 2 + [(None, 4.0)] * 2
+    assert [len(flights) for flights in result["repeats"].values()] == [design.PX4_HELIX_FLIGHTS] * 2
+    lines = [line for line in markdown(result).splitlines() if ", 3 flights: " in line]
+    assert lines == [
+        "- real time, 3 flights: moving RMS <= 0.1 m: 3 of 3 (0.06-0.06); holds within 5 deg: 3 of 3 (3.9-4.98); "
+        "every target met: 3 of 3",
+        "- --speed 4, vehicle clock, 3 flights: moving RMS <= 0.1 m: 3 of 3 (0.06-0.06); holds within 5 deg: 1 of 3 "
+        "(4.1-5.3); every target met: 1 of 3",
+    ]
