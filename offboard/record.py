@@ -13,14 +13,14 @@ import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from offboard.trajectory.base import Phase, Reference
 
 if TYPE_CHECKING:
-    from offboard.controller.command import Command
+    from offboard.controller.command import Command, StateEstimate
 
 
 class FlightStatus(enum.Enum):
@@ -71,30 +71,10 @@ COLUMNS: dict[str, int] = {
 }
 
 
-class StateSample(Protocol):
-    """What a record row takes of a vehicle state: ``offboard.codec.MeasuredState`` (a MAVLink
-    flight, a re-run) or the simulator's truth (``run_scenario``)."""
-
-    @property
-    def pos_ned_m(self) -> np.ndarray:
-        """Position, NED, m."""
-        ...
-
-    @property
-    def vel_ned_m_s(self) -> np.ndarray:
-        """Velocity, NED, m/s."""
-        ...
-
-    @property
-    def euler_rad(self) -> np.ndarray:
-        """Roll, pitch, yaw (ZYX), rad."""
-        ...
-
-
 _NAN3 = (float("nan"),) * 3
 
 
-def control_row(t_s: float, state: StateSample, ref: Reference, command: Command) -> dict[str, object]:
+def control_row(t_s: float, state: StateEstimate, ref: Reference, command: Command) -> dict[str, object]:
     """One record row (``COLUMNS``) of a control sample: the state, the reference at n and the
     controller's command for it.
 
@@ -105,7 +85,7 @@ def control_row(t_s: float, state: StateSample, ref: Reference, command: Command
     ----------
     t_s : float
         Mission time of sample n (s).
-    state : StateSample
+    state : StateEstimate
         The vehicle's position and velocity (NED, m, m/s) and ZYX Euler angles (rad).
     ref : Reference
         The mission's reference at n (NED).
