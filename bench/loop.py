@@ -54,6 +54,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -247,6 +248,21 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: 
     for up to ``spin_s`` before it sleeps, as the lockstep loop waits)."""
     from pymavlink.dialects.v20 import common as mavlink
 
+    def pair(n: int) -> tuple[int, list]:
+        t_ms = n * 50
+        return t_ms, [mavlink.MAVLink_attitude_message(t_ms, 0.01, -0.02, 1.5, 0.1, 0.2, 0.3),
+                      mavlink.MAVLink_local_position_ned_message(t_ms, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3)]  # fmt: skip
+
+    _vehicle_loop(port, peer_port, pair, cycles, warmup, spin_s)
+
+
+def _vehicle_loop(port: int, peer_port: int, cycle: Callable[[int], tuple[int, list]], cycles: int, warmup: int,
+                  spin_s: float) -> None:  # fmt: skip
+    """Both floors' vehicle side: cycle n's messages (``cycle(n)``: T and pymavlink messages),
+    packed by pymavlink into one datagram, then wait for the SET_ATTITUDE_TARGET echoing T (polling
+    for up to ``spin_s`` before it sleeps); prints the timed cycles and their wall time as JSON."""
+    from pymavlink.dialects.v20 import common as mavlink
+
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", port))
     sock.settimeout(START_RESEND_S)  # the client may not be up yet: send again soon
@@ -259,23 +275,22 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: 
             sock.settimeout(5.0)  # the client answered: from now on a lost answer is a long wait
         if n == warmup:
             start = time.perf_counter()
-        t_ms = n * 50
-        att = mavlink.MAVLink_attitude_message(t_ms, 0.01, -0.02, 1.5, 0.1, 0.2, 0.3)
-        pos = mavlink.MAVLink_local_position_ned_message(t_ms, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3)
-        packets = att.pack(packer)
-        packer.seq = (packer.seq + 1) & 0xFF
-        packets += pos.pack(packer)
-        packer.seq = (packer.seq + 1) & 0xFF
-        while True:
+        t_ms, messages = cycle(n)
+        packets = b""
+        for m in messages:
+            packets += m.pack(packer)
+            packer.seq = (packer.seq + 1) & 0xFF
+        done = False
+        while not done:
             sock.sendto(packets, peer)
-            try:
-                _poll(sock, spin_s)
-                data = sock.recv(65535)
-            except socket.timeout:
-                continue  # the client was not up yet: send again
-            msgs = parser.parse_buffer(data) or []
-            if any(m.get_type() == "SET_ATTITUDE_TARGET" and m.time_boot_ms == t_ms for m in msgs):
-                break
+            while not done:
+                try:
+                    _poll(sock, spin_s)
+                    data = sock.recv(65535)
+                except socket.timeout:
+                    break  # the client was not up yet: send again
+                msgs = parser.parse_buffer(data) or []
+                done = any(m.get_type() == "SET_ATTITUDE_TARGET" and m.time_boot_ms == t_ms for m in msgs)
     wall = time.perf_counter() - start
     sock.sendto(b"stop", peer)
     print(json.dumps({"cycles": cycles, "wall_s": wall}), flush=True)
@@ -283,6 +298,22 @@ def _floor_vehicle(port: int, peer_port: int, cycles: int, warmup: int, spin_s: 
 
 def _floor_client(port: int, spin_s: float = 0.0) -> None:
     """The client side: parse the pair, answer SET_ATTITUDE_TARGET echoing T."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    def answer(msgs: list) -> list:
+        stamps: dict[int, set[str]] = {}
+        for m in msgs:
+            stamps.setdefault(m.time_boot_ms, set()).add(m.get_type())
+        return [mavlink.MAVLink_set_attitude_target_message(t_ms, 1, 1, 0b00000111, (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.45)
+                for t_ms, kinds in stamps.items() if {"ATTITUDE", "LOCAL_POSITION_NED"} <= kinds]  # fmt: skip
+
+    _client_loop(port, answer, spin_s)
+
+
+def _client_loop(port: int, answer: Callable[[list], list], spin_s: float) -> None:
+    """Both floors' client side: parse each datagram with pymavlink and send ``answer``'s messages
+    for it back, packed by pymavlink, one datagram each (polling for up to ``spin_s`` before it
+    sleeps), until the vehicle says stop."""
     from pymavlink.dialects.v20 import common as mavlink
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -294,14 +325,9 @@ def _floor_client(port: int, spin_s: float = 0.0) -> None:
         data, addr = sock.recvfrom(65535)
         if data == b"stop":
             return
-        stamps: dict[int, set[str]] = {}
-        for m in parser.parse_buffer(data) or []:
-            stamps.setdefault(m.time_boot_ms, set()).add(m.get_type())
-        for t_ms, kinds in stamps.items():
-            if {"ATTITUDE", "LOCAL_POSITION_NED"} <= kinds:
-                sp = mavlink.MAVLink_set_attitude_target_message(t_ms, 1, 1, 0b00000111, (1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.45)
-                sock.sendto(sp.pack(packer), addr)
-                packer.seq = (packer.seq + 1) & 0xFF
+        for reply in answer(parser.parse_buffer(data) or []):
+            sock.sendto(reply.pack(packer), addr)
+            packer.seq = (packer.seq + 1) & 0xFF
 
 
 def _poll(sock: socket.socket, spin_s: float) -> None:
@@ -313,15 +339,22 @@ def _poll(sock: socket.socket, spin_s: float) -> None:
 def floor(cycles: int, warmup: int = 200, spin_s: float = 0.0) -> dict:
     """Cycles per second of the bare ping-pong (two processes, like the loop; each side polling for
     up to ``spin_s`` before it sleeps, as the lockstep loop's do with ``LOCKSTEP_SPIN_S``)."""
+    result = _ping_pong("vehicle", "client", cycles, warmup, spin_s)
+    return {**result, "cycles_per_s": result["cycles"] / result["wall_s"]}
+
+
+def _ping_pong(vehicle_role: str, client_role: str, cycles: int, warmup: int, spin_s: float, extra: tuple[str, ...] = ()) -> dict:
+    """Run a floor's two sides (this file's ``--floor-role``s, ``extra`` options to both) as two
+    processes on free loopback ports until the vehicle has timed its cycles: its JSON line."""
     vehicle_port, client_port = free_udp_ports(2)
     procs = []
     try:
-        client = subprocess.Popen([PY, __file__, "--floor-role", "client", "--port", str(client_port), "--spin-s", str(spin_s)],
-                                  cwd=ROOT, start_new_session=True)  # fmt: skip
+        client = subprocess.Popen([PY, __file__, "--floor-role", client_role, "--port", str(client_port), "--spin-s", str(spin_s),
+                                   *extra], cwd=ROOT, start_new_session=True)  # fmt: skip
         procs.append(client)
         vehicle = subprocess.Popen(
-            [PY, __file__, "--floor-role", "vehicle", "--port", str(vehicle_port), "--peer-port", str(client_port),
-             "--cycles", str(cycles), "--warmup", str(warmup), "--spin-s", str(spin_s)],
+            [PY, __file__, "--floor-role", vehicle_role, "--port", str(vehicle_port), "--peer-port", str(client_port),
+             "--cycles", str(cycles), "--warmup", str(warmup), "--spin-s", str(spin_s), *extra],
             cwd=ROOT, stdout=subprocess.PIPE, text=True, start_new_session=True,
         )  # fmt: skip
         procs.append(vehicle)
@@ -330,8 +363,7 @@ def floor(cycles: int, warmup: int = 200, spin_s: float = 0.0) -> dict:
     finally:
         for p in procs:
             _stop(p)
-    result = json.loads(out.strip().splitlines()[-1])
-    return {"cycles": result["cycles"], "wall_s": result["wall_s"], "cycles_per_s": result["cycles"] / result["wall_s"]}
+    return json.loads(out.strip().splitlines()[-1])
 
 
 # --- the second floor: a ping-pong of the loop's own messages, cycle by cycle --------------------
@@ -389,63 +421,16 @@ def _parsed(frames: list[str]) -> list:
 def _mix_vehicle(port: int, peer_port: int, cycles_file: Path, cycles: int, warmup: int, spin_s: float = 0.0) -> None:
     """The vehicle side of the second floor: cycle k's recorded messages, packed by pymavlink into
     one datagram, then wait for the SET_ATTITUDE_TARGET echoing its T."""
-    from pymavlink.dialects.v20 import common as mavlink
-
-    recorded = json.loads(cycles_file.read_text())
-    plan = [(c["t_ms"], _parsed(c["vehicle"])) for c in recorded]
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", port))
-    sock.settimeout(START_RESEND_S)  # the client may not be up yet: send again soon
-    packer = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
-    parser = mavlink.MAVLink(None)
-    peer = ("127.0.0.1", peer_port)
-    start = 0.0
-    for n in range(warmup + cycles):
-        if n == 1:
-            sock.settimeout(5.0)  # the client answered: from now on a lost answer is a long wait
-        if n == warmup:
-            start = time.perf_counter()
-        t_ms, messages = plan[n % len(plan)]
-        packets = b""
-        for m in messages:
-            packets += m.pack(packer)
-            packer.seq = (packer.seq + 1) & 0xFF
-        done = False
-        while not done:
-            sock.sendto(packets, peer)
-            while not done:
-                try:
-                    _poll(sock, spin_s)
-                    data = sock.recv(65535)
-                except socket.timeout:
-                    break  # the client was not up yet: send again
-                msgs = parser.parse_buffer(data) or []
-                done = any(m.get_type() == "SET_ATTITUDE_TARGET" and m.time_boot_ms == t_ms for m in msgs)
-    wall = time.perf_counter() - start
-    sock.sendto(b"stop", peer)
-    print(json.dumps({"cycles": cycles, "wall_s": wall}), flush=True)
+    plan = [(c["t_ms"], _parsed(c["vehicle"])) for c in json.loads(cycles_file.read_text())]
+    _vehicle_loop(port, peer_port, lambda n: plan[n % len(plan)], cycles, warmup, spin_s)
 
 
 def _mix_client(port: int, cycles_file: Path, spin_s: float = 0.0) -> None:
     """The client side: parse the datagram, answer with the cycle's recorded messages (packed by
     pymavlink, one datagram each, as the offboard sends them), found by the ATTITUDE's T."""
-    from pymavlink.dialects.v20 import common as mavlink
-
     answers = {c["t_ms"]: _parsed(c["offboard"]) for c in json.loads(cycles_file.read_text())}
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", port))
-    packer = mavlink.MAVLink(None, srcSystem=245, srcComponent=191)
-    parser = mavlink.MAVLink(None)
-    while True:
-        _poll(sock, spin_s)
-        data, addr = sock.recvfrom(65535)
-        if data == b"stop":
-            return
-        for m in parser.parse_buffer(data) or []:
-            if m.get_type() == "ATTITUDE" and m.time_boot_ms in answers:
-                for reply in answers[m.time_boot_ms]:
-                    sock.sendto(reply.pack(packer), addr)
-                    packer.seq = (packer.seq + 1) & 0xFF
+    _client_loop(port, lambda msgs: [reply for m in msgs if m.get_type() == "ATTITUDE" for reply in answers.get(m.time_boot_ms, ())],
+                 spin_s)  # fmt: skip
 
 
 def mix_floor(plant_tlog: Path, cycles: int, warmup: int = 200, spin_s: float = 0.0) -> dict:
@@ -453,28 +438,10 @@ def mix_floor(plant_tlog: Path, cycles: int, warmup: int = 200, spin_s: float = 
     messages a real lockstep flight carried (``recorded_cycles`` of its plant tlog); ``spin_s``
     as ``floor``'s."""
     recorded = recorded_cycles(plant_tlog)
-    vehicle_port, client_port = free_udp_ports(2)
-    procs = []
     with tempfile.TemporaryDirectory(prefix="bench-mix-") as tmp:
         cycles_file = Path(tmp) / "cycles.json"
         cycles_file.write_text(json.dumps(recorded))
-        try:
-            client = subprocess.Popen([PY, __file__, "--floor-role", "mix-client", "--port", str(client_port),
-                                       "--cycles-file", str(cycles_file), "--spin-s", str(spin_s)],
-                                      cwd=ROOT, start_new_session=True)  # fmt: skip
-            procs.append(client)
-            vehicle = subprocess.Popen(
-                [PY, __file__, "--floor-role", "mix-vehicle", "--port", str(vehicle_port), "--peer-port", str(client_port),
-                 "--cycles", str(cycles), "--warmup", str(warmup), "--cycles-file", str(cycles_file), "--spin-s", str(spin_s)],
-                cwd=ROOT, stdout=subprocess.PIPE, text=True, start_new_session=True,
-            )  # fmt: skip
-            procs.append(vehicle)
-            out, _ = vehicle.communicate(timeout=120)
-            client.wait(timeout=10)
-        finally:
-            for p in procs:
-                _stop(p)
-    result = json.loads(out.strip().splitlines()[-1])
+        result = _ping_pong("mix-vehicle", "mix-client", cycles, warmup, spin_s, ("--cycles-file", str(cycles_file)))
     n_vehicle = sum(len(c["vehicle"]) for c in recorded) / len(recorded)
     n_offboard = sum(len(c["offboard"]) for c in recorded) / len(recorded)
     kinds: dict[str, int] = {}
