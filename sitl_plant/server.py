@@ -481,8 +481,9 @@ class Plant:
         if reply is None:
             reply = Reply(mavlink.MAV_RESULT_UNSUPPORTED)
         if cmd.command == mavlink.MAV_CMD_DO_SET_MODE:
-            # PX4 acknowledges a mode change twice: ACCEPTED from its MAVLink receiver at once, then
-            # the commander's result (clients must take the last one)
+            # PX4 acknowledges a mode change twice: ACCEPTED from its MAVLink receiver, then the
+            # commander's result (mostly in that order: a loaded PX4 has sent the commander's
+            # first, so a client takes a refusal in either)
             self.outbox[index].append(codec.command_ack(cmd.command, mavlink.MAV_RESULT_ACCEPTED, cmd.source_system, cmd.source_component))
         self.outbox[index].append(codec.command_ack(cmd.command, reply.result, cmd.source_system, cmd.source_component))
         for text in reply.texts:

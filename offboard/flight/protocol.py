@@ -22,7 +22,7 @@ from offboard.flight.config import FlightConfig, Link
 from pymavlink.dialects.v20 import common as mavlink
 
 STATUSTEXT_GRACE_S = 0.3  # wait this long after a refusal for the STATUSTEXT saying why
-MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second (the commander's)
+MODE_ACK_GRACE_S = 0.5  # after a DO_SET_MODE's first ACK, wait this long for PX4's second
 TIMESYNC_ATTEMPTS = 3
 TIMESYNC_TIMEOUT_S = 1.0  # per attempt
 HOME_TIMEOUT_S = 1.0  # how long to wait for HOME_POSITION once asked for
@@ -44,7 +44,7 @@ class _Pending:
     name: str
     attempts: int = 0
     result: int | None = None
-    acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: the last counts)
+    acks: int = 0  # COMMAND_ACKs received for it (PX4 sends two for DO_SET_MODE: a refusal in either counts)
     first_ack_s: float | None = None
     results: list[int] = field(default_factory=list)  # every ACK's result, in order (a burst counts them)
     #: what a heartbeat shows once the command is done, and whether one since the first try did
@@ -239,9 +239,12 @@ class VehicleClient:
                 if pending.result is not None and pending.result != mavlink.MAV_RESULT_IN_PROGRESS:
                     break
             if command == mavlink.MAV_CMD_DO_SET_MODE and pending.result is not None:
-                # PX4 answers a mode change twice: ACCEPTED from its MAVLink receiver at once, then
-                # the commander's own result 5-12 ms later; the last one is the answer
+                # PX4 answers a mode change twice: ACCEPTED from its MAVLink receiver and the
+                # commander's own result, mostly 5-12 ms after it, but a loaded PX4 has sent the
+                # commander's first: a refusal in either is the answer
                 self._wait(lambda: pending.acks >= 2, MODE_ACK_GRACE_S)
+                refusals = [r for r in pending.results if r not in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS)]
+                pending.result = refusals[0] if refusals else pending.result
         finally:
             self._pending = None
         if pending.result is None:

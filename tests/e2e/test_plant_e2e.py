@@ -99,7 +99,7 @@ class Client:
         return self.wait_type("COMMAND_ACK", where=lambda m: m.command == number).result
 
     def set_mode(self, main: int, sub: int = 0) -> int:
-        """DO_SET_MODE; as PX4 the plant answers twice (ACCEPTED, then the commander's result): the last counts."""
+        """DO_SET_MODE; as PX4 the plant answers twice (ACCEPTED, then the commander's result): the last is the commander's."""
         self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
         return self.wait_type("COMMAND_ACK", where=lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE).result
 

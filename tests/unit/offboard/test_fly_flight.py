@@ -253,6 +253,7 @@ class LateSecondAckLink(PlantLink):
     the first (the MAVLink receiver's ACCEPTED)."""
 
     delay_s = 0.012
+    commander_first = False  # the commander's ACK first, the receiver's ACCEPTED after it
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
@@ -267,6 +268,8 @@ class LateSecondAckLink(PlantLink):
             second = next((m for m in self.queue if m.get_type() == "COMMAND_ACK" and m.command == first.command), None)
             if second is not None:
                 self.queue.remove(second)
+                if self.commander_first:
+                    first, second = second, first
                 self.held.append((self.clock.now + self.delay_s, second))
             self.received.append(first)
             return first
@@ -291,6 +294,24 @@ def test_the_mode_change_takes_the_commanders_ack_not_the_first(monkeypatch):
     assert result.status is FlightStatus.REJECTED
     assert "MAV_CMD_DO_SET_MODE refused by the vehicle: TEMPORARILY_REJECTED (1)" in result.detail
     assert "currently not available" in result.detail
+    assert not [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
+
+
+def test_the_mode_change_takes_the_commanders_refusal_when_it_comes_first(monkeypatch):
+    """A loaded PX4 at --speed 4 once sent the commander's refusal before its MAVLink receiver's
+    ACCEPTED (tests/e2e/test_px4_parity_commander.py): a refusal in either ACK is the answer."""
+    plant = make_plant()
+    from sitl_plant.autopilot import Reply, StatusText
+
+    monkeypatch.setattr(plant.autopilot, "set_mode", lambda mode, now_s: Reply(1, (StatusText(2, "Switching to Offboard is currently not available"),)))
+    link = LateSecondAckLink(plant, FakeClock())
+    link.commander_first = True
+    flight, _ = make_flight(link)
+    result = flight.run()
+    acks = [m.result for m in link.received if m.get_type() == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_DO_SET_MODE]
+    assert acks == [mavlink.MAV_RESULT_TEMPORARILY_REJECTED, mavlink.MAV_RESULT_ACCEPTED]
+    assert result.status is FlightStatus.REJECTED
+    assert "MAV_CMD_DO_SET_MODE refused by the vehicle: TEMPORARILY_REJECTED (1)" in result.detail
     assert not [m for m in link.sent_of("COMMAND_LONG") if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM]
 
 
