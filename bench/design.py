@@ -19,17 +19,23 @@ at the same rate through the same attitude loop.
   carrying the reference, ``bench/px4_own.py``; real time and ``--speed 4``), and every bundled
   mission again with PX4 at ``--speed 4`` (``offboard fly --clock vehicle``); then the helix with the
   designed gains again, until it has flown ``PX4_HELIX_FLIGHTS`` times in real time and as many at
-  ``--speed 4``, counted against issue 11's targets (a single flight's hold moves with EKF2's errors).
+  ``--speed 4``, each repeat started ``PX4_START_STAGGER_S`` later in PX4's clock than the one
+  before, counted against issue 11's targets (a single flight's hold moves with EKF2's errors,
+  which follow PX4's clock).
 
 Figures per flight: exit status; the 3D RMS error while the reference moves (moving phases after
 5 s, without each phase's last 0.1 s: on the helix, 5-11.9 s); the largest tilt in the second
 half of every hold in the air (its reference over 0.5 m above the start: a hold at ground level
 is a landing, whose second half is the end of a descent and then the ground; on the helix, the
-hold at 12 m, 18.5-25 s); the RMS error there; the peak tilt of the flight.
+hold at 12 m, 18.5-25 s); the RMS error there; the peak tilt of the flight. The tilt is the one
+the flight reads (ATTITUDE: on PX4, EKF2's estimate); for a real-PX4 flight, PX4's own log adds
+SIH's true attitude at the same samples: the hold's largest true tilt and how far EKF2's roll
+and pitch were off it on average (``px4_hold_truth``).
 
 A real-PX4 figure moves from flight to flight with EKF2's errors; besides those repeats, ``python bench/design.py
---px4-repeat N [--speed F] [--mission FILE] [-- OFFBOARD FLY OPTIONS]`` flies one mission N times
-and says how many flights met issue 11's targets.
+--px4-repeat N [--speed F] [--mission FILE] [--stagger S] [-- OFFBOARD FLY OPTIONS]`` flies one
+mission N times, each S s (default ``PX4_START_STAGGER_S``) of PX4's clock later than the one
+before, and says how many flights met issue 11's targets.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import json
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +66,12 @@ PX4_OWN = "px4-own"
 #: more from flight to flight with EKF2's errors (docs/controller-design.md), so one flight's
 #: verdict on issue 11's targets says little of the next one's.
 PX4_HELIX_FLIGHTS = 3
+#: How much later in PX4's clock each repeated real-PX4 flight starts than the one before (the
+#: first at once): EKF2's attitude and velocity errors on PX4 SIH follow PX4's clock, the same in
+#: every flight at the same second of it whatever the vehicle does (docs/controller-design.md), so
+#: flights started alike hold at the same seconds and read the same errors; 10 s, longer than a
+#: helix hold's second half (6.5 s), puts each flight's hold at seconds of its own.
+PX4_START_STAGGER_S = 10.0
 #: The conditions of the real-PX4 flights of issue 11's targets (real time and ``--speed 4``).
 PX4_CONDITIONS = ((1.0, "real time"), (4.0, "--speed 4, vehicle clock"))
 
@@ -73,19 +86,26 @@ def figures(run_dir: Path) -> dict:
     d = np.genfromtxt(series, delimiter=",", names=True)
     if d.size < 2:
         return out
-    phases = [(p["start_s"], p["end_s"], p.get("steady_state_m") is not None)  # a hold has a steady state
-              for p in summary.get("phases", []) if p["name"] not in ("whole flight", "after 5 s")]  # fmt: skip
-    pos = np.stack([d[f"pos_ned_m_{i}"] for i in range(3)], 1)
-    ref = np.stack([d[f"ref_pos_ned_m_{i}"] for i in range(3)], 1)
-    return {**out, **flight_figures(d["t_s"], pos, ref, d["euler_rad_0"], d["euler_rad_1"], phases)}
+    pos, ref = _positions(d)
+    return {**out, **flight_figures(d["t_s"], pos, ref, d["euler_rad_0"], d["euler_rad_1"], _phases(summary))}
 
 
-def flight_figures(t: np.ndarray, pos_ned_m: np.ndarray, ref_ned_m: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.ndarray,
-                   phases: list[tuple[float, float, bool]]) -> dict:  # fmt: skip
-    """The module docstring's figures of one flight's samples: ``phases`` are (start s, end s,
-    whether it is a hold) of the mission's own phases."""
-    err = np.linalg.norm(pos_ned_m - ref_ned_m, axis=1)
-    tilt = np.degrees(np.arccos(np.clip(np.cos(roll_rad) * np.cos(pitch_rad), -1, 1)))
+def _phases(summary: dict) -> list[tuple[float, float, bool]]:
+    """(start s, end s, whether it is a hold) of the mission's own phases in a summary.json."""
+    return [(p["start_s"], p["end_s"], p.get("steady_state_m") is not None)  # a hold has a steady state
+            for p in summary.get("phases", []) if p["name"] not in ("whole flight", "after 5 s")]  # fmt: skip
+
+
+def _positions(series: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(position, reference) NED of a series.csv, (n, 3) each."""
+    return (np.stack([series[f"pos_ned_m_{i}"] for i in range(3)], 1),
+            np.stack([series[f"ref_pos_ned_m_{i}"] for i in range(3)], 1))  # fmt: skip
+
+
+def phase_masks(t: np.ndarray, pos_ned_m: np.ndarray, ref_ned_m: np.ndarray,
+                phases: list[tuple[float, float, bool]]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(moving, hold) sample masks of the module docstring: the moving phases after 5 s without
+    their last 0.1 s, and the second half of every hold in the air."""
     # a hold in the air: its reference over half a metre above where the flight started (a hold
     # whose reference is the ground is a landing: its second half is the tail of the descent and
     # then standing on the ground, where neither the error nor the tilt says anything of a hold)
@@ -98,6 +118,20 @@ def flight_figures(t: np.ndarray, pos_ned_m: np.ndarray, ref_ned_m: np.ndarray, 
             hold |= (t >= start + (end - start) / 2) & (t < end) & aloft
         else:
             moving |= (t >= max(start, 5.0)) & (t < end - 0.1)
+    return moving, hold
+
+
+def _tilt_deg(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(np.cos(roll_rad) * np.cos(pitch_rad), -1, 1)))
+
+
+def flight_figures(t: np.ndarray, pos_ned_m: np.ndarray, ref_ned_m: np.ndarray, roll_rad: np.ndarray, pitch_rad: np.ndarray,
+                   phases: list[tuple[float, float, bool]]) -> dict:  # fmt: skip
+    """The module docstring's figures of one flight's samples: ``phases`` are (start s, end s,
+    whether it is a hold) of the mission's own phases."""
+    err = np.linalg.norm(pos_ned_m - ref_ned_m, axis=1)
+    tilt = _tilt_deg(roll_rad, pitch_rad)
+    moving, hold = phase_masks(t, pos_ned_m, ref_ned_m, phases)
     rms = lambda m: float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None  # noqa: E731
     return dict(moving_rms_m=rms(moving), hold_rms_m=rms(hold),
                 hold_tilt_max_deg=float(tilt[hold].max()) if hold.any() else None,
@@ -146,16 +180,19 @@ def fly_plant(mission: Path, run_dir: Path, *, controller: str | None, lockstep:
     return result
 
 
-def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: float = 1.0, fly_args: tuple[str, ...] = ()) -> dict:
+def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: float = 1.0, fly_args: tuple[str, ...] = (),
+            start_after_s: float = 0.0) -> dict:  # fmt: skip
     """One flight against a real PX4 SITL (``bench/px4sitl.py``), in real time or ``speed`` times
     faster (then on the vehicle's clock, ``offboard fly --clock vehicle``), with ``fly_args`` more
-    ``offboard fly`` options."""
+    ``offboard fly`` options, started ``start_after_s`` of PX4's clock after PX4 is ready (see
+    ``PX4_START_STAGGER_S``); with what SIH's truth says of its holds (``px4_hold_truth``)."""
     from bench.px4sitl import running_px4
 
     run_dir.mkdir(parents=True, exist_ok=True)
     extra = (() if controller is None else ("--controller", controller)) + (("--clock", "vehicle") if speed != 1.0 else ())
     extra += fly_args
     with running_px4(run_dir / "px4", speed=speed) as px4:
+        time.sleep(start_after_s / speed)
         fly = _fly(mission, run_dir, px4.api_listen_port, extra)
         try:
             _, err = fly.communicate(timeout=600)
@@ -164,7 +201,35 @@ def fly_px4(mission: Path, run_dir: Path, *, controller: str | None, speed: floa
                 fly.kill()
                 fly.wait()
     result = figures(run_dir) if (run_dir / "summary.json").is_file() else {"status": "no summary", "error": err[-300:]}
-    return {**result, "px4_sensors_stopped": px4_sensors_stopped(run_dir), "px4_setpoint_latency": px4_setpoint_latency(run_dir)}
+    return {**result, "px4_sensors_stopped": px4_sensors_stopped(run_dir), "px4_setpoint_latency": px4_setpoint_latency(run_dir),
+            **px4_hold_truth(run_dir), "start_after_s": start_after_s}  # fmt: skip
+
+
+def px4_hold_truth(run_dir: Path, px4_dir: Path | None = None) -> dict:
+    """What the simulator's own attitude says of a real-PX4 flight's holds (the log in ``px4_dir``,
+    by default ``fly_px4``'s ``run_dir/px4``): the largest true tilt in the second half of every hold in the air, at
+    the stamps of the ATTITUDE samples the flight read there (``hold_true_tilt_max_deg``), and the
+    mean of EKF2's roll and pitch (what ATTITUDE carries) less the truth's over the same samples
+    (``hold_attitude_error_deg``, degrees); both None without pyulog, the logs or a hold."""
+    from bench.px4_log import px4_ulog, true_roll_pitch
+
+    unknown = {"hold_true_tilt_max_deg": None, "hold_attitude_error_deg": None}
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+        d = np.genfromtxt(run_dir / "series.csv", delimiter=",", names=True)
+        t_us, roll, pitch = true_roll_pitch(px4_ulog(run_dir / "px4" if px4_dir is None else px4_dir))
+    except (OSError, ValueError, KeyError):
+        return unknown
+    if d.size < 2 or t_us.size < 2:
+        return unknown
+    pos, ref = _positions(d)
+    _, hold = phase_masks(d["t_s"], pos, ref, _phases(summary))
+    stamp_us = d["time_boot_ms"][hold] * 1000.0
+    if not hold.any() or stamp_us.min() < t_us[0] or stamp_us.max() > t_us[-1]:
+        return unknown
+    true_roll, true_pitch = np.interp(stamp_us, t_us, roll), np.interp(stamp_us, t_us, pitch)
+    error = [float(np.degrees(np.mean(d[f"euler_rad_{k}"][hold] - truth))) for k, truth in enumerate((true_roll, true_pitch))]
+    return {"hold_true_tilt_max_deg": float(_tilt_deg(true_roll, true_pitch).max()), "hold_attitude_error_deg": error}
 
 
 def px4_setpoint_latency(run_dir: Path) -> dict | None:
@@ -242,9 +307,11 @@ def run(*, quick: bool = False, px4: bool | None = None, say=print) -> dict:  # 
             for speed, condition in PX4_CONDITIONS:  # the helix again: how often its targets are met
                 row = {"vehicle": "real PX4", "mission": helix.name, "controller": "designed", "condition": condition}
                 repeats[condition] = [f for f in flights if all(f[key] == value for key, value in row.items())]
-                for _ in range(PX4_HELIX_FLIGHTS - len(repeats[condition])):
+                while len(repeats[condition]) < PX4_HELIX_FLIGHTS:
                     k += 1
-                    repeats[condition].append({**row, **fly_px4(helix, work / f"f{k}", controller=None, speed=speed)})
+                    later = len(repeats[condition]) * PX4_START_STAGGER_S  # each hold at other seconds of PX4's clock
+                    repeats[condition].append({**row, **fly_px4(helix, work / f"f{k}", controller=None, speed=speed,
+                                                                start_after_s=later)})  # fmt: skip
                 say(f"design: real PX4 {helix.name} designed {condition}, {len(repeats[condition])} flights: "
                     + repeat_summary(repeats[condition])[-1])  # fmt: skip
     return {"flights": flights, "repeats": repeats, "px4": bool(px4), "work_dir": str(work)}
@@ -324,8 +391,10 @@ def _repeat_lines(repeats: dict[str, list[dict]]) -> list[str]:
     out = [f"- {condition}, {len(flights)} flights: {repeat_summary(flights)[-1]}" for condition, flights in repeats.items()
            if flights]  # fmt: skip
     if out:
-        out = ["", "The real-PX4 helix with the designed law flown again (each flight on a fresh PX4; the table's "
-               "flight is the first): how many of the flights met issue 11's targets, with the ranges:", "", *out]  # fmt: skip
+        out = ["", "The real-PX4 helix with the designed law flown again (each flight on a fresh PX4, started "
+               f"{PX4_START_STAGGER_S:g} s of PX4's clock later than the one before; the table's flight is the first): how "
+               "many of the flights met issue 11's targets, with the ranges, and how many held within 5 deg by SIH's true "
+               "attitude (PX4's log):", "", *out]  # fmt: skip
     return out
 
 
@@ -406,7 +475,7 @@ def repeat_summary(flights: list[dict]) -> list[str]:
         lines.append(f"{i:2d}  {f.get('status')}  moving RMS {_f(f.get('moving_rms_m'), '.3f')} m  hold tilt "
                      f"{_f(f.get('hold_tilt_max_deg'), '.2f')} deg  " + ("met" if not misses else "not met: " + ", ".join(misses))
                      + (f" ({SENSORS_STOPPED})" if f.get("px4_sensors_stopped") else "")
-                     + _latency_words(f.get("px4_setpoint_latency")))  # fmt: skip
+                     + _latency_words(f.get("px4_setpoint_latency")) + _truth_words(f))  # fmt: skip
     limit_m, limit_tilt = PX4_TARGET
 
     def count(values: list, limit: float) -> str:
@@ -417,10 +486,23 @@ def repeat_summary(flights: list[dict]) -> list[str]:
     moving = [f.get("moving_rms_m") for f in flights]
     tilts = [f.get("hold_tilt_max_deg") for f in flights]
     stopped = sum(bool(f.get("px4_sensors_stopped")) for f in flights)
+    true_tilts = [f.get("hold_true_tilt_max_deg") for f in flights]
     lines.append(f"moving RMS <= {limit_m:g} m: {count(moving, limit_m)}; holds within {limit_tilt:g} deg: "
                  f"{count(tilts, limit_tilt)}; every target met: {sum(not _misses(f) for f in flights)} of {len(flights)}"
-                 + (f" ({stopped} with {SENSORS_STOPPED})" if stopped else ""))  # fmt: skip
+                 + (f" ({stopped} with {SENSORS_STOPPED})" if stopped else "")
+                 + (f"; by SIH's true attitude, holds within {limit_tilt:g} deg: {count(true_tilts, limit_tilt)}"
+                    if any(v is not None for v in true_tilts) else ""))  # fmt: skip
     return lines
+
+
+def _truth_words(f: dict) -> str:
+    """A real-PX4 flight's hold by SIH's truth (``px4_hold_truth``), and when it started; "" where unknown."""
+    started = f" (started {f['start_after_s']:g} s of PX4's clock after it was ready)" if f.get("start_after_s") else ""
+    if f.get("hold_true_tilt_max_deg") is None or not f.get("hold_attitude_error_deg"):
+        return started
+    roll, pitch = f["hold_attitude_error_deg"]
+    return (f"; SIH's true attitude: hold tilt {f['hold_true_tilt_max_deg']:.2f} deg, EKF2's roll {roll:+.2f} deg and "
+            f"pitch {pitch:+.2f} deg off it on average" + started)
 
 
 #: What PX4 v1.16 SITL prints when its simulated barometer (with the GPS, magnetometer and battery)
@@ -436,7 +518,7 @@ def px4_sensors_stopped(run_dir: Path) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python bench/design.py --px4-repeat N [--speed F] [--mission FILE] [-- OFFBOARD FLY OPTIONS]``: the same real-PX4
+    """``python bench/design.py --px4-repeat N [--speed F] [--mission FILE] [--stagger S] [-- OFFBOARD FLY OPTIONS]``: the same real-PX4
     flight of the designed law N times (a fresh PX4 each), each judged against issue 11's targets:
     how often a flight meets them, where one ``make bench`` run flies it once."""
     import argparse
@@ -448,11 +530,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--px4-repeat", type=int, required=True, metavar="N", help="flights (each on a fresh PX4 SITL)")
     parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL --speed (default: real time)")
     parser.add_argument("--mission", default="paper-helix.toml", choices=FLY_MISSIONS, help="a bundled mission")
+    parser.add_argument("--stagger", type=float, default=PX4_START_STAGGER_S, metavar="S",
+                        help=f"start each flight S s of PX4's clock later than the one before, the first at once "
+                             f"(default: {PX4_START_STAGGER_S:g}, as make bench: EKF2's errors follow PX4's clock)")
     parser.add_argument("fly_args", nargs="*", metavar="-- OFFBOARD FLY OPTIONS",
                         help="more offboard fly options for every flight (after --), e.g. -- --clock vehicle")
     args = parser.parse_args(argv)
-    if args.px4_repeat < 1 or not args.speed > 0:
-        parser.error("--px4-repeat must be >= 1 and --speed > 0")
+    if args.px4_repeat < 1 or not args.speed > 0 or not 0 <= args.stagger < float("inf"):
+        parser.error("--px4-repeat must be >= 1, --speed > 0 and --stagger >= 0")
     if px4_launcher() is None:
         print(f"design: {SKIP_REASON}", file=sys.stderr)
         return 2
@@ -463,7 +548,8 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.px4_repeat):
         run_dir = folder / f"flight-{i + 1}"
         try:
-            result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed, fly_args=tuple(args.fly_args))
+            result = fly_px4(MISSIONS / args.mission, run_dir, controller=None, speed=args.speed, fly_args=tuple(args.fly_args),
+                             start_after_s=i * args.stagger)  # fmt: skip
         except KeyboardInterrupt:  # the flight's PX4 and offboard are stopped on the way out
             print(f"design: interrupted in flight {i + 1}; the flights so far are in {folder}", file=sys.stderr)
             return 130

@@ -40,6 +40,7 @@ if str(ROOT) not in sys.path:
 
 from offboard.echo import latency_figures as echo_latency_figures  # noqa: E402
 from offboard import jsonout  # noqa: E402
+from offboard.model.rotations import euler_from_quat_floats  # noqa: E402
 
 #: How long after the stamp it answers a setpoint may reach PX4 and still be paired with a record, ms.
 WINDOW_MS = 500.0
@@ -107,22 +108,37 @@ def sent_setpoints(flight_tlog: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps), np.array(quats, dtype=np.float32).reshape(-1, 4)
 
 
-def logged_setpoints(ulog: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(timestamps us, q_d) of ``vehicle_attitude_setpoint`` in a PX4 log; ValueError (one line)
-    for a file that is not one, or without pyulog."""
+def _topic(ulog: Path, name: str) -> dict:
+    """The fields of one uORB topic's first instance in a PX4 log; ValueError (one line) for a file
+    that is not one, a log without the topic, or without pyulog."""
     try:
         from pyulog import ULog
         from pyulog.exceptions import ULogException
     except ImportError:
         raise ValueError("reading PX4's log needs pyulog (make bench and make test install it)") from None
     try:
-        data = ULog(str(ulog), ["vehicle_attitude_setpoint"]).data_list
+        data = ULog(str(ulog), [name]).data_list
     except (ULogException, EOFError) as exc:
         raise ValueError(f"{ulog}: not a PX4 log (ULog): {exc}") from None
     if not data:
-        raise ValueError(f"{ulog}: no vehicle_attitude_setpoint in PX4's log")
-    d = data[0].data
+        raise ValueError(f"{ulog}: no {name} in PX4's log")
+    return data[0].data
+
+
+def logged_setpoints(ulog: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps us, q_d) of ``vehicle_attitude_setpoint`` in a PX4 log; ValueError (one line)
+    for a file that is not one, or without pyulog."""
+    d = _topic(ulog, "vehicle_attitude_setpoint")
     return np.asarray(d["timestamp"], dtype=float), np.stack([d[f"q_d[{k}]"] for k in range(4)], axis=1).astype(np.float32)
+
+
+def true_roll_pitch(ulog: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(timestamps us, roll rad, pitch rad) of the simulator's own attitude in a PX4 SITL's log
+    (``vehicle_attitude_groundtruth``: SIH's truth, not EKF2's estimate, which ATTITUDE carries),
+    on the clock of ATTITUDE's ``time_boot_ms``; ValueError (one line) as ``logged_setpoints``."""
+    d = _topic(ulog, "vehicle_attitude_groundtruth")
+    euler = np.array([euler_from_quat_floats(*q) for q in zip(*(np.asarray(d[f"q[{k}]"], dtype=float) for k in range(4)))])
+    return np.asarray(d["timestamp"], dtype=float), euler[:, 0], euler[:, 1]
 
 
 def setpoint_latencies_ms(flight_tlog: Path, px4_dir: Path) -> np.ndarray:
