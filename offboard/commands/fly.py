@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TextIO
 
 from offboard.controller import PAPER_CONTROLLER_FILE, load_controller
+from offboard.controller.design import SENSITIVITY_PEAK
 from offboard.controllers import ControllerKind
 from offboard.model.vehicle import VEHICLE_MODELS
 
@@ -115,6 +116,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "TIMESYNC round trip plus one telemetry period)")
     ctl.add_argument("--no-integral", action="store_true",
                      help="design the gains without the law's velocity integral (docs/controller-design.md)")
+    ctl.add_argument("--sensitivity-peak", type=float, default=None, metavar="MS",
+                     help="design the gains for at most this max |1/(1+L)| (> 1; 'inf' for no bound; default: "
+                          "offboard tune's, 1.6): lower is a gentler loop that follows the vehicle's estimator "
+                          "errors less and the reference less tightly (docs/controller-design.md)")
     ctl.add_argument("--no-predict", action="store_true",
                      help="hand the designed law the measured state, the gains designed for the latency (default, "
                           "with the attitude output and a latency: the state predicted over the latency by the "
@@ -162,6 +167,8 @@ def _check(args: argparse.Namespace) -> None:
         raise FlyArgumentError(f"--telemetry-rate: must be >= 0, got {args.telemetry_rate}")
     if args.clock == "vehicle" and args.lockstep:
         raise FlyArgumentError("--clock vehicle: not with --lockstep (which samples on every telemetry burst)")
+    if args.sensitivity_peak is not None and not args.sensitivity_peak > 1.0:  # inf: no bound; NaN refused
+        raise FlyArgumentError(f"--sensitivity-peak: must be > 1 ('inf' for no bound), got {args.sensitivity_peak}")
     if args.design_latency is not None and not (math.isfinite(args.design_latency) and 0 <= args.design_latency < 10):
         raise FlyArgumentError(f"--design-latency: must be a latency in [0, 10) s, got {args.design_latency}")
     if args.thrust_min is not None and not (math.isfinite(args.thrust_min) and 0 <= args.thrust_min < 1):
@@ -282,14 +289,19 @@ def run(args: argparse.Namespace) -> int:
     base = load_controller(args.controller if from_file else PAPER_CONTROLLER_FILE)
     args.output = flown_output(args.output, base.setpoint_output, args.controller if from_file else None)
     latency = 0.0 if args.lockstep and args.design_latency is None else args.design_latency
+    # the design models an autopilot's attitude loop (the attitude output) or its rate loop (the
+    # rates output) on a rigid body; the paper model's own inner loop and the actuator output fly
+    # the paper's gains
+    tuned = args.controller is None and args.model == "rigid-body" and args.output in ("attitude", "rates")
+    if args.sensitivity_peak is not None and not tuned:
+        raise FlyArgumentError("--sensitivity-peak: only for the gains offboard fly designs (no --controller, "
+                               "--model rigid-body, the attitude or rates output)")
     choice = ControllerChoice(
         base=base,
         kind=kind,
         from_file=from_file,
-        # the design models an autopilot's attitude loop (the attitude output) or its rate loop (the
-        # rates output) on a rigid body; the paper model's own inner loop and the actuator output
-        # fly the paper's gains
-        tuned=args.controller is None and args.model == "rigid-body" and args.output in ("attitude", "rates"),
+        tuned=tuned,
+        sensitivity_peak=SENSITIVITY_PEAK if args.sensitivity_peak is None else args.sensitivity_peak,
         latency_s=latency,
         mass_from_vehicle=args.mass_from_vehicle,
         yaw_aware=args.yaw_aware,

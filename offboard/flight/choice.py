@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from offboard import codec
 from offboard.codec import Scaling, SetpointOutput
 from offboard.controller import ControllerParams
+from offboard.controller.design import SENSITIVITY_PEAK, MarginSpec
 from offboard.controller.tuning import AUTOPILOT_PARAMS, SIH_PARAMS, design_for_vehicle, design_summary, tuned_params, vehicle_values
 from offboard.controllers import CONTROLLER_KINDS, ControllerKind
 from offboard.flight.config import FlightConfig, HeadingHoldMode
@@ -58,6 +59,8 @@ class ControllerChoice:
         plus one telemetry period (0 in lockstep, where the vehicle waits for each setpoint).
     velocity_integral : bool
         With ``tuned``: design the law's velocity integral too (``--no-integral``: without).
+    sensitivity_peak : float
+        With ``tuned``: the design's bound on max |1/(1+L)| (``--sensitivity-peak``; inf: none).
     body_rates : bool
         With ``tuned``: design for a body-rate output (``--output rates``: the law closes the
         attitude loop, its kx7..kx10 designed too).
@@ -85,6 +88,7 @@ class ControllerChoice:
     thrust_min_fraction: float | None = None
     sample_time_s: float | None = None
     velocity_integral: bool = True
+    sensitivity_peak: float = SENSITIVITY_PEAK
     body_rates: bool = False
     predict: bool = True
     observe: bool = True
@@ -226,7 +230,8 @@ def resolve_controller(
         try:
             design = design_for_vehicle(vehicle, sample_time_s=params.sample_time_s, latency_s=choice.latency_s or 0.0,
                                         velocity_integral=choice.velocity_integral, body_rates=choice.body_rates,
-                                        predict=choice.predicts, observe=choice.observes)  # fmt: skip
+                                        predict=choice.predicts, observe=choice.observes,
+                                        spec=MarginSpec(sensitivity_peak=choice.sensitivity_peak))  # fmt: skip
         except KeyError as exc:
             raise ValueError(f"cannot design the gains: {exc.args[0]}; fly a controller file (offboard tune "
                              "--params FILE writes one) or --controller paper") from None

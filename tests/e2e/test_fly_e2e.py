@@ -228,6 +228,9 @@ def test_lockstep_against_a_real_time_plant_says_the_plant_is_not_in_lockstep(tm
         (("--connect", "nonsense"), "expected a pymavlink connection string"),
         (("--controller", "/nonexistent.toml"), "/nonexistent.toml: no such file"),
         (("--design-latency", "-0.1"), "--design-latency: must be a latency in [0, 10) s"),
+        (("--sensitivity-peak", "1"), "--sensitivity-peak: must be > 1 ('inf' for no bound), got 1.0"),
+        (("--sensitivity-peak", "nan"), "--sensitivity-peak: must be > 1"),
+        (("--sensitivity-peak", "1.3", "--controller", "paper"), "--sensitivity-peak: only for the gains offboard fly designs"),
     ],
 )
 def test_bad_arguments_are_one_line(tmp_path, args, expected):
@@ -284,6 +287,27 @@ def test_the_default_flight_designs_its_gains_and_holds_without_a_limit_cycle(tm
     # and the flown tilt stays inside the 35 deg limit for the whole flight (Table I: 47 deg, its
     # per-angle bounds; the designed law without the yaw-rate bound: 40 deg at the pi yaw step)
     assert figures["tuned"][3] <= 35.0 < figures["paper"][3]
+
+
+def test_a_gentler_loop_is_designed_for_the_sensitivity_peak_asked(tmp_path):
+    """--sensitivity-peak MS designs the flight's gains as offboard tune --sensitivity-peak MS does:
+    a lower peak is a slower loop (docs/controller-design.md: on PX4 SIH it follows EKF2's errors
+    less and the helix less tightly)."""
+    from offboard.controller.design import MarginSpec
+    from offboard.controller.tuning import design_for_vehicle, vehicle_values
+    from sitl_plant.params import plant_params
+
+    flown = fly(tmp_path, HELIX, fly_args=("--sensitivity-peak", "1.3"))
+    assert flown.returncode == 0, flown.stderr
+    table = plant_params(load_vehicle(PAPER_VEHICLE_FILE))
+    values = vehicle_values({n: table[n] for n in table})
+    gentle = design_for_vehicle(values, sample_time_s=0.05, spec=MarginSpec(sensitivity_peak=1.3))
+    usual = design_for_vehicle(values, sample_time_s=0.05)
+    gains = flown.summary["controller"]["gains"]
+    assert (gains["kx1"], gains["kx2"], gains["kx5"], gains["kx6"]) == pytest.approx(
+        (gentle.horizontal.k_pos, gentle.horizontal.k_vel, gentle.vertical.k_pos, gentle.vertical.k_vel))
+    assert gentle.horizontal.k_pos > usual.horizontal.k_pos  # slower: more of the error kept a sample
+    assert "sensitivity peak 1.3" in flown.stderr
 
 
 def test_the_px4_sih_twin_is_flown_with_its_drag(tmp_path):
