@@ -14,7 +14,7 @@ The mission starts at the arm's ACK; its references are flown in PX4's local fra
 (as ``offboard fly`` flies a TOML mission), and each sample records the latest estimate and
 ATTITUDE before it is sent (as ``offboard fly``'s series.csv does).
 
-    python bench/px4_own.py [--speed F] [--mission FILE] [--repeat N]
+    python bench/px4_own.py [--speed F] [--mission FILE] [--repeat N] [--start-after S]
 
 Needs a PX4 SITL (``$PX4_SITL`` or ``../shared/px4-sitl/px4-sitl``); says so in one line without.
 ``make bench``'s design part flies it beside the law (rows ``px4-own``).
@@ -172,8 +172,10 @@ def figures(flight: OwnFlight, trajectory) -> dict:  # noqa: ANN001 - a Trajecto
                                     rp[:, 0], rp[:, 1], phases)}  # fmt: skip
 
 
-def fly_px4_own(mission: Path, folder: Path, speed: float = 1.0) -> dict:
-    """One flight of ``mission`` on a fresh PX4 SITL with PX4's own controller: ``figures``.
+def fly_px4_own(mission: Path, folder: Path, speed: float = 1.0, start_after_s: float = 0.0) -> dict:
+    """One flight of ``mission`` on a fresh PX4 SITL with PX4's own controller, started
+    ``start_after_s`` of PX4's clock after PX4 is ready (EKF2's errors follow PX4's clock:
+    ``bench.design.PX4_START_STAGGER_S``): ``figures``.
 
     Raises
     ------
@@ -184,6 +186,7 @@ def fly_px4_own(mission: Path, folder: Path, speed: float = 1.0) -> dict:
 
     trajectory = load_mission(mission).trajectory
     with running_px4(folder / "px4", speed=speed) as px4:
+        time.sleep(start_after_s / speed)
         vehicle = _Vehicle(px4.api_listen_port)
         try:
             flight = fly(trajectory, vehicle, speed)
@@ -197,9 +200,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speed", type=float, default=1.0, help="PX4 SITL's --speed (default 1: real time)")
     parser.add_argument("--mission", type=Path, default=MISSIONS / "paper-helix.toml", help="a TOML mission (default the paper helix)")
     parser.add_argument("--repeat", type=int, default=1, help="flights, each on a fresh PX4 (default 1)")
+    parser.add_argument("--start-after", type=float, default=0.0, metavar="S",
+                        help="start each flight S s of PX4's clock after PX4 is ready (default 0): its hold then "
+                             "falls on other seconds of PX4's clock, whose EKF2 errors are other ones")
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error(f"--repeat must be at least 1, got {args.repeat}")
+    if not (math.isfinite(args.start_after) and args.start_after >= 0):
+        parser.error(f"--start-after must be >= 0, got {args.start_after}")
     if not (math.isfinite(args.speed) and args.speed > 0):
         parser.error(f"--speed must be > 0, got {args.speed}")
     from offboard.errors import UserError
@@ -215,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     work = Path(tempfile.mkdtemp(prefix="bench-px4-own-"))
     for k in range(args.repeat):
-        f = fly_px4_own(args.mission, work / f"flight-{k + 1}", args.speed)
+        f = fly_px4_own(args.mission, work / f"flight-{k + 1}", args.speed, args.start_after)
         print(f"{args.mission.name} --speed {args.speed:g} flight {k + 1}: {f['status']}; moving RMS "
               f"{_f(f.get('moving_rms_m'), '.3f')} m, hold tilt max {_f(f.get('hold_tilt_max_deg'), '.2f')} deg, "
               f"hold RMS {_f(f.get('hold_rms_m'), '.3f')} m, peak tilt {_f(f.get('peak_tilt_deg'), '.1f')} deg", flush=True)

@@ -65,7 +65,18 @@ def test_a_bad_mission_or_argument_is_one_line_before_any_px4_starts(tmp_path, c
     assert len(err) == 1 and err[0].startswith("px4_own: ") and "bad.toml" in err[0] and "TOML" in err[0]
     assert main(["--mission", str(tmp_path / "missing.toml")]) == 2
     assert "no such file" in capsys.readouterr().err
-    for args in (["--repeat", "0"], ["--speed", "-1"], ["--speed", "nan"]):
+    for args in (["--repeat", "0"], ["--speed", "-1"], ["--speed", "nan"], ["--start-after", "-1"], ["--start-after", "inf"]):
         with pytest.raises(SystemExit) as exit_:
             main(args)
         assert exit_.value.code == 2 and args[0] in capsys.readouterr().err
+
+
+def test_each_flight_starts_when_asked(monkeypatch, tmp_path, capsys):
+    import bench.px4_own as px4_own
+
+    flown = []
+    monkeypatch.setattr(px4_own, "px4_launcher", lambda: "px4")
+    monkeypatch.setattr(px4_own.tempfile, "mkdtemp", lambda prefix: str(tmp_path))
+    monkeypatch.setattr(px4_own, "fly_px4_own", lambda mission, folder, speed, start_after_s: flown.append((speed, start_after_s)) or {"status": "complete"})
+    assert main(["--speed", "4", "--repeat", "2", "--start-after", "33"]) == 0
+    assert flown == [(4.0, 33.0)] * 2
