@@ -218,17 +218,17 @@ def px4_hold_truth(run_dir: Path, px4_dir: Path | None = None) -> dict:
         summary = json.loads((run_dir / "summary.json").read_text())
         d = np.genfromtxt(run_dir / "series.csv", delimiter=",", names=True)
         t_us, roll, pitch = true_roll_pitch(px4_ulog(run_dir / "px4" if px4_dir is None else px4_dir))
-    except (OSError, ValueError, KeyError):
+        if d.size < 2 or t_us.size < 2:
+            return unknown
+        pos, ref = _positions(d)
+        _, hold = phase_masks(d["t_s"], pos, ref, _phases(summary))
+        stamp_us, read_roll, read_pitch = d["time_boot_ms"][hold] * 1000.0, d["euler_rad_0"][hold], d["euler_rad_1"][hold]
+    except (OSError, ValueError, KeyError):  # ValueError: also a series without a column read here
         return unknown
-    if d.size < 2 or t_us.size < 2:
-        return unknown
-    pos, ref = _positions(d)
-    _, hold = phase_masks(d["t_s"], pos, ref, _phases(summary))
-    stamp_us = d["time_boot_ms"][hold] * 1000.0
     if not hold.any() or stamp_us.min() < t_us[0] or stamp_us.max() > t_us[-1]:
         return unknown
     true_roll, true_pitch = np.interp(stamp_us, t_us, roll), np.interp(stamp_us, t_us, pitch)
-    error = [float(np.degrees(np.mean(d[f"euler_rad_{k}"][hold] - truth))) for k, truth in enumerate((true_roll, true_pitch))]
+    error = [float(np.degrees(np.mean(read - truth))) for read, truth in ((read_roll, true_roll), (read_pitch, true_pitch))]
     return {"hold_true_tilt_max_deg": float(_tilt_deg(true_roll, true_pitch).max()), "hold_attitude_error_deg": error}
 
 

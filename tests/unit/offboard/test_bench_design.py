@@ -212,6 +212,21 @@ def test_without_a_px4_log_the_holds_truth_is_unknown(tmp_path):
     assert design.px4_hold_truth(tmp_path / "missing") == {"hold_true_tilt_max_deg": None, "hold_attitude_error_deg": None}
 
 
+def test_a_series_without_the_vehicles_stamps_has_no_truth(tmp_path, monkeypatch):
+    import numpy as np
+
+    import bench.design as design
+    import bench.px4_log as px4_log
+
+    _flight_with_a_hold(tmp_path / "run", lambda t: 0 * t, lambda t: 0 * t)
+    series = tmp_path / "run" / "series.csv"
+    header, *rows = series.read_text().splitlines()
+    series.write_text("\n".join([header.replace("time_boot_ms", "other"), *rows]) + "\n")
+    truth_s = np.arange(0.0, 40.0, 0.004)
+    monkeypatch.setattr(px4_log, "true_roll_pitch", lambda ulog: (truth_s * 1e6, 0 * truth_s, 0 * truth_s))
+    assert design.px4_hold_truth(tmp_path / "run") == {"hold_true_tilt_max_deg": None, "hold_attitude_error_deg": None}
+
+
 def test_sihs_attitude_is_read_from_its_quaternion(monkeypatch):
     import numpy as np
 
